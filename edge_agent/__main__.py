@@ -1,0 +1,55 @@
+"""``edge-agent``: relay the arms of one network interface into the fleet's key space."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+
+from edge_agent.agent import EdgeAgent
+from fleet.inventory import InventoryError
+from fleet.runtime import (
+    add_inventory_options,
+    inventory_from_args,
+    setup_logging,
+    shutdown_event,
+    wait_for,
+)
+from fleet.wire.session import RouterUnreachable
+
+log = logging.getLogger("edge_agent")
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="edge-agent", description=__doc__)
+    add_inventory_options(parser)
+    which = parser.add_mutually_exclusive_group(required=True)
+    which.add_argument("--arm", action="append", help="arm id to serve (repeatable)")
+    which.add_argument("--interface", help="serve every arm of the inventory on this interface")
+    return parser.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run until SIGINT/SIGTERM. Exit 0 on a clean stop, 2 on a configuration error."""
+    args = parse_args(argv)
+    setup_logging(args.log_level)
+    stop = shutdown_event()
+    try:
+        inventory = inventory_from_args(args)
+        arms = args.arm or [a.id for a in inventory.arms.values() if a.interface == args.interface]
+        if not arms:
+            raise InventoryError(f"{inventory.path}: no arm uses interface {args.interface!r}")
+        agent = EdgeAgent(inventory, arms)
+    except (InventoryError, RouterUnreachable, ValueError) as exc:
+        print(f"edge-agent: {exc}", file=sys.stderr)
+        return 2
+    with agent:
+        agent.start()
+        log.info("serving arms %s of fleet %r", ", ".join(arms), inventory.fleet)
+        wait_for(stop)
+    log.info("stopped")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,285 @@
+"""The edge agent: relays one network's D1 arms into the key space and serves their commands.
+
+Threads (all ours, all named):
+- ``dds-feedback`` (DdsLink): decodes feedback, updates the trackers, publishes joints/status
+  and completes commands whose acks or targets arrived;
+- ``commands``: takes queries off the relay's queue, checks them, assigns seqs, writes DDS;
+- ``housekeeping`` (20 Hz): link state, command deadlines, periodic status and diag.
+``_lock`` guards the trackers and the in-flight table; it is never held across a DDS write, a
+Zenoh put or a reply: state is copied under the lock and the I/O happens after.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+from dataclasses import dataclass, field
+
+import msgspec
+import zenoh
+
+from edge_agent.commands import InFlight, Refused, plan
+from edge_agent.link import DdsLink
+from edge_agent.relay import JSON, IncomingQuery, ZenohRelay
+from edge_agent.tracker import ArmTracker
+from fleet.d1 import protocol as p
+from fleet.d1.seq import SeqAllocator
+from fleet.inventory import Inventory
+from fleet.wire import messages as m
+from fleet.wire.messages import ErrorCode, ErrorInfo, encode
+
+log = logging.getLogger("edge_agent")
+
+HOUSEKEEPING_PERIOD_S = 0.05
+STATUS_PERIOD_S = 1.0
+"""Status and diag are re-published every second so late joiners learn them."""
+
+
+@dataclass
+class _ArmSlot:
+    tracker: ArmTracker
+    seqs: SeqAllocator = field(default_factory=SeqAllocator)
+    in_flight: dict[int, tuple[InFlight, zenoh.Query]] = field(default_factory=dict)
+    joints_seq: int = 0
+
+
+@dataclass
+class _Outbox:
+    """I/O collected under the lock, performed after it is released."""
+
+    puts: list[tuple[zenoh.Publisher, bytes | str]] = field(default_factory=list)
+    replies: list[tuple[zenoh.Query, m.CommandReply]] = field(default_factory=list)
+
+
+def serving_slot(inventory: Inventory, arm_ids: list[str]) -> tuple[int, str, tuple[str, ...]]:
+    """The one (domain, interface, peers) the arms share; one agent process per network card."""
+    arms = [inventory.arm(a) for a in arm_ids]
+    slots = {(inventory.domain_of(a), a.interface, inventory.peers_of(a)) for a in arms}
+    if len(slots) != 1:
+        raise ValueError(
+            "these arms are on different DDS domains or interfaces: run one edge-agent per "
+            f"network interface ({', '.join(f'{a.id}: {a.interface}' for a in arms)})"
+        )
+    return slots.pop()
+
+
+class EdgeAgent:
+    """Serves the arms ``arm_ids`` of ``inventory``. A context manager."""
+
+    def __init__(self, inventory: Inventory, arm_ids: list[str]) -> None:
+        domain_id, interface, peers = serving_slot(inventory, arm_ids)
+        self.inventory = inventory
+        self._lock = threading.Lock()
+        self._slots = {a: _ArmSlot(ArmTracker(inventory.arm(a))) for a in arm_ids}
+        self._stop = threading.Event()
+        suffixes = {a: inventory.arm(a).suffix for a in arm_ids}
+        # DDS first: if the interface is wrong we fail before announcing anything on Zenoh.
+        self.link = DdsLink(domain_id, interface, peers, suffixes, self._on_feedback)
+        try:
+            self.relay = ZenohRelay(inventory.fleet, arm_ids, inventory.endpoints)
+        except BaseException:
+            self.link.close()
+            raise
+        self._threads = [
+            threading.Thread(
+                target=self._guarded(self._command_loop), name="commands", daemon=True
+            ),
+            threading.Thread(
+                target=self._guarded(self._housekeeping_loop), name="housekeeping", daemon=True
+            ),
+        ]
+
+    def start(self) -> EdgeAgent:
+        """Start relaying and serving commands."""
+        self.link.start()
+        for thread in self._threads:
+            thread.start()
+        return self
+
+    def _guarded(self, loop):  # type: ignore[no-untyped-def]
+        def run() -> None:
+            try:
+                loop()
+            except BaseException:
+                log.exception("thread %s failed", threading.current_thread().name)
+                raise
+
+        return run
+
+    # ------------------------------------------------------------------ feedback (DDS thread)
+
+    def _on_feedback(self, arm: str, text: str, now: float) -> None:
+        stamp_ns = time.time_ns()
+        pubs = self.relay.publishers[arm]
+        out = _Outbox(puts=[(pubs.raw_feedback, text)])
+        with self._lock:
+            slot = self._slots[arm]
+            tracker = slot.tracker
+            decoded = tracker.on_feedback(text, now)
+            status_changed = tracker.update_link(now)
+            if decoded is not None:
+                message = decoded.message
+                if isinstance(message, p.JointAngles):
+                    slot.joints_seq += 1
+                    joints = m.Joints(stamp_ns, list(message.angles_deg), slot.joints_seq)
+                    out.puts.append((pubs.joints, encode(joints)))
+                    for flight, _query in slot.in_flight.values():
+                        flight.on_angles(message.angles_deg)
+                elif isinstance(message, (p.ReceiveAck, p.ExecuteAck)):
+                    entry = slot.in_flight.get(message.seq)
+                    if entry is not None:
+                        entry[0].on_ack(message)
+                else:
+                    status_changed = True
+            if status_changed:
+                out.puts.append((pubs.status, encode(tracker.status(now, stamp_ns))))
+            self._collect_finished(slot, now, out)
+        self._flush(out)
+
+    # ------------------------------------------------------------------ commands
+
+    def _command_loop(self) -> None:
+        while not self._stop.is_set():
+            try:
+                item = self.relay.commands.get(timeout=0.2)
+            except queue.Empty:
+                continue
+            self._handle(item)
+
+    def _handle(self, item: IncomingQuery) -> None:
+        now = time.monotonic()
+        slot = self._slots[item.arm]
+        try:
+            command = m.command_decoder.decode(item.payload)
+        except msgspec.DecodeError as exc:
+            with self._lock:
+                slot.tracker.rejected += 1
+                slot.tracker.last_error = f"bad command payload: {exc}"
+            self._refuse(item, ErrorCode.PARAMETER, f"bad command payload: {exc}", now)
+            return
+        texts: list[str] = []
+        with self._lock:
+            tracker = slot.tracker
+            tracker.commands += 1
+            try:
+                planned = plan(command, tracker)
+            except Refused as exc:
+                tracker.rejected += 1
+                tracker.last_error = str(exc)
+                refused: Refused | None = exc
+            else:
+                refused = None
+                seqs = tuple(slot.seqs.allocate() for _ in planned.commands)
+                texts = [
+                    p.encode_command(c, s) for c, s in zip(planned.commands, seqs, strict=False)
+                ]
+                config = tracker.config
+                flight = InFlight(
+                    arm=item.arm,
+                    seqs=seqs,
+                    started_s=now,
+                    recv_deadline_s=now + config.recv_ack_timeout_s,
+                    exec_deadline_s=now + config.exec_ack_timeout_s,
+                    reach_deadline_s=now + command.timeout_s if command.wait_reached else None,
+                    targets_deg=planned.targets_deg,
+                    tolerance_deg=command.tolerance_deg,
+                )
+                for seq in seqs:
+                    slot.in_flight[seq] = (flight, item.query)
+        if refused is not None:
+            self._refuse(item, refused.code, str(refused), now)
+            return
+        pubs = self.relay.publishers[item.arm]
+        for text in texts:
+            if not self.link.write(item.arm, text):
+                with self._lock:
+                    flight._fail(ErrorCode.SEND_FAILED, "the DDS write failed (maybe sent)")
+            pubs.raw_command.put(text)
+
+    def _refuse(self, item: IncomingQuery, code: ErrorCode, message: str, started: float) -> None:
+        reply = m.CommandReply(
+            ok=False,
+            arm=item.arm,
+            seq=None,
+            received=False,
+            executed=None,
+            reached=None,
+            latency_ms=round((time.monotonic() - started) * 1000.0, 3),
+            error=ErrorInfo(int(code), message),
+        )
+        self._flush(_Outbox(replies=[(item.query, reply)]))
+
+    # ------------------------------------------------------------------ housekeeping
+
+    def _housekeeping_loop(self) -> None:
+        next_status = 0.0
+        while not self._stop.wait(HOUSEKEEPING_PERIOD_S):
+            now = time.monotonic()
+            stamp_ns = time.time_ns()
+            periodic = now >= next_status
+            if periodic:
+                next_status = now + STATUS_PERIOD_S
+            out = _Outbox()
+            with self._lock:
+                for arm, slot in self._slots.items():
+                    tracker = slot.tracker
+                    pubs = self.relay.publishers[arm]
+                    if tracker.update_link(now) or periodic:
+                        out.puts.append((pubs.status, encode(tracker.status(now, stamp_ns))))
+                    if periodic:
+                        out.puts.append((pubs.diag, encode(tracker.diag(now, stamp_ns))))
+                    for flight, _query in list(slot.in_flight.values()):
+                        flight.on_time(now, tracker.angles_deg)
+                    self._collect_finished(slot, now, out)
+            self._flush(out)
+
+    def _collect_finished(self, slot: _ArmSlot, now: float, out: _Outbox) -> None:
+        """Move finished commands from the in-flight table to ``out`` (caller holds the lock)."""
+        finished: dict[int, tuple[InFlight, zenoh.Query]] = {}
+        for seq, (flight, query) in list(slot.in_flight.items()):
+            if flight.done:
+                del slot.in_flight[seq]
+                slot.seqs.release(seq)
+                finished[id(flight)] = (flight, query)
+        for flight, query in finished.values():
+            reply = flight.reply(now)
+            if reply.error is not None:
+                slot.tracker.last_error = reply.error.message
+                if reply.error.code == ErrorCode.TIMEOUT:
+                    slot.tracker.ack_timeouts += 1
+            out.replies.append((query, reply))
+
+    def _flush(self, out: _Outbox) -> None:
+        for publisher, payload in out.puts:
+            publisher.put(payload)
+        for query, reply in out.replies:
+            query.reply(query.key_expr, encode(reply), encoding=JSON)
+            query.drop()
+
+    # ------------------------------------------------------------------ state access
+
+    def tracker(self, arm: str) -> ArmTracker:
+        """The tracker of ``arm`` (read it under no assumption of consistency)."""
+        return self._slots[arm].tracker
+
+    # ------------------------------------------------------------------ shutdown
+
+    def close(self) -> None:
+        """Shutdown order: stop taking commands -> stop loops -> join -> undeclare Zenoh
+        (tokens first, so the fleet sees the agent leave) -> delete DDS entities. Idempotent."""
+        if self._stop.is_set():
+            return
+        self._stop.set()
+        for thread in self._threads:
+            if thread.is_alive():
+                thread.join(timeout=2.0)
+        self.link.close()
+        self.relay.close()
+
+    def __enter__(self) -> EdgeAgent:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -1,0 +1,221 @@
+"""Key-space commands -> checked D1 commands, and the bookkeeping of one command in flight.
+
+Pure: the agent calls ``plan`` with the arm's tracked state, writes what it returns, and feeds
+acks and feedback to ``InFlight`` until it is finished. Nothing invalid leaves ``plan``: the
+real arm acknowledges an invalid joint id and then stops its angle feed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from edge_agent.tracker import ArmTracker
+from fleet.d1 import protocol as p
+from fleet.d1.errors import InvalidCommand
+from fleet.d1.limits import JOINT_COUNT, JOINT_RANGE_DEG
+from fleet.wire import messages as m
+from fleet.wire.messages import ErrorCode, ErrorInfo
+
+
+class Refused(Exception):
+    """The agent will not send this command; ``code`` is an ErrorCode."""
+
+    def __init__(self, code: ErrorCode, message: str) -> None:
+        super().__init__(message)
+        self.code = code
+
+
+@dataclass(frozen=True)
+class Plan:
+    """The D1 commands to send, in order, and the joint targets that mean "reached"."""
+
+    commands: tuple[p.Command, ...]
+    targets_deg: dict[int, float]
+
+
+def clamp_to_limits(angles: tuple[float, ...]) -> tuple[float, ...]:
+    """Measured angles can sit a hair outside the documented range; a hold must not be refused."""
+    return tuple(min(max(a, lo), hi) for a, (lo, hi) in zip(angles, JOINT_RANGE_DEG, strict=False))
+
+
+def _measured(tracker: ArmTracker, why: str) -> tuple[float, ...]:
+    if tracker.angles_deg is None:
+        raise Refused(ErrorCode.REJECTED, f"arm {tracker.config.id!r} sent no angles yet; {why}")
+    return clamp_to_limits(tracker.angles_deg)
+
+
+def _check_can_move(tracker: ArmTracker) -> None:
+    arm = tracker.config.id
+    if tracker.estopped:
+        raise Refused(
+            ErrorCode.REJECTED,
+            f"arm {arm!r} is stopped (protective stop latched); `fleet reset {arm}` releases it",
+        )
+    if tracker.link != "ok":
+        raise Refused(
+            ErrorCode.REJECTED,
+            f"arm {arm!r} has no fresh feedback (link {tracker.link}); is the arm on and wired?",
+        )
+    if tracker.powered is False:
+        raise Refused(
+            ErrorCode.REJECTED, f"arm {arm!r} is powered off; send `power on` before moving it"
+        )
+
+
+def plan(command: m.ArmCommand, tracker: ArmTracker) -> Plan:
+    """Check ``command`` against the limits and the arm's state; raises Refused."""
+    try:
+        result = _plan(command, tracker)
+        for d1_command in result.commands:
+            p.validate_command(d1_command)
+    except InvalidCommand as exc:
+        raise Refused(ErrorCode.PARAMETER, str(exc)) from None
+    return result
+
+
+def _plan(command: m.ArmCommand, tracker: ArmTracker) -> Plan:
+    if isinstance(command, m.MoveJoint):
+        p.check_angle(command.joint, command.angle_deg)
+        _check_can_move(tracker)
+        return Plan(
+            (p.SetJointAngle(command.joint, command.angle_deg),), {command.joint: command.angle_deg}
+        )
+    if isinstance(command, m.MoveJoints):
+        angles = tuple(command.angles_deg)
+        p.validate_command(p.SetAllAngles(angles, command.mode))
+        _check_can_move(tracker)
+        return Plan((p.SetAllAngles(angles, command.mode),), dict(enumerate(angles)))
+    if isinstance(command, m.Zero):
+        _check_can_move(tracker)
+        return Plan((p.ReturnToZero(),), dict.fromkeys(range(JOINT_COUNT), 0.0))
+    if isinstance(command, m.Hold):
+        # Hold is allowed while stopped: it is what a stop does.
+        here = _measured(tracker, "cannot hold an unknown pose")
+        return Plan((p.SetAllAngles(here, 0),), dict(enumerate(here)))
+    if isinstance(command, m.Torque):
+        return _plan_torque(command, tracker)
+    if isinstance(command, m.Power):
+        return Plan((p.SetPower(command.on),), {})
+    raise Refused(ErrorCode.NOT_IMPLEMENTED, f"unknown command {type(command).__name__}")
+
+
+def _plan_torque(command: m.Torque, tracker: ArmTracker) -> Plan:
+    if command.joint is not None:
+        p.check_joint(command.joint)
+    if command.strength is not None and command.joint is not None:
+        raise InvalidCommand("strength applies to all joints only (joint must be null)")
+    if not command.on:
+        off: p.Command = (
+            p.SetAllTorque(0) if command.joint is None else p.SetJointTorque(command.joint, False)
+        )
+        return Plan((off,), {})
+    if tracker.estopped:
+        raise Refused(ErrorCode.REJECTED, f"arm {tracker.config.id!r} is stopped; reset it first")
+    # Field report: a re-enabled D1 chases its old cached target. Make the measured pose the
+    # target first, so enabling never moves the arm.
+    here = _measured(tracker, "cannot set the target to the measured pose before enabling")
+    on: p.Command = (
+        p.SetAllTorque(command.strength if command.strength is not None else 1)
+        if command.joint is None
+        else p.SetJointTorque(command.joint, True)
+    )
+    return Plan((p.SetAllAngles(here, 0), on), {})
+
+
+@dataclass
+class InFlight:
+    """One key-space command waiting for its acks (and, if asked, for the target)."""
+
+    arm: str
+    seqs: tuple[int, ...]
+    started_s: float
+    recv_deadline_s: float
+    exec_deadline_s: float
+    reach_deadline_s: float | None
+    targets_deg: dict[int, float]
+    tolerance_deg: float
+    received: set[int] = field(default_factory=set)
+    executed: set[int] = field(default_factory=set)
+    reached: bool | None = None
+    error: ErrorInfo | None = None
+
+    def on_ack(self, ack: p.ReceiveAck | p.ExecuteAck) -> None:
+        """Record an acknowledgment for one of our seqs."""
+        if isinstance(ack, p.ReceiveAck):
+            if not ack.ok:
+                self._fail(
+                    ErrorCode.INVALID_RESPONSE, f"the arm refused seq {ack.seq} (recv_status 0)"
+                )
+            self.received.add(ack.seq)
+        else:
+            if not ack.ok:
+                self._fail(
+                    ErrorCode.INVALID_RESPONSE,
+                    f"the arm failed to execute seq {ack.seq} (exec_status 0)",
+                )
+            self.executed.add(ack.seq)
+
+    def on_angles(self, angles_deg: tuple[float, ...]) -> None:
+        """Check the measured angles against the targets (only when the caller asked)."""
+        if self.reach_deadline_s is None or self.reached:
+            return
+        if all(abs(angles_deg[j] - t) <= self.tolerance_deg for j, t in self.targets_deg.items()):
+            self.reached = True
+
+    def on_time(self, now: float, angles_deg: tuple[float, ...] | None) -> None:
+        """Apply the deadlines."""
+        if self.error is not None or self.done:
+            return
+        if self.reach_deadline_s is not None:
+            if now >= self.reach_deadline_s and not self.reached:
+                self.reached = False
+                worst = _worst_joint(self.targets_deg, angles_deg)
+                waited = self.reach_deadline_s - self.started_s
+                self._fail(ErrorCode.TIMEOUT, f"target not reached within {waited:.1f} s{worst}")
+            return
+        if now >= self.recv_deadline_s and len(self.received) < len(self.seqs):
+            self._fail(
+                ErrorCode.TIMEOUT,
+                f"no receive ack from the arm within {self.recv_deadline_s - self.started_s:.2f} s",
+            )
+        elif now >= self.exec_deadline_s and len(self.executed) < len(self.seqs):
+            self._fail(
+                ErrorCode.TIMEOUT,
+                f"no execute ack from the arm within {self.exec_deadline_s - self.started_s:.2f} s",
+            )
+
+    def _fail(self, code: ErrorCode, message: str) -> None:
+        if self.error is None:
+            self.error = ErrorInfo(int(code), f"arm {self.arm!r}: {message}")
+
+    @property
+    def done(self) -> bool:
+        """Finished: failed, or every condition the caller asked for is met."""
+        if self.error is not None:
+            return True
+        if self.reach_deadline_s is not None:
+            return bool(self.reached)
+        return len(self.received) == len(self.seqs) and len(self.executed) == len(self.seqs)
+
+    def reply(self, now: float) -> m.CommandReply:
+        """The key-space reply."""
+        n = len(self.seqs)
+        return m.CommandReply(
+            ok=self.error is None,
+            arm=self.arm,
+            seq=self.seqs[-1],
+            received=len(self.received) == n,
+            executed=True
+            if len(self.executed) == n
+            else (False if self.executed or self.error else None),
+            reached=self.reached,
+            latency_ms=round((now - self.started_s) * 1000.0, 3),
+            error=self.error,
+        )
+
+
+def _worst_joint(targets: dict[int, float], angles: tuple[float, ...] | None) -> str:
+    if angles is None or not targets:
+        return ""
+    joint = max(targets, key=lambda j: abs(angles[j] - targets[j]))
+    return f" (joint {joint} is {abs(angles[joint] - targets[joint]):.1f} deg away)"

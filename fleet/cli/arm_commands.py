@@ -1,0 +1,119 @@
+"""Commands to arms: ``fleet move``, ``zero``, ``hold``, ``torque``, ``power``, ``cmd``.
+
+Each takes an arm id, a group name or ``all`` and prints one line per arm with what happened.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+
+import msgspec
+
+from fleet.client import FleetClient
+from fleet.runtime import inventory_from_args
+from fleet.wire import messages as m
+from fleet.wire.messages import ErrorCode
+
+
+def register(
+    sub: argparse._SubParsersAction, add_common: Callable[[argparse.ArgumentParser], None]
+) -> None:  # type: ignore[type-arg]
+    """Add the arm commands."""
+
+    def arm_parser(name: str, help_text: str) -> argparse.ArgumentParser:
+        parser = sub.add_parser(name, help=help_text)
+        add_common(parser)
+        parser.add_argument("target", help="arm id, group name, or 'all'")
+        parser.add_argument(
+            "--wait", action="store_true", help="wait until feedback shows the target reached"
+        )
+        parser.add_argument(
+            "--timeout", type=float, default=10.0, help="seconds to wait for --wait"
+        )
+        parser.add_argument("--json", action="store_true", help="print the replies as JSON")
+        return parser
+
+    move = arm_parser("move", "move joints: --angles A0..A6, or --joint J --angle A")
+    move.add_argument("--angles", type=float, nargs=7, metavar="DEG")
+    move.add_argument("--joint", type=int)
+    move.add_argument("--angle", type=float, metavar="DEG")
+    move.add_argument(
+        "--mode", type=int, choices=(0, 1), default=1, help="0 small, 1 large smoothing"
+    )
+    move.set_defaults(run=run_move)
+
+    arm_parser("zero", "return to zero").set_defaults(run=lambda a: _send(a, m.Zero(**_opts(a))))
+    arm_parser("hold", "hold the measured pose").set_defaults(
+        run=lambda a: _send(a, m.Hold(**_opts(a)))
+    )
+
+    torque = arm_parser("torque", "enable (on) or unload (off) joint motors")
+    torque.add_argument("state", choices=("on", "off"))
+    torque.add_argument("--joint", type=int, default=None, help="one joint (default all)")
+    torque.set_defaults(
+        run=lambda a: _send(a, m.Torque(on=a.state == "on", joint=a.joint, **_opts(a)))
+    )
+
+    power = arm_parser("power", "switch the motors' power")
+    power.add_argument("state", choices=("on", "off"))
+    power.set_defaults(run=lambda a: _send(a, m.Power(on=a.state == "on", **_opts(a))))
+
+    raw = arm_parser("cmd", 'send a key-space command given as JSON, e.g. \'{"op":"zero"}\'')
+    raw.add_argument("json_command")
+    raw.set_defaults(run=run_raw)
+
+
+def _opts(args: argparse.Namespace) -> dict[str, object]:
+    return {"wait_reached": args.wait, "timeout_s": args.timeout}
+
+
+def run_move(args: argparse.Namespace) -> int:
+    """``fleet move``."""
+    if args.angles is not None:
+        command: m.ArmCommand = m.MoveJoints(
+            angles_deg=list(args.angles), mode=args.mode, **_opts(args)
+        )
+    elif args.joint is not None and args.angle is not None:
+        command = m.MoveJoint(joint=args.joint, angle_deg=args.angle, **_opts(args))
+    else:
+        print("fleet move: give --angles (7 values) or --joint and --angle", file=sys.stderr)
+        return 2
+    return _send(args, command)
+
+
+def run_raw(args: argparse.Namespace) -> int:
+    """``fleet cmd``."""
+    try:
+        command = m.command_decoder.decode(args.json_command)
+    except msgspec.DecodeError as exc:
+        print(f"fleet cmd: {exc}", file=sys.stderr)
+        return 2
+    return _send(args, command)
+
+
+def _send(args: argparse.Namespace, command: m.ArmCommand) -> int:
+    inventory = inventory_from_args(args)
+    arms = inventory.resolve(args.target)
+    with (
+        FleetClient(inventory) as client,
+        ThreadPoolExecutor(max_workers=min(16, len(arms))) as pool,
+    ):
+        replies = list(pool.map(lambda arm: client.command(arm, command), arms))
+    for reply in replies:
+        if args.json:
+            print(msgspec.json.encode(reply).decode())
+        elif reply.ok:
+            reached = "" if reply.reached is None else f", reached={reply.reached}"
+            print(f"{reply.arm}: ok (seq {reply.seq}, {reply.latency_ms:.1f} ms{reached})")
+        else:
+            err = reply.error
+            print(f"{reply.arm}: FAILED [{err.code if err else '?'}] {err.message if err else ''}")
+    if all(r.ok for r in replies):
+        return 0
+    unreachable = all(
+        r.ok or (r.error is not None and r.error.code == ErrorCode.NOT_REGISTERED) for r in replies
+    )
+    return 3 if unreachable else 1

@@ -1,0 +1,48 @@
+"""``fleet``: the fleet's command line. ``fleet <command> --help`` for each command.
+
+Exit codes: 0 success; 1 a command was refused or failed on an arm; 2 usage or configuration
+error (bad inventory, unknown arm); 3 an arm's agent or the router is unreachable.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from fleet.cli import arm_commands, processes, status
+from fleet.inventory import InventoryError
+from fleet.runtime import add_inventory_options, setup_logging
+from fleet.wire.session import RouterUnreachable
+
+EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_UNREACHABLE = 0, 1, 2, 3
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The whole command tree."""
+    parser = argparse.ArgumentParser(
+        prog="fleet", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for module in (processes, status, arm_commands):
+        module.register(sub, add_inventory_options)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``fleet`` console script."""
+    args = build_parser().parse_args(argv)
+    setup_logging(args.log_level)
+    try:
+        return int(args.run(args))
+    except InventoryError as exc:
+        print(f"fleet: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except RouterUnreachable as exc:
+        print(f"fleet: {exc}", file=sys.stderr)
+        return EXIT_UNREACHABLE
+    except KeyboardInterrupt:
+        return EXIT_OK
+
+
+if __name__ == "__main__":
+    sys.exit(main())

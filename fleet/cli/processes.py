@@ -1,0 +1,160 @@
+"""Long-running processes: ``fleet router``, ``fleet sim`` and ``fleet demo``."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import random
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+
+from fleet.client import FleetClient
+from fleet.inventory import Inventory
+from fleet.runtime import inventory_from_args, shutdown_event, wait_for
+from fleet.wire.session import open_router
+
+log = logging.getLogger("fleet")
+
+
+def register(
+    sub: argparse._SubParsersAction, add_common: Callable[[argparse.ArgumentParser], None]
+) -> None:  # type: ignore[type-arg]
+    """Add the process commands to the ``fleet`` parser."""
+    router = sub.add_parser("router", help="run a Zenoh router on the inventory's endpoints")
+    add_common(router)
+    router.set_defaults(run=run_router)
+
+    sim = sub.add_parser("sim", help="run the inventory's simulated arms on DDS")
+    add_common(sim)
+    sim.add_argument("--arm", action="append", help="only these arms (default: all simulated)")
+    sim.add_argument("--seed", type=int, default=0, help="seed of the feedback jitter")
+    sim.set_defaults(run=run_sim)
+
+    demo = sub.add_parser("demo", help="router + simulated arms + one agent per arm, with status")
+    add_common(demo)
+    demo.add_argument("--for-s", type=float, default=None, help="stop after this many seconds")
+    demo.set_defaults(run=run_demo)
+
+
+def run_router(args: argparse.Namespace) -> int:
+    """Serve as the fleet's Zenoh router until SIGINT/SIGTERM."""
+    inventory = inventory_from_args(args)
+    stop = shutdown_event()
+    session = open_router(inventory.endpoints)
+    log.info("Zenoh router listening on %s", ", ".join(inventory.endpoints))
+    try:
+        wait_for(stop)
+    finally:
+        session.close()
+    return 0
+
+
+def run_sim(args: argparse.Namespace) -> int:
+    """Run simulated arms until SIGINT/SIGTERM."""
+    from fleet.sim.node import SimulatedArms  # DDS is only loaded by the commands that use it
+
+    inventory = inventory_from_args(args)
+    arms = args.arm or [a.id for a in inventory.arms.values() if a.simulated]
+    if not arms:
+        print("fleet sim: the inventory marks no arm as simulated", file=sys.stderr)
+        return 2
+    stop = shutdown_event()
+    with SimulatedArms(inventory, arms, seed=args.seed) as sim:
+        sim.start()
+        log.info(
+            "simulating arms %s on DDS domain %d",
+            ", ".join(arms),
+            inventory.domain_of(inventory.arm(arms[0])),
+        )
+        wait_for(stop)
+    return 0
+
+
+# ----------------------------------------------------------------------------- demo
+
+
+def _port_free(endpoint: str) -> bool:
+    host, _, port = endpoint.removeprefix("tcp/").rpartition(":")
+    with socket.socket() as probe:
+        try:
+            probe.bind((host, int(port)))
+        except OSError:
+            return False
+    return True
+
+
+def _spawn(argv: list[str]) -> subprocess.Popen[bytes]:
+    return subprocess.Popen([sys.executable, *argv])
+
+
+def _common_argv(args: argparse.Namespace, inventory: Inventory) -> list[str]:
+    argv = ["--inventory", args.inventory, "--domain", str(inventory.domain_id)]
+    for endpoint in inventory.endpoints:
+        argv += ["--endpoint", endpoint]
+    return argv + ["--log-level", "WARNING"]
+
+
+def run_demo(args: argparse.Namespace) -> int:
+    """Start the demo fleet as child processes, print a status line per arm, stop them all."""
+    inventory = inventory_from_args(args)
+    if args.domain is None:
+        # A domain of its own, so two demos (or a demo and a test run) never cross-talk.
+        inventory = inventory.with_domain(random.randint(1, 99))
+    busy = [e for e in inventory.endpoints if not _port_free(e)]
+    if busy:
+        print(
+            f"fleet demo: {', '.join(busy)} is in use (another router or demo?); "
+            "stop it or pass --endpoint tcp/127.0.0.1:<port>",
+            file=sys.stderr,
+        )
+        return 3
+    stop = shutdown_event()
+    common = _common_argv(args, inventory)
+    children = [_spawn(["-m", "fleet.cli.main", "router", *common])]
+    try:
+        time.sleep(0.5)  # let the router bind before the others connect (they retry anyway)
+        simulated = [a.id for a in inventory.arms.values() if a.simulated]
+        if simulated:
+            children.append(_spawn(["-m", "fleet.cli.main", "sim", *common]))
+        for arm in inventory.arms:
+            children.append(_spawn(["-m", "edge_agent", "--arm", arm, *common]))
+        print(
+            f"d1-fleet demo: fleet {inventory.fleet!r}, DDS domain {inventory.domain_id}, "
+            f"Zenoh router on {', '.join(inventory.endpoints)}"
+        )
+        print("viewer: not part of this build yet (see the README); Ctrl-C stops the demo")
+        _print_status_until(stop, inventory, args.for_s, children)
+    finally:
+        _stop_children(children)
+    return 0
+
+
+def _print_status_until(stop, inventory: Inventory, for_s: float | None, children) -> None:  # type: ignore[no-untyped-def]
+    from fleet.cli.status import status_lines
+
+    deadline = None if for_s is None else time.monotonic() + for_s
+    with FleetClient(inventory) as client:
+        while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
+            dead = [c.args for c in children if c.poll() is not None]
+            if dead:
+                print(f"fleet demo: a process exited: {dead[0]}", file=sys.stderr)
+                return
+            lines = status_lines(inventory, client.snapshot(wait_s=1.0), client.agents_alive())
+            print("\n".join(lines), flush=True)
+            stop.wait(1.0)
+
+
+def _stop_children(children: list[subprocess.Popen[bytes]]) -> None:
+    """SIGTERM every child by PID (agents first, router last), then SIGKILL stragglers."""
+    for child in reversed(children):
+        if child.poll() is None:
+            child.terminate()
+    for child in reversed(children):
+        try:
+            child.wait(timeout=5.0)
+        except subprocess.TimeoutExpired:
+            child.kill()
+            child.wait(timeout=5.0)

@@ -1,0 +1,108 @@
+"""``fleet status`` (table, ``--json``, ``--watch``) and ``fleet schema``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Callable
+
+import msgspec
+
+from fleet.client import FleetClient
+from fleet.inventory import Inventory
+from fleet.runtime import inventory_from_args, shutdown_event
+from fleet.wire import messages as m
+
+Snapshot = dict[str, tuple[m.ArmStatus | None, m.Joints | None]]
+
+
+def register(
+    sub: argparse._SubParsersAction, add_common: Callable[[argparse.ArgumentParser], None]
+) -> None:  # type: ignore[type-arg]
+    """Add ``status`` and ``schema``."""
+    status = sub.add_parser("status", help="one line per arm: agent, link, power, angles")
+    add_common(status)
+    status.add_argument("--json", action="store_true", help="machine-readable output")
+    status.add_argument("--watch", action="store_true", help="refresh every second until Ctrl-C")
+    status.set_defaults(run=run_status)
+
+    schema = sub.add_parser("schema", help="print the JSON Schema of every key-space payload")
+    schema.add_argument("--log-level", default="WARNING")
+    schema.set_defaults(run=run_schema)
+
+
+def _flag(value: bool | None, yes: str, no: str) -> str:
+    return "?" if value is None else (yes if value else no)
+
+
+def status_lines(inventory: Inventory, snapshot: Snapshot, alive: set[str]) -> list[str]:
+    """A header and one fixed-width line per arm."""
+    lines = [
+        f"{'arm':<8} {'agent':<7} {'link':<6} {'power':<6} {'torque':<7} {'error':<6} "
+        f"{'stop':<5} {'age_s':>6}  angles_deg"
+    ]
+    for arm in inventory.arms:
+        status, joints = snapshot.get(arm, (None, None))
+        agent = "up" if arm in alive else "DOWN"
+        if status is None:
+            lines.append(
+                f"{arm:<8} {agent:<7} {'-':<6} {'-':<6} {'-':<7} {'-':<6} {'-':<5} {'-':>6}  -"
+            )
+            continue
+        age = "-" if status.feedback_age_s is None else f"{status.feedback_age_s:.2f}"
+        angles = "-" if joints is None else " ".join(f"{a:7.1f}" for a in joints.angles_deg)
+        lines.append(
+            f"{arm:<8} {agent:<7} {status.link:<6} {_flag(status.powered, 'on', 'off'):<6} "
+            f"{_flag(status.enabled, 'on', 'free'):<7} {_flag(status.error, 'ERROR', 'ok'):<6} "
+            f"{'YES' if status.estopped else 'no':<5} {age:>6}  {angles}"
+        )
+    return lines
+
+
+def _as_json(snapshot: Snapshot, alive: set[str]) -> str:
+    out = {
+        arm: {
+            "agent": arm in alive,
+            "status": None if status is None else msgspec.to_builtins(status),
+            "joints": None if joints is None else msgspec.to_builtins(joints),
+        }
+        for arm, (status, joints) in snapshot.items()
+    }
+    return json.dumps(out, indent=2)
+
+
+def run_status(args: argparse.Namespace) -> int:
+    """Print the fleet's status; exit 3 when any arm's agent is down or its link is not ok."""
+    inventory = inventory_from_args(args)
+    stop = shutdown_event()
+    healthy = True
+    with FleetClient(inventory) as client:
+        printed = 0
+        while True:
+            snapshot = client.snapshot()
+            alive = client.agents_alive()
+            healthy = all(
+                arm in alive and status is not None and status.link == "ok"
+                for arm, (status, _j) in snapshot.items()
+            )
+            if args.json:
+                print(_as_json(snapshot, alive), flush=True)
+            else:
+                lines = status_lines(inventory, snapshot, alive)
+                if printed and sys.stdout.isatty():
+                    print(f"\033[{printed}F", end="")  # redraw in place
+                print("\n".join(lines), flush=True)
+                printed = len(lines)
+            if not args.watch or stop.wait(1.0):
+                break
+    return 0 if healthy else 3
+
+
+def run_schema(_args: argparse.Namespace) -> int:
+    """JSON Schema of every payload, keyed by the key it travels on."""
+    types = list(m.PUBLIC_SCHEMA.values())
+    schemas, components = msgspec.json.schema_components(types, ref_template="#/$defs/{name}")
+    out = {"keys": dict(zip(m.PUBLIC_SCHEMA, schemas, strict=False)), "$defs": components}
+    print(json.dumps(out, indent=2))
+    return 0

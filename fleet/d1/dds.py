@@ -1,0 +1,118 @@
+"""The DDS side of the D1 service: the ArmString_ type, topic names, QoS and CycloneDDS config.
+
+This is our ``ChannelFactory::Init(domainId, networkInterface)``: ``open_participant`` takes a
+domain id and a network interface name and builds the CycloneDDS configuration from them, so the
+two multi-arm methods of the spec both work:
+- topic suffix: several arms on one network, each with its own ``rt/arm_Command_<n>`` topics;
+- NIC binding: one arm per network card; one process per card, bound to that card only.
+
+Multicast is off and discovery uses an explicit unicast peer list, which is what the tests and
+the demo need on loopback and what a real arm network (``192.168.123.0/24``) works with too.
+
+(No ``from __future__ import annotations`` here: CycloneDDS resolves the IDL field types at
+run time and cannot resolve string annotations.)
+"""
+
+from dataclasses import dataclass
+from xml.sax.saxutils import quoteattr
+
+from cyclonedds.core import Policy, Qos
+from cyclonedds.domain import Domain, DomainParticipant
+from cyclonedds.idl import IdlStruct
+from cyclonedds.util import duration
+
+COMMAND_TOPIC = "rt/arm_Command"
+FEEDBACK_TOPIC = "rt/arm_Feedback"
+
+MAX_PARTICIPANTS_PER_HOST = 60
+"""Unicast discovery probes this many participant indices per peer; the default of 9 is too few
+for a host running a simulated fleet (one participant per simulator and agent process)."""
+
+
+@dataclass
+class ArmString_(IdlStruct, typename="unitree_arm::msg::dds_::ArmString_"):  # noqa: N801
+    """``unitree_arm::msg::dds_::ArmString_``: one JSON string in ``data_``."""
+
+    data_: str
+
+
+def command_topic(suffix: str) -> str:
+    """``rt/arm_Command<suffix>``, e.g. ``rt/arm_Command_1``."""
+    return COMMAND_TOPIC + suffix
+
+
+def feedback_topic(suffix: str) -> str:
+    """``rt/arm_Feedback<suffix>``."""
+    return FEEDBACK_TOPIC + suffix
+
+
+# Commands: reliable, so a reliable reader on the arm gets retransmissions, and a best-effort
+# reader (the DDS default, and what the arm's reader may well be) still matches. Keep-last 8:
+# a burst of commands is not dropped before it is sent, yet writes never block for long.
+# Volatile durability: an arm that (re)joins late must never execute a stale command.
+COMMAND_WRITER_QOS = Qos(
+    Policy.Reliability.Reliable(duration(milliseconds=100)),
+    Policy.History.KeepLast(8),
+    Policy.Durability.Volatile,
+)
+
+# Feedback: the newest sample matters; best effort matches any writer QoS the arm may use.
+# Depth 64 absorbs a burst (angles, status, motors and acks arrive together) between takes.
+FEEDBACK_READER_QOS = Qos(
+    Policy.Reliability.BestEffort,
+    Policy.History.KeepLast(64),
+    Policy.Durability.Volatile,
+)
+
+# The simulated arm's side mirrors the two above.
+COMMAND_READER_QOS = Qos(
+    Policy.Reliability.Reliable(duration(milliseconds=100)),
+    Policy.History.KeepLast(32),
+    Policy.Durability.Volatile,
+)
+FEEDBACK_WRITER_QOS = Qos(
+    Policy.Reliability.BestEffort,
+    Policy.History.KeepLast(8),
+    Policy.Durability.Volatile,
+)
+
+
+def cyclonedds_config(interface: str, peers: list[str] | tuple[str, ...]) -> str:
+    """CycloneDDS XML binding to ``interface`` with multicast off and unicast ``peers``."""
+    peer_xml = "".join(f"<Peer address={quoteattr(p)}/>" for p in peers)
+    multicast = "false"
+    return (
+        "<CycloneDDS><Domain id='any'>"
+        f"<General><Interfaces><NetworkInterface name={quoteattr(interface)}/></Interfaces>"
+        f"<AllowMulticast>{multicast}</AllowMulticast></General>"
+        "<Discovery><ParticipantIndex>auto</ParticipantIndex>"
+        f"<MaxAutoParticipantIndex>{MAX_PARTICIPANTS_PER_HOST}</MaxAutoParticipantIndex>"
+        f"<Peers>{peer_xml}</Peers></Discovery>"
+        "</Domain></CycloneDDS>"
+    )
+
+
+LOOPBACK_PEERS = ("127.0.0.1",)
+
+
+class DdsChannel:
+    """One DDS participant for one (domain, network interface): create it once, at start-up,
+    on one thread (CycloneDDS Python races when entities are created from several threads)."""
+
+    def __init__(
+        self, domain_id: int, interface: str = "lo", peers: tuple[str, ...] = LOOPBACK_PEERS
+    ) -> None:
+        self.domain_id = domain_id
+        self.interface = interface
+        # The Domain object carries the config; it must exist before the participant.
+        self._domain = Domain(domain_id, cyclonedds_config(interface, peers))
+        self.participant = DomainParticipant(domain_id)
+
+    def close(self) -> None:
+        """Delete the participant and every entity under it (idempotent)."""
+        participant, self.participant = self.participant, None  # type: ignore[assignment]
+        if participant is not None:
+            # The binding has no public delete; its finaliser deletes the participant and, in
+            # the DDS core, every reader, writer and topic under it. Safe to call once.
+            participant.__del__()
+        self._domain = None  # type: ignore[assignment]

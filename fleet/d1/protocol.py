@@ -1,0 +1,425 @@
+"""The D1-550 JSON protocol as a pure codec: text <-> typed commands and arm messages.
+
+No I/O, clocks, logging or threads live here (the h11 model): the edge agent, the simulated arm,
+the coordinator and the tests all speak the protocol through these functions.
+
+Wire facts (``../shared/seeds`` D1 service interface):
+- every message is ``{"seq":..,"address":..,"funcode":..,"data":{..}}``; ``data`` is absent for
+  return-to-zero (1/7);
+- commands use address 1; the arm's own reports use address 2 with seq 10; its acknowledgments
+  (address 3) echo the seq of the command they answer;
+- numbers are written as the spec writes them: an integral value as an integer (``60``, not
+  ``60.0``), so the spec's examples are reproduced byte for byte.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Literal
+
+import msgspec
+
+from fleet.d1.errors import InvalidCommand, InvalidJoint, MalformedMessage, UnknownMessage
+from fleet.d1.limits import JOINT_COUNT, JOINT_RANGE_DEG, TORQUE_MODE_MAX
+
+ARM_REPORT_SEQ = 10
+"""The seq the arm hard-codes on its own reports; callers must never use it."""
+
+COMMAND_ADDRESS = 1
+REPORT_ADDRESS = 2
+ACK_ADDRESS = 3
+
+
+# ----------------------------------------------------------------------------- commands
+
+
+class SetJointAngle(msgspec.Struct, frozen=True):
+    """1/1: move one joint to ``angle_deg``. ``delay_ms`` is documented as "temporarily 0"."""
+
+    joint: int
+    angle_deg: float
+    delay_ms: int = 0
+
+
+class SetAllAngles(msgspec.Struct, frozen=True):
+    """1/2: move all seven joints. ``mode`` 0 = small smoothing (10 Hz streaming), 1 = large."""
+
+    angles_deg: tuple[float, ...]
+    mode: Literal[0, 1] = 1
+
+
+class SetJointTorque(msgspec.Struct, frozen=True):
+    """1/4: enable (lock) or unload (free) one joint motor."""
+
+    joint: int
+    enable: bool
+
+
+class SetAllTorque(msgspec.Struct, frozen=True):
+    """1/5: all joint motors. ``mode`` 0 = unloaded, 1 = enabled; the spec also allows
+    0..80000 as a holding strength (80000 = fully locked)."""
+
+    mode: int
+
+
+class SetPower(msgspec.Struct, frozen=True):
+    """1/6: switch the motors' power supply."""
+
+    on: bool
+
+
+class ReturnToZero(msgspec.Struct, frozen=True):
+    """1/7: return every joint to zero."""
+
+
+Command = SetJointAngle | SetAllAngles | SetJointTorque | SetAllTorque | SetPower | ReturnToZero
+
+MOTION_COMMANDS = (SetJointAngle, SetAllAngles, ReturnToZero)
+"""Commands that make the arm move (refused while stopped, need power)."""
+
+_FUNCODE_OF: dict[type, int] = {
+    SetJointAngle: 1,
+    SetAllAngles: 2,
+    SetJointTorque: 4,
+    SetAllTorque: 5,
+    SetPower: 6,
+    ReturnToZero: 7,
+}
+
+
+# ----------------------------------------------------------------------------- arm messages
+
+
+class JointAngles(msgspec.Struct, frozen=True):
+    """2/1: the measured angle of every joint, degrees, about 10 Hz."""
+
+    angles_deg: tuple[float, ...]
+
+
+class ArmStatus(msgspec.Struct, frozen=True):
+    """2/3: enable and power state; ``error`` is True when the arm reports ``error_status`` 0."""
+
+    enabled: bool
+    powered: bool
+    error: bool
+
+
+class MotorStatus(msgspec.Struct, frozen=True):
+    """2/4: per-motor health, True = normal."""
+
+    motors_ok: tuple[bool, ...]
+
+
+class ReceiveAck(msgspec.Struct, frozen=True):
+    """3/1: the arm received (and could parse) the command with this ``seq``."""
+
+    seq: int
+    ok: bool
+
+
+class ExecuteAck(msgspec.Struct, frozen=True):
+    """3/2: the arm executed the command with this ``seq``."""
+
+    seq: int
+    ok: bool
+
+
+ArmMessage = JointAngles | ArmStatus | MotorStatus | ReceiveAck | ExecuteAck
+
+
+class Decoded(msgspec.Struct, frozen=True):
+    """A decoded arm message with the names of any fields the spec does not define.
+
+    Unknown fields are tolerated (a newer firmware may add some) but reported so they are counted.
+    """
+
+    message: ArmMessage
+    seq: int
+    unknown_fields: tuple[str, ...] = ()
+
+
+# ----------------------------------------------------------------------------- wire envelope
+
+
+class _Envelope(msgspec.Struct, omit_defaults=True):
+    seq: int
+    address: int
+    funcode: int
+    data: dict[str, int | float] | None = None
+
+
+_encoder = msgspec.json.Encoder()
+_decoder = msgspec.json.Decoder(dict[str, Any])
+
+_ENVELOPE_KEYS = frozenset({"seq", "address", "funcode", "data"})
+_ANGLE_KEYS = tuple(f"angle{i}" for i in range(JOINT_COUNT))
+_MOTOR_KEYS = tuple(f"motor{i}_status" for i in range(JOINT_COUNT))
+
+
+def _number(value: float) -> int | float:
+    """Integral values are written as integers, as the spec's examples do."""
+    if not math.isfinite(value):
+        raise InvalidCommand(f"non-finite number {value!r} cannot be sent to the arm")
+    return int(value) if float(value).is_integer() else float(value)
+
+
+def _flag(value: bool) -> int:
+    return 1 if value else 0
+
+
+# ----------------------------------------------------------------------------- validation
+
+
+def check_joint(joint: int) -> None:
+    """Raise InvalidCommand unless ``joint`` is a wire joint id 0..6."""
+    if isinstance(joint, bool) or not isinstance(joint, int) or not 0 <= joint < JOINT_COUNT:
+        raise InvalidJoint(f"joint id {joint!r} is out of range; the D1 has joints 0..6")
+
+
+def check_angle(joint: int, angle_deg: float) -> None:
+    """Raise InvalidCommand unless ``angle_deg`` is finite and inside joint ``joint``'s range."""
+    check_joint(joint)
+    if not isinstance(angle_deg, (int, float)) or isinstance(angle_deg, bool):
+        raise InvalidCommand(f"joint {joint}: angle {angle_deg!r} is not a number")
+    if not math.isfinite(angle_deg):
+        raise InvalidCommand(f"joint {joint}: angle {angle_deg!r} is not finite")
+    low, high = JOINT_RANGE_DEG[joint]
+    if not low <= angle_deg <= high:
+        raise InvalidCommand(
+            f"joint {joint}: angle {angle_deg:g} deg is outside its range [{low:g}, {high:g}] deg"
+        )
+
+
+def validate_command(command: Command) -> None:
+    """Raise InvalidCommand if ``command`` must not reach the arm."""
+    if isinstance(command, SetJointAngle):
+        check_angle(command.joint, command.angle_deg)
+        if command.delay_ms < 0:
+            raise InvalidCommand(f"delay_ms {command.delay_ms} is negative")
+    elif isinstance(command, SetAllAngles):
+        if len(command.angles_deg) != JOINT_COUNT:
+            raise InvalidCommand(
+                f"expected {JOINT_COUNT} angles (joints 0..6), got {len(command.angles_deg)}"
+            )
+        for joint, angle in enumerate(command.angles_deg):
+            check_angle(joint, angle)
+        if command.mode not in (0, 1):
+            raise InvalidCommand(f"mode {command.mode!r} is not 0 (small) or 1 (large smoothing)")
+    elif isinstance(command, SetJointTorque):
+        check_joint(command.joint)
+    elif isinstance(command, SetAllTorque):
+        if isinstance(command.mode, bool) or not 0 <= command.mode <= TORQUE_MODE_MAX:
+            raise InvalidCommand(f"torque mode {command.mode!r} is outside 0..{TORQUE_MODE_MAX}")
+    elif not isinstance(command, (SetPower, ReturnToZero)):
+        raise InvalidCommand(f"{type(command).__name__} is not a D1 command")
+
+
+def check_seq(seq: int) -> None:
+    """Raise InvalidCommand for a seq the caller may not use (10 is the arm's own)."""
+    if isinstance(seq, bool) or not isinstance(seq, int) or seq < 0:
+        raise InvalidCommand(f"seq {seq!r} must be a non-negative integer")
+    if seq == ARM_REPORT_SEQ:
+        raise InvalidCommand("seq 10 is reserved for the arm's own reports")
+
+
+# ----------------------------------------------------------------------------- encode
+
+
+def _command_data(command: Command) -> dict[str, int | float] | None:
+    if isinstance(command, SetJointAngle):
+        return {
+            "id": command.joint,
+            "angle": _number(command.angle_deg),
+            "delay_ms": command.delay_ms,
+        }
+    if isinstance(command, SetAllAngles):
+        data: dict[str, int | float] = {"mode": command.mode}
+        for key, angle in zip(_ANGLE_KEYS, command.angles_deg, strict=False):
+            data[key] = _number(angle)
+        return data
+    if isinstance(command, SetJointTorque):
+        return {"id": command.joint, "mode": _flag(command.enable)}
+    if isinstance(command, SetAllTorque):
+        return {"mode": command.mode}
+    if isinstance(command, SetPower):
+        return {"power": _flag(command.on)}
+    return None
+
+
+def encode_command(command: Command, seq: int) -> str:
+    """The JSON text to write on ``rt/arm_Command<suffix>``; validates first."""
+    check_seq(seq)
+    validate_command(command)
+    envelope = _Envelope(seq, COMMAND_ADDRESS, _FUNCODE_OF[type(command)], _command_data(command))
+    return _encoder.encode(envelope).decode()
+
+
+def encode_message(message: ArmMessage, seq: int = ARM_REPORT_SEQ) -> str:
+    """The JSON text the arm writes on ``rt/arm_Feedback<suffix>`` (used by the simulator).
+
+    Reports always carry seq 10; acknowledgments carry the seq of the command they answer.
+    """
+    data: dict[str, int | float]
+    if isinstance(message, JointAngles):
+        if len(message.angles_deg) != JOINT_COUNT:
+            raise InvalidCommand(f"expected {JOINT_COUNT} angles, got {len(message.angles_deg)}")
+        data = {k: _number(a) for k, a in zip(_ANGLE_KEYS, message.angles_deg, strict=False)}
+        address, funcode = REPORT_ADDRESS, 1
+    elif isinstance(message, ArmStatus):
+        data = {
+            "enable_status": _flag(message.enabled),
+            "power_status": _flag(message.powered),
+            "error_status": _flag(not message.error),
+        }
+        address, funcode = REPORT_ADDRESS, 3
+    elif isinstance(message, MotorStatus):
+        data = {k: _flag(ok) for k, ok in zip(_MOTOR_KEYS, message.motors_ok, strict=False)}
+        address, funcode = REPORT_ADDRESS, 4
+    elif isinstance(message, ReceiveAck):
+        data, address, funcode, seq = (
+            {"recv_status": _flag(message.ok)},
+            ACK_ADDRESS,
+            1,
+            message.seq,
+        )
+    elif isinstance(message, ExecuteAck):
+        data, address, funcode, seq = (
+            {"exec_status": _flag(message.ok)},
+            ACK_ADDRESS,
+            2,
+            message.seq,
+        )
+    else:
+        raise InvalidCommand(f"{type(message).__name__} is not a D1 arm message")
+    return _encoder.encode(_Envelope(seq, address, funcode, data)).decode()
+
+
+# ----------------------------------------------------------------------------- decode
+
+
+def _parse_envelope(text: str | bytes) -> tuple[int, int, int, dict[str, Any], list[str]]:
+    try:
+        raw = _decoder.decode(text)
+    except msgspec.DecodeError as exc:
+        # msgspec refuses NaN/Infinity literals and numbers that overflow to infinity.
+        raise MalformedMessage(f"not valid JSON: {exc}") from None
+    unknown = sorted(k for k in raw if k not in _ENVELOPE_KEYS)
+    ints = []
+    for key in ("seq", "address", "funcode"):
+        value = raw.get(key)
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise MalformedMessage(f"field {key!r} is missing or not an integer: {value!r}")
+        ints.append(value)
+    data = raw.get("data", {})
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise MalformedMessage(f"field 'data' is not an object: {data!r}")
+    return ints[0], ints[1], ints[2], data, unknown
+
+
+def _read_number(data: dict[str, Any], key: str) -> float:
+    value = data.get(key)
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise MalformedMessage(f"data.{key} is missing or not a number: {value!r}")
+    if not math.isfinite(value):
+        raise MalformedMessage(f"data.{key} is not finite: {value!r}")
+    return float(value)
+
+
+def _read_int(data: dict[str, Any], key: str) -> int:
+    value = data.get(key)
+    if isinstance(value, bool) or not isinstance(value, int):
+        # The arm writes integers; 1.0 is tolerated because some JSON writers emit it.
+        if isinstance(value, float) and value.is_integer():
+            return int(value)
+        raise MalformedMessage(f"data.{key} is missing or not an integer: {value!r}")
+    return value
+
+
+def _read_flag(data: dict[str, Any], key: str) -> bool:
+    value = _read_int(data, key)
+    if value not in (0, 1):
+        raise MalformedMessage(f"data.{key} must be 0 or 1, got {value}")
+    return value == 1
+
+
+def _unknown_data(data: dict[str, Any], known: tuple[str, ...]) -> list[str]:
+    return [f"data.{k}" for k in data if k not in known]
+
+
+def decode_message(text: str | bytes) -> Decoded:
+    """Decode one string from ``rt/arm_Feedback<suffix>``.
+
+    Raises MalformedMessage (or its subclass UnknownMessage) for anything that is not a D1 message.
+    """
+    seq, address, funcode, data, unknown = _parse_envelope(text)
+    message: ArmMessage
+    if (address, funcode) == (REPORT_ADDRESS, 1):
+        known: tuple[str, ...] = _ANGLE_KEYS
+        message = JointAngles(tuple(_read_number(data, k) for k in _ANGLE_KEYS))
+    elif (address, funcode) == (REPORT_ADDRESS, 3):
+        known = ("enable_status", "power_status", "error_status")
+        message = ArmStatus(
+            enabled=_read_flag(data, "enable_status"),
+            powered=_read_flag(data, "power_status"),
+            error=not _read_flag(data, "error_status"),
+        )
+    elif (address, funcode) == (REPORT_ADDRESS, 4):
+        known = _MOTOR_KEYS
+        message = MotorStatus(tuple(_read_flag(data, k) for k in _MOTOR_KEYS))
+    elif (address, funcode) == (ACK_ADDRESS, 1):
+        known = ("recv_status",)
+        message = ReceiveAck(seq, _read_flag(data, "recv_status"))
+    elif (address, funcode) == (ACK_ADDRESS, 2):
+        known = ("exec_status",)
+        message = ExecuteAck(seq, _read_flag(data, "exec_status"))
+    else:
+        raise UnknownMessage(address, funcode)
+    unknown.extend(_unknown_data(data, known))
+    return Decoded(message, seq, tuple(unknown))
+
+
+def decode_command(text: str | bytes) -> tuple[int, Command]:
+    """Decode one string from ``rt/arm_Command<suffix>`` into (seq, command).
+
+    This is what the arm's service does; the simulator uses it. Out-of-range values raise
+    InvalidCommand (the arm answers recv_status 0), malformed text MalformedMessage.
+    """
+    seq, address, funcode, data, _unknown = _parse_envelope(text)
+    try:
+        command = _command_from(address, funcode, data)
+        validate_command(command)
+    except (InvalidCommand, MalformedMessage) as exc:
+        exc.seq = seq  # type: ignore[union-attr]
+        raise
+    return seq, command
+
+
+def _command_from(address: int, funcode: int, data: dict[str, Any]) -> Command:
+    if address != COMMAND_ADDRESS:
+        raise UnknownMessage(address, funcode)
+    command: Command
+    if funcode == 1:
+        command = SetJointAngle(
+            joint=_read_int(data, "id"),
+            angle_deg=_read_number(data, "angle"),
+            delay_ms=_read_int(data, "delay_ms") if "delay_ms" in data else 0,
+        )
+    elif funcode == 2:
+        mode = _read_int(data, "mode")
+        if mode not in (0, 1):
+            raise InvalidCommand(f"mode {mode} is not 0 or 1")
+        angles = tuple(_read_number(data, k) for k in _ANGLE_KEYS)
+        command = SetAllAngles(angles_deg=angles, mode=0 if mode == 0 else 1)
+    elif funcode == 4:
+        command = SetJointTorque(joint=_read_int(data, "id"), enable=_read_flag(data, "mode"))
+    elif funcode == 5:
+        command = SetAllTorque(mode=_read_int(data, "mode"))
+    elif funcode == 6:
+        command = SetPower(on=_read_flag(data, "power"))
+    elif funcode == 7:
+        command = ReturnToZero()
+    else:
+        raise UnknownMessage(address, funcode)
+    return command

@@ -1,0 +1,233 @@
+"""inventory.toml -> a frozen, validated Inventory.
+
+Every error names the file and the path inside it (``inventory.toml: arms.a1: ...``); unknown or
+misspelled fields are errors, not silently ignored. ``[defaults]`` applies to every arm; a field
+set in ``[arms.<id>]`` overrides it. The README's "inventory.toml reference" documents each field.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any, Literal
+
+import msgspec
+from msgspec import Struct
+
+from fleet.d1.limits import JOINT_COUNT
+from fleet.wire.keys import KeyError_, check_name
+
+DEFAULT_INVENTORY = "inventory.toml"
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+
+StopAction = Literal["hold", "unload", "power_off"]
+
+_SUFFIX = re.compile(r"^(_[A-Za-z0-9_]+)?$")
+
+
+class InventoryError(ValueError):
+    """The inventory file is missing, unreadable or invalid; the message names file and path."""
+
+
+class FleetSection(Struct, frozen=True, forbid_unknown_fields=True):
+    """``[fleet]``."""
+
+    name: str
+
+
+class ZenohSection(Struct, frozen=True, forbid_unknown_fields=True):
+    """``[zenoh]``: the router listens on ``endpoints``; every other process connects to them."""
+
+    endpoints: list[str] = msgspec.field(default_factory=lambda: [DEFAULT_ENDPOINT])
+
+
+class DdsSection(Struct, frozen=True, forbid_unknown_fields=True):
+    """``[dds]``: fleet-wide DDS defaults."""
+
+    domain_id: int = 0
+    peers: list[str] = msgspec.field(default_factory=lambda: ["127.0.0.1"])
+
+
+class ArmConfig(Struct, frozen=True, forbid_unknown_fields=True):
+    """One arm: ``[defaults]`` merged with ``[arms.<id>]``."""
+
+    id: str = ""
+    suffix: str = ""
+    interface: str = "lo"
+    peers: list[str] | None = None
+    domain_id: int | None = None
+    simulated: bool = False
+    base_xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    base_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    stop_action: StopAction = "hold"
+    link_stale_s: float = 0.35
+    link_lost_s: float = 2.0
+    recv_ack_timeout_s: float = 0.5
+    exec_ack_timeout_s: float = 2.0
+    joint_sign: tuple[int, ...] = (1,) * JOINT_COUNT
+
+
+class Inventory(Struct, frozen=True):
+    """The validated fleet description."""
+
+    path: str
+    fleet: str
+    endpoints: list[str]
+    domain_id: int
+    peers: list[str]
+    arms: dict[str, ArmConfig]
+    groups: dict[str, list[str]]
+
+    def arm(self, arm_id: str) -> ArmConfig:
+        """The arm ``arm_id``; raises InventoryError naming the known arms."""
+        try:
+            return self.arms[arm_id]
+        except KeyError:
+            known = ", ".join(self.arms) or "none"
+            raise InventoryError(f"{self.path}: no arm {arm_id!r} (known arms: {known})") from None
+
+    def resolve(self, target: str) -> list[str]:
+        """Arm ids for ``target``: an arm id, a group name, or ``all``."""
+        if target == "all":
+            return list(self.arms)
+        if target in self.groups:
+            return list(self.groups[target])
+        return [self.arm(target).id]
+
+    def domain_of(self, arm: ArmConfig) -> int:
+        """The arm's DDS domain (its own, or the fleet's)."""
+        return self.domain_id if arm.domain_id is None else arm.domain_id
+
+    def peers_of(self, arm: ArmConfig) -> tuple[str, ...]:
+        """The arm's DDS unicast peers (its own, or the fleet's)."""
+        return tuple(self.peers if arm.peers is None else arm.peers)
+
+    def with_domain(self, domain_id: int) -> Inventory:
+        """A copy with every arm on ``domain_id`` (tests and the demo isolate runs this way)."""
+        arms = {k: msgspec.structs.replace(a, domain_id=None) for k, a in self.arms.items()}
+        return msgspec.structs.replace(self, domain_id=domain_id, arms=arms)
+
+    def with_endpoints(self, endpoints: list[str]) -> Inventory:
+        """A copy whose processes meet on ``endpoints``."""
+        return msgspec.structs.replace(self, endpoints=list(endpoints))
+
+
+def _fail(path: str, where: str, exc: msgspec.ValidationError | str) -> InventoryError:
+    text = str(exc)
+    if where:
+        text = text.replace("`$", f"`$.{where}")
+    return InventoryError(f"{path}: {where + ': ' if where else ''}{text}")
+
+
+def _convert(raw: Any, kind: type[Any], path: str, where: str) -> Any:
+    try:
+        return msgspec.convert(raw, kind)
+    except msgspec.ValidationError as exc:
+        raise _fail(path, where, exc) from None
+
+
+def _check_arm(arm: ArmConfig, path: str) -> None:
+    where = f"arms.{arm.id}"
+    if not _SUFFIX.match(arm.suffix):
+        raise _fail(path, where, f"suffix {arm.suffix!r} must be empty or like '_1'")
+    if len(arm.joint_sign) != JOINT_COUNT or any(s not in (1, -1) for s in arm.joint_sign):
+        raise _fail(path, where, f"joint_sign must be {JOINT_COUNT} values of 1 or -1")
+    if arm.domain_id is not None and not 0 <= arm.domain_id <= 232:
+        raise _fail(path, where, f"domain_id {arm.domain_id} is outside 0..232")
+    if not 0 < arm.link_stale_s < arm.link_lost_s:
+        raise _fail(path, where, "need 0 < link_stale_s < link_lost_s")
+    if arm.recv_ack_timeout_s <= 0 or arm.exec_ack_timeout_s <= 0:
+        raise _fail(path, where, "ack timeouts must be positive")
+
+
+def parse_inventory(text: str, path: str = DEFAULT_INVENTORY) -> Inventory:
+    """Parse and validate inventory text; ``path`` is only used in error messages."""
+    try:
+        raw = msgspec.toml.decode(text)
+    except msgspec.DecodeError as exc:
+        raise InventoryError(f"{path}: not valid TOML: {exc}") from None
+    if not isinstance(raw, dict):
+        raise InventoryError(f"{path}: expected a TOML document")
+    known = {"fleet", "zenoh", "dds", "defaults", "arms", "groups"}
+    for key in raw:
+        if key not in known:
+            raise InventoryError(
+                f"{path}: unknown section [{key}] (known: {', '.join(sorted(known))})"
+            )
+    if "fleet" not in raw:
+        raise InventoryError(f'{path}: missing [fleet] section with name = "..."')
+    fleet = _convert(raw["fleet"], FleetSection, path, "fleet")
+    zenoh = _convert(raw.get("zenoh", {}), ZenohSection, path, "zenoh")
+    dds = _convert(raw.get("dds", {}), DdsSection, path, "dds")
+    defaults = raw.get("defaults", {})
+    if "id" in defaults:
+        raise InventoryError(f"{path}: defaults: 'id' cannot have a default")
+    _convert(defaults, ArmConfig, path, "defaults")
+    arms_raw = raw.get("arms", {})
+    if not isinstance(arms_raw, dict) or not arms_raw:
+        raise InventoryError(f"{path}: no arms: add at least one [arms.<id>] table")
+    try:
+        check_name("fleet", fleet.name)
+    except KeyError_ as exc:
+        raise InventoryError(f"{path}: fleet.name: {exc}") from None
+    if not 0 <= dds.domain_id <= 232:
+        raise InventoryError(f"{path}: dds.domain_id {dds.domain_id} is outside 0..232")
+    arms: dict[str, ArmConfig] = {}
+    for arm_id, arm_raw in arms_raw.items():
+        where = f"arms.{arm_id}"
+        try:
+            check_name("arm", arm_id)
+        except KeyError_ as exc:
+            raise InventoryError(f"{path}: {where}: {exc}") from None
+        if not isinstance(arm_raw, dict):
+            raise InventoryError(f"{path}: {where}: expected a table")
+        if "id" in arm_raw:
+            raise InventoryError(f"{path}: {where}: the id is the table's name; remove 'id'")
+        arm = _convert({**defaults, **arm_raw, "id": arm_id}, ArmConfig, path, where)
+        _check_arm(arm, path)
+        arms[arm_id] = arm
+    _check_unique_topics(arms, dds.domain_id, path)
+    groups = _parse_groups(raw.get("groups", {}), arms, path)
+    return Inventory(
+        path=path,
+        fleet=fleet.name,
+        endpoints=zenoh.endpoints,
+        domain_id=dds.domain_id,
+        peers=dds.peers,
+        arms=arms,
+        groups=groups,
+    )
+
+
+def _check_unique_topics(arms: dict[str, ArmConfig], domain_id: int, path: str) -> None:
+    """Two arms on the same domain and interface need different suffixes (spec, method 2)."""
+    seen: dict[tuple[int, str, str], str] = {}
+    for arm in arms.values():
+        slot = (domain_id if arm.domain_id is None else arm.domain_id, arm.interface, arm.suffix)
+        if slot in seen:
+            raise InventoryError(
+                f"{path}: arms.{arm.id}: suffix {arm.suffix!r} on interface {arm.interface!r} is "
+                f"already used by arm {seen[slot]!r}; give each arm on one network its own suffix"
+            )
+        seen[slot] = arm.id
+
+
+def _parse_groups(raw: Any, arms: dict[str, ArmConfig], path: str) -> dict[str, list[str]]:
+    groups = _convert(raw, dict[str, list[str]], path, "groups")
+    for name, members in groups.items():
+        if name == "all" or name in arms:
+            raise InventoryError(f"{path}: groups.{name}: the name is taken by 'all' or an arm")
+        for member in members:
+            if member not in arms:
+                raise InventoryError(f"{path}: groups.{name}: unknown arm {member!r}")
+    return dict(groups)
+
+
+def load_inventory(path: str | Path = DEFAULT_INVENTORY) -> Inventory:
+    """Read and validate ``path``."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise InventoryError(f"{path}: cannot read the inventory: {exc.strerror}") from None
+    return parse_inventory(text, str(path))

@@ -1,0 +1,67 @@
+"""Process plumbing shared by every entry point: logging, signals, the inventory options."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import threading
+from types import FrameType
+
+from fleet.inventory import DEFAULT_INVENTORY, Inventory, load_inventory
+
+
+def setup_logging(level: str = "INFO") -> None:
+    """One log format for every process of the fleet."""
+    logging.basicConfig(
+        level=getattr(logging, level.upper(), logging.INFO),
+        format="%(asctime)s %(levelname)s %(name)s [%(threadName)s] %(message)s",
+    )
+
+
+def shutdown_event() -> threading.Event:
+    """An Event set by SIGINT or SIGTERM (call from the main thread)."""
+    stop = threading.Event()
+
+    def handler(signum: int, _frame: FrameType | None) -> None:
+        logging.getLogger("fleet").info("received %s, shutting down", signal.Signals(signum).name)
+        stop.set()
+
+    signal.signal(signal.SIGINT, handler)
+    signal.signal(signal.SIGTERM, handler)
+    return stop
+
+
+def wait_for(stop: threading.Event) -> None:
+    """Block the main thread until ``stop`` is set, waking up so signal handlers can run."""
+    while not stop.wait(0.5):
+        pass
+
+
+def add_inventory_options(parser: argparse.ArgumentParser) -> None:
+    """``--inventory``, ``--domain`` and ``--endpoint``: every command takes them."""
+    parser.add_argument(
+        "--inventory",
+        default=DEFAULT_INVENTORY,
+        help="fleet description (default ./inventory.toml)",
+    )
+    parser.add_argument(
+        "--domain", type=int, default=None, help="override the inventory's DDS domain id"
+    )
+    parser.add_argument(
+        "--endpoint",
+        action="append",
+        default=None,
+        help="override the inventory's Zenoh endpoints (repeatable), e.g. tcp/127.0.0.1:7447",
+    )
+    parser.add_argument("--log-level", default="INFO")
+
+
+def inventory_from_args(args: argparse.Namespace) -> Inventory:
+    """Load the inventory and apply the command-line overrides."""
+    inventory = load_inventory(args.inventory)
+    if args.domain is not None:
+        inventory = inventory.with_domain(args.domain)
+    if args.endpoint:
+        inventory = inventory.with_endpoints(args.endpoint)
+    return inventory

@@ -1,0 +1,151 @@
+"""The simulated D1 arm's behaviour: pure state and physics, no transport, injected time.
+
+What it models, and why:
+- joint tracking with the two smoothing modes of 1/2: mode 0 (small smoothing, for streaming
+  at 10 Hz) follows quickly, mode 1 (large smoothing, for big moves) slowly, both speed-limited;
+- enable/unload per joint and power: an unloaded joint or a powered-off arm does not track;
+- the field-reported quirk that a re-enabled joint chases its old cached target (so the agent
+  must set the target to the measured pose before re-enabling; the sim makes that testable);
+- the field-reported quirk that an invalid joint id is acknowledged and then stops the arm's
+  angle feed (so nothing invalid may reach it);
+- faults for tests: a joint stalled at an angle (an obstacle), a motor offline, error_status 0,
+  dropped feedback, acknowledgments that never come.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from fleet.d1 import protocol as p
+from fleet.d1.errors import InvalidJoint, MalformedMessage
+from fleet.d1.limits import JOINT_COUNT
+
+PHYSICS_STEP_S = 0.01
+
+# (time constant s, speed limit deg/s) per smoothing mode; the spec gives no figures, these
+# make a 60 deg move take about 1 s in mode 1 and track a 10 Hz stream closely in mode 0.
+SMOOTHING = {0: (0.05, 180.0), 1: (0.25, 90.0)}
+
+
+@dataclass
+class Faults:
+    """Injected faults; all off by default."""
+
+    stalls: dict[int, float] = field(default_factory=dict)
+    motors_offline: set[int] = field(default_factory=set)
+    error_status: bool = False
+    drop_feedback: bool = False
+    mute_acks: bool = False
+
+
+@dataclass
+class SimArmModel:
+    """One simulated arm. Call ``advance(now_s)`` before reading or commanding it."""
+
+    angles_deg: list[float] = field(default_factory=lambda: [0.0] * JOINT_COUNT)
+    target_deg: list[float] = field(default_factory=lambda: [0.0] * JOINT_COUNT)
+    enabled: list[bool] = field(default_factory=lambda: [True] * JOINT_COUNT)
+    powered: bool = True
+    mode: int = 1
+    angle_feed_stopped: bool = False
+    faults: Faults = field(default_factory=Faults)
+    time_s: float = 0.0
+
+    # ------------------------------------------------------------------ physics
+
+    def advance(self, now_s: float) -> None:
+        """Integrate the joints from the last call up to ``now_s`` in fixed steps."""
+        if now_s <= self.time_s:
+            return
+        steps = min(int((now_s - self.time_s) / PHYSICS_STEP_S) + 1, 1000)
+        dt = (now_s - self.time_s) / steps
+        for _ in range(steps):
+            self._step(dt)
+        self.time_s = now_s
+
+    def _tracking(self, joint: int) -> bool:
+        return self.powered and self.enabled[joint] and joint not in self.faults.motors_offline
+
+    def _step(self, dt: float) -> None:
+        tau, vmax = SMOOTHING[self.mode]
+        alpha = 1.0 - math.exp(-dt / tau)
+        for j in range(JOINT_COUNT):
+            if not self._tracking(j):
+                continue
+            current = self.angles_deg[j]
+            delta = (self.target_deg[j] - current) * alpha
+            limit = vmax * dt
+            delta = max(-limit, min(limit, delta))
+            new = current + delta
+            stall = self.faults.stalls.get(j)
+            if stall is not None:
+                # An obstacle at `stall`: the joint cannot cross it from the side it is on
+                # (a joint resting on it counts as below it).
+                new = min(new, stall) if current <= stall else max(new, stall)
+            self.angles_deg[j] = new
+
+    # ------------------------------------------------------------------ commands
+
+    def apply(self, text: str) -> list[p.ArmMessage]:
+        """Handle one command string as the arm's service does; returns the acks to send."""
+        try:
+            seq, command = p.decode_command(text)
+        except InvalidJoint as exc:
+            # Field report: the arm acks an invalid joint id, then its angle feed stops.
+            self.angle_feed_stopped = True
+            return self._acks(exc.seq, received=True, executed=False) if exc.seq is not None else []
+        except (p.InvalidCommand, MalformedMessage) as exc:
+            return self._acks(exc.seq, received=False, executed=None) if exc.seq is not None else []
+        executed = self._execute(command)
+        return self._acks(seq, received=True, executed=executed)
+
+    def _acks(self, seq: int, received: bool, executed: bool | None) -> list[p.ArmMessage]:
+        if self.faults.mute_acks:
+            return []
+        acks: list[p.ArmMessage] = [p.ReceiveAck(seq, received)]
+        if executed is not None:
+            acks.append(p.ExecuteAck(seq, executed))
+        return acks
+
+    def _execute(self, command: p.Command) -> bool:
+        if isinstance(command, p.SetPower):
+            self.powered = command.on
+            return True
+        if isinstance(command, p.SetAllTorque):
+            self.enabled = [command.mode > 0] * JOINT_COUNT
+            return self.powered
+        if isinstance(command, p.SetJointTorque):
+            self.enabled[command.joint] = command.enable
+            return self.powered
+        if not self.powered:
+            return False
+        if isinstance(command, p.SetJointAngle):
+            self.target_deg[command.joint] = command.angle_deg
+        elif isinstance(command, p.SetAllAngles):
+            self.target_deg = list(command.angles_deg)
+            self.mode = command.mode
+        elif isinstance(command, p.ReturnToZero):
+            self.target_deg = [0.0] * JOINT_COUNT
+            self.mode = 1
+        return True
+
+    # ------------------------------------------------------------------ reports
+
+    def joint_report(self) -> p.JointAngles | None:
+        """The 2/1 report, or None while the feed is stopped (a fault or the bad-id quirk)."""
+        if self.faults.drop_feedback or self.angle_feed_stopped:
+            return None
+        return p.JointAngles(tuple(round(a, 2) for a in self.angles_deg))
+
+    def status_reports(self) -> list[p.ArmMessage]:
+        """The 2/3 and 2/4 reports."""
+        if self.faults.drop_feedback:
+            return []
+        motors = tuple(j not in self.faults.motors_offline for j in range(JOINT_COUNT))
+        return [
+            p.ArmStatus(
+                enabled=any(self.enabled), powered=self.powered, error=self.faults.error_status
+            ),
+            p.MotorStatus(motors),
+        ]

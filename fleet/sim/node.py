@@ -1,0 +1,204 @@
+"""Simulated D1 arms on real DDS: each arm reads ``rt/arm_Command<suffix>`` and writes
+``rt/arm_Feedback<suffix>`` exactly as the arm's service does, using the shared codec.
+
+One thread serves every arm of the process: it waits on a DDS WaitSet (command samples, or the
+guard condition that shutdown and fault requests trigger) with a timeout up to the next
+feedback deadline. Fault requests arrive as Zenoh queries; the Zenoh callback only queues them.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import random
+import threading
+import time
+from dataclasses import dataclass, field
+
+import msgspec
+import zenoh
+from cyclonedds.core import (
+    GuardCondition,
+    InstanceState,
+    ReadCondition,
+    SampleState,
+    ViewState,
+    WaitSet,
+)
+from cyclonedds.pub import DataWriter
+from cyclonedds.sub import DataReader
+from cyclonedds.topic import Topic
+from cyclonedds.util import duration
+
+from fleet.d1 import dds
+from fleet.d1.protocol import encode_message
+from fleet.inventory import ArmConfig, Inventory
+from fleet.sim.faults import FaultReply, apply_fault, fault_decoder
+from fleet.sim.model import SimArmModel
+from fleet.wire import keys
+from fleet.wire.messages import encode
+from fleet.wire.session import open_client
+
+log = logging.getLogger("fleet.sim")
+
+FEEDBACK_PERIOD_S = (0.100, 0.111)
+"""The real arm's feed runs at about 9-10 Hz: each period is drawn from this range."""
+STATUS_EVERY = 5
+"""Status (2/3) and motor (2/4) reports go out with every 5th angle report (about 2 Hz)."""
+
+_ANY = SampleState.Any | ViewState.Any | InstanceState.Any
+
+
+@dataclass
+class _SimArm:
+    config: ArmConfig
+    reader: DataReader
+    writer: DataWriter
+    model: SimArmModel
+    next_feedback_s: float
+    reports: int = 0
+    pending_faults: list[tuple[zenoh.Query, bytes]] = field(default_factory=list)
+
+
+class SimulatedArms:
+    """Runs simulated arms of one (domain, interface) in this process. A context manager."""
+
+    def __init__(self, inventory: Inventory, arm_ids: list[str], seed: int = 0) -> None:
+        arms = [inventory.arm(a) for a in arm_ids]
+        slots = {(inventory.domain_of(a), a.interface, inventory.peers_of(a)) for a in arms}
+        if len(slots) != 1:
+            raise ValueError(
+                "simulated arms on different DDS domains or interfaces need one `fleet sim` "
+                f"process each (got {sorted(s[:2] for s in slots)})"
+            )
+        domain_id, interface, peers = slots.pop()
+        self._rng = random.Random(seed)
+        self._stop = threading.Event()
+        self._faults: queue.SimpleQueue[tuple[str, zenoh.Query, bytes]] = queue.SimpleQueue()
+        self._channel = dds.DdsChannel(domain_id, interface, peers)
+        participant = self._channel.participant
+        self._guard = GuardCondition(participant)
+        self._waitset = WaitSet(participant)
+        self._waitset.attach(self._guard)
+        now = time.monotonic()
+        self._arms: dict[str, _SimArm] = {}
+        for arm in arms:
+            cmd_topic = Topic(participant, dds.command_topic(arm.suffix), dds.ArmString_)
+            fb_topic = Topic(participant, dds.feedback_topic(arm.suffix), dds.ArmString_)
+            reader = DataReader(participant, cmd_topic, qos=dds.COMMAND_READER_QOS)
+            self._waitset.attach(ReadCondition(reader, _ANY))
+            writer = DataWriter(participant, fb_topic, qos=dds.FEEDBACK_WRITER_QOS)
+            model = SimArmModel(time_s=now)
+            self._arms[arm.id] = _SimArm(arm, reader, writer, model, now + self._period())
+        self._session: zenoh.Session | None = None
+        self._queryables: list[zenoh.Queryable[None]] = []
+        self._keys = keys.KeySpace(inventory.fleet)
+        self._endpoints = inventory.endpoints
+        self._thread = threading.Thread(target=self._run, name="sim-arms", daemon=True)
+
+    def _period(self) -> float:
+        return self._rng.uniform(*FEEDBACK_PERIOD_S)
+
+    def start(self, with_zenoh: bool = True) -> SimulatedArms:
+        """Start serving; with_zenoh also serves fault injection on the key space."""
+        if with_zenoh:
+            self._session = open_client(self._endpoints)
+            for arm_id in self._arms:
+                key = self._keys.arm(arm_id, keys.SIM_FAULT)
+                self._queryables.append(
+                    self._session.declare_queryable(key, self._on_fault_query(arm_id))
+                )
+        self._thread.start()
+        return self
+
+    def _on_fault_query(self, arm_id: str):  # type: ignore[no-untyped-def]
+        def handler(query: zenoh.Query) -> None:
+            payload = query.payload.to_bytes() if query.payload is not None else b""
+            self._faults.put((arm_id, query, payload))
+            self._guard.set(True)
+
+        return handler
+
+    def model(self, arm_id: str) -> SimArmModel:
+        """The model of ``arm_id`` (for in-process inspection only)."""
+        return self._arms[arm_id].model
+
+    # ------------------------------------------------------------------ loop
+
+    def _run(self) -> None:
+        try:
+            while not self._stop.is_set():
+                now = time.monotonic()
+                deadline = min(a.next_feedback_s for a in self._arms.values())
+                timeout = max(0.0, min(deadline - now, 0.5))
+                self._waitset.wait(duration(seconds=timeout))
+                self._guard.set(False)
+                self._serve_faults()
+                self._serve_commands()
+                self._publish_feedback(time.monotonic())
+        except BaseException:
+            log.exception("simulated arm loop failed")
+            raise
+
+    def _serve_commands(self) -> None:
+        for arm in self._arms.values():
+            samples = arm.reader.take(N=64)
+            if not samples:
+                continue
+            arm.model.advance(time.monotonic())
+            for sample in samples:
+                text = getattr(sample, "data_", None)
+                if text is None:
+                    continue  # an InvalidSample: a writer went away
+                for ack in arm.model.apply(text):
+                    arm.writer.write(dds.ArmString_(encode_message(ack)))
+
+    def _publish_feedback(self, now: float) -> None:
+        for arm in self._arms.values():
+            if now < arm.next_feedback_s:
+                continue
+            arm.next_feedback_s = max(arm.next_feedback_s + self._period(), now + 0.05)
+            arm.model.advance(now)
+            report = arm.model.joint_report()
+            if report is not None:
+                arm.writer.write(dds.ArmString_(encode_message(report)))
+            if arm.reports % STATUS_EVERY == 0:
+                for status in arm.model.status_reports():
+                    arm.writer.write(dds.ArmString_(encode_message(status)))
+            arm.reports += 1
+
+    def _serve_faults(self) -> None:
+        while True:
+            try:
+                arm_id, query, payload = self._faults.get_nowait()
+            except queue.Empty:
+                return
+            try:
+                apply_fault(self._arms[arm_id].model.faults, fault_decoder.decode(payload))
+                reply = FaultReply(ok=True)
+            except (msgspec.DecodeError, ValueError) as exc:
+                reply = FaultReply(ok=False, error=str(exc))
+            query.reply(query.key_expr, encode(reply))
+            query.drop()
+
+    # ------------------------------------------------------------------ shutdown
+
+    def close(self) -> None:
+        """Stop the loop, then undeclare Zenoh and delete the DDS entities (idempotent)."""
+        self._stop.set()
+        self._guard.set(True)
+        if self._thread.is_alive():
+            self._thread.join(timeout=2.0)
+        for queryable in self._queryables:
+            queryable.undeclare()
+        self._queryables.clear()
+        if self._session is not None:
+            self._session.close()
+            self._session = None
+        self._channel.close()
+
+    def __enter__(self) -> SimulatedArms:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -1,0 +1,123 @@
+"""The Zenoh key space: the only place a key expression is spelled.
+
+Every key lives under ``fleet/<fleet>``; see the README's key-space table for payloads and
+publishers. Builders return strings; ``parse_arm_key`` turns a concrete key back into
+(arm, channel) so subscribers on wildcards can route samples.
+"""
+
+from __future__ import annotations
+
+import re
+
+from msgspec import Struct
+
+_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_\-]{0,62}$")
+
+# Channels under fleet/<fleet>/arm/<arm>/...
+JOINTS = "joints"
+STATUS = "status"
+RAW_FEEDBACK = "raw/feedback"
+RAW_COMMAND = "raw/command"
+CMD = "cmd"
+AGENT = "agent"
+DIAG = "diag"
+ESTOP = "estop"
+ESTOP_ACK = "estop/ack"
+CONTACT = "contact"
+SIM_FAULT = "sim/fault"
+
+ARM_CHANNELS = (
+    JOINTS,
+    STATUS,
+    RAW_FEEDBACK,
+    RAW_COMMAND,
+    CMD,
+    AGENT,
+    DIAG,
+    ESTOP,
+    ESTOP_ACK,
+    CONTACT,
+    SIM_FAULT,
+)
+
+
+class KeyError_(ValueError):  # noqa: N801 - not the builtin KeyError: a bad key expression
+    """A fleet or arm name that cannot be part of a key, or a key outside the key space."""
+
+
+def check_name(kind: str, name: str) -> str:
+    """Fleet and arm names: letters, digits, ``_`` and ``-``; no ``/``, ``*``, ``$`` or spaces."""
+    if not _NAME.match(name):
+        raise KeyError_(
+            f"{kind} name {name!r} is not usable in a key: use letters, digits, '_' or '-' "
+            "(at most 63, starting with a letter or digit)"
+        )
+    return name
+
+
+class ArmKey(Struct, frozen=True):
+    """A concrete per-arm key, parsed."""
+
+    fleet: str
+    arm: str
+    channel: str
+
+
+class KeySpace:
+    """Key builders for one fleet."""
+
+    def __init__(self, fleet: str) -> None:
+        self.fleet = check_name("fleet", fleet)
+        self.prefix = f"fleet/{fleet}"
+
+    def arm(self, arm: str, channel: str) -> str:
+        """``fleet/<fleet>/arm/<arm>/<channel>``; ``arm`` may be ``*`` for a subscription."""
+        if arm != "*":
+            check_name("arm", arm)
+        if channel not in ARM_CHANNELS:
+            raise KeyError_(f"unknown arm channel {channel!r}")
+        return f"{self.prefix}/arm/{arm}/{channel}"
+
+    def all_arms(self, channel: str) -> str:
+        """A wildcard over every arm for one channel."""
+        return self.arm("*", channel)
+
+    @property
+    def state(self) -> str:
+        """The coordinator's fleet summary."""
+        return f"{self.prefix}/state"
+
+    @property
+    def estop(self) -> str:
+        """Fleet-wide protective stop."""
+        return f"{self.prefix}/estop"
+
+    @property
+    def reset(self) -> str:
+        """Operator reset of a latched stop (the coordinator's queryable)."""
+        return f"{self.prefix}/reset"
+
+    @property
+    def heartbeat(self) -> str:
+        """The coordinator's heartbeat."""
+        return f"{self.prefix}/heartbeat"
+
+    @property
+    def coordinator_cmd(self) -> str:
+        """Multi-arm commands served by the coordinator."""
+        return f"{self.prefix}/coordinator/cmd"
+
+    @property
+    def everything(self) -> str:
+        """Every key of this fleet (for recorders and debugging)."""
+        return f"{self.prefix}/**"
+
+    def parse_arm_key(self, key: str) -> ArmKey:
+        """Split ``fleet/<fleet>/arm/<arm>/<channel>``; raises KeyError_ for anything else."""
+        head = f"{self.prefix}/arm/"
+        if not key.startswith(head):
+            raise KeyError_(f"{key!r} is not an arm key of fleet {self.fleet!r}")
+        arm, _, channel = key[len(head) :].partition("/")
+        if channel not in ARM_CHANNELS or not _NAME.match(arm):
+            raise KeyError_(f"{key!r} is not an arm key of fleet {self.fleet!r}")
+        return ArmKey(self.fleet, arm, channel)

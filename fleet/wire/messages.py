@@ -1,0 +1,177 @@
+"""Key-space payloads: the public schema, as msgspec Structs (JSON on the wire).
+
+Units are in the names: ``angles_deg`` (the public key space is in degrees, like the D1 wire),
+``stamp_ns`` (wall clock, nanoseconds since the epoch, taken where the data entered the fleet),
+``*_s`` seconds, ``*_ms`` milliseconds. ``fleet schema`` prints the JSON Schema of each.
+"""
+
+from __future__ import annotations
+
+import enum
+from typing import Literal
+
+import msgspec
+from msgspec import Struct
+
+LinkState = Literal["ok", "stale", "lost"]
+
+
+class ErrorCode(enum.IntEnum):
+    """Command error codes, with the meaning of Unitree's SDK2 RPC codes (3001-3207)."""
+
+    UNKNOWN = 3001
+    SEND_FAILED = 3102  # the DDS write failed
+    NOT_REGISTERED = 3103  # no agent serves this arm
+    TIMEOUT = 3104  # an acknowledgment (or the target) did not arrive in time
+    INVALID_RESPONSE = 3106  # the arm answered recv_status 0 / exec_status 0
+    CLIENT_LEASE_INVALID = 3107
+    INTERNAL = 3202
+    NOT_IMPLEMENTED = 3203  # unknown "op"
+    PARAMETER = 3204  # bad joint id, angle out of range, not finite, bad payload
+    REJECTED = 3205  # refused in this state: stopped, powered off, no feedback
+    LEASE_INVALID = 3206
+    LEASE_EXISTS = 3207
+
+
+class ErrorInfo(Struct, frozen=True):
+    """Why a command failed: ``code`` from ErrorCode, ``message`` for humans."""
+
+    code: int
+    message: str
+
+
+class Joints(Struct, frozen=True):
+    """``arm/<arm>/joints``: measured angles (degrees, wire ids 0..6). ``seq`` counts the
+    samples the agent relayed for this arm (the arm's own seq is always 10)."""
+
+    stamp_ns: int
+    angles_deg: list[float]
+    seq: int
+
+
+class ArmStatus(Struct, frozen=True):
+    """``arm/<arm>/status``: the arm's state as its agent sees it. ``None`` = not reported yet."""
+
+    stamp_ns: int
+    link: LinkState
+    enabled: bool | None = None
+    powered: bool | None = None
+    error: bool | None = None
+    motors_ok: list[bool] | None = None
+    estopped: bool = False
+    feedback_age_s: float | None = None
+
+
+class Diag(Struct, frozen=True):
+    """``arm/<arm>/diag``: the agent's counters for this arm (monotonic since agent start)."""
+
+    stamp_ns: int
+    link: LinkState
+    relayed: int
+    malformed: int
+    unknown_messages: int
+    unknown_fields: int
+    rejected: int
+    commands: int
+    ack_timeouts: int
+    feedback_rate_hz: float
+    last_feedback_age_s: float | None
+    last_error: str | None = None
+
+
+# ----------------------------------------------------------------------------- commands
+
+
+class _CommandBase(Struct, tag_field="op", kw_only=True, forbid_unknown_fields=True):
+    """Options every command accepts.
+
+    ``wait_reached``: also wait until feedback shows the target reached (within
+    ``tolerance_deg``, at most ``timeout_s``); the arm's own acks are known to be unreliable.
+    """
+
+    wait_reached: bool = False
+    tolerance_deg: float = 2.0
+    timeout_s: float = 10.0
+
+
+class MoveJoint(_CommandBase, tag="move_joint", kw_only=True):
+    """Move one joint (wire id 0..6) to ``angle_deg``."""
+
+    joint: int
+    angle_deg: float
+
+
+class MoveJoints(_CommandBase, tag="move_joints", kw_only=True):
+    """Move all seven joints; ``mode`` 0 = small smoothing (streaming), 1 = large smoothing."""
+
+    angles_deg: list[float]
+    mode: Literal[0, 1] = 1
+
+
+class Torque(_CommandBase, tag="torque", kw_only=True):
+    """Enable (``on``) or unload one joint, or all joints when ``joint`` is null.
+    ``strength`` (all joints only) is the spec's 0..80000 holding strength."""
+
+    on: bool
+    joint: int | None = None
+    strength: int | None = None
+
+
+class Power(_CommandBase, tag="power", kw_only=True):
+    """Switch the motors' power supply."""
+
+    on: bool
+
+
+class Zero(_CommandBase, tag="zero", kw_only=True):
+    """Return every joint to zero."""
+
+
+class Hold(_CommandBase, tag="hold", kw_only=True):
+    """Make the measured angles the target: the arm stays where it is."""
+
+
+ArmCommand = MoveJoint | MoveJoints | Torque | Power | Zero | Hold
+MOTION_OPS = (MoveJoint, MoveJoints, Zero)
+
+
+class CommandReply(Struct, frozen=True):
+    """The reply of ``arm/<arm>/cmd``.
+
+    ``received``/``executed`` are the arm's receive and execute acks (``executed`` null when it
+    was not awaited); ``reached`` is null unless ``wait_reached`` was asked.
+    """
+
+    ok: bool
+    arm: str
+    seq: int | None
+    received: bool
+    executed: bool | None
+    reached: bool | None
+    latency_ms: float
+    error: ErrorInfo | None = None
+
+
+# ----------------------------------------------------------------------------- helpers
+
+_encoder = msgspec.json.Encoder()
+
+
+def encode(message: Struct) -> bytes:
+    """JSON bytes of a key-space payload."""
+    return _encoder.encode(message)
+
+
+command_decoder: msgspec.json.Decoder[ArmCommand] = msgspec.json.Decoder(ArmCommand)
+reply_decoder = msgspec.json.Decoder(CommandReply)
+joints_decoder = msgspec.json.Decoder(Joints)
+status_decoder = msgspec.json.Decoder(ArmStatus)
+diag_decoder = msgspec.json.Decoder(Diag)
+
+PUBLIC_SCHEMA: dict[str, object] = {
+    "arm/<arm>/joints": Joints,
+    "arm/<arm>/status": ArmStatus,
+    "arm/<arm>/diag": Diag,
+    "arm/<arm>/cmd (request)": ArmCommand,
+    "arm/<arm>/cmd (reply)": CommandReply,
+}
