@@ -23,6 +23,7 @@ AGENT = "agent"
 DIAG = "diag"
 ESTOP = "estop"
 ESTOP_ACK = "estop/ack"
+RESET = "reset"
 CONTACT = "contact"
 SIM_FAULT = "sim/fault"
 
@@ -36,6 +37,7 @@ ARM_CHANNELS = (
     DIAG,
     ESTOP,
     ESTOP_ACK,
+    RESET,
     CONTACT,
     SIM_FAULT,
 )

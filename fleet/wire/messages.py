@@ -152,6 +152,47 @@ class CommandReply(Struct, frozen=True):
     error: ErrorInfo | None = None
 
 
+# ----------------------------------------------------------------------------- protective stop
+
+
+class StopRequest(Struct, frozen=True):
+    """Put on ``fleet/<fleet>/estop`` (every arm) or ``arm/<arm>/estop`` (one arm).
+
+    ``stop_id`` identifies one stop so agents can acknowledge it and ignore its repeats;
+    ``source`` says who pressed it (``cli@host``, ``viewer``, ``coordinator``, ...).
+    """
+
+    stamp_ns: int
+    source: str
+    stop_id: str
+    reason: str = ""
+
+
+class ResetRequest(Struct, frozen=True):
+    """Put on ``fleet/<fleet>/reset`` or ``arm/<arm>/reset``: an operator releases the latch.
+
+    A reset never moves an arm: the agent makes the measured pose the target.
+    """
+
+    stamp_ns: int
+    source: str
+
+
+class StopAck(Struct, frozen=True):
+    """``arm/<arm>/estop/ack``: what the agent did about a stop, with its times (wall clock, ns).
+
+    Published when the stop was received and acted on, and again when feedback showed the arm
+    still (``still_ns``), so the fan-out is measurable per arm.
+    """
+
+    arm: str
+    stop_id: str
+    action: str
+    received_ns: int
+    dds_written_ns: int | None
+    still_ns: int | None = None
+
+
 # ----------------------------------------------------------------------------- helpers
 
 _encoder = msgspec.json.Encoder()
@@ -167,6 +208,9 @@ reply_decoder = msgspec.json.Decoder(CommandReply)
 joints_decoder = msgspec.json.Decoder(Joints)
 status_decoder = msgspec.json.Decoder(ArmStatus)
 diag_decoder = msgspec.json.Decoder(Diag)
+stop_decoder = msgspec.json.Decoder(StopRequest)
+reset_decoder = msgspec.json.Decoder(ResetRequest)
+stop_ack_decoder = msgspec.json.Decoder(StopAck)
 
 PUBLIC_SCHEMA: dict[str, object] = {
     "arm/<arm>/joints": Joints,
@@ -174,4 +218,7 @@ PUBLIC_SCHEMA: dict[str, object] = {
     "arm/<arm>/diag": Diag,
     "arm/<arm>/cmd (request)": ArmCommand,
     "arm/<arm>/cmd (reply)": CommandReply,
+    "estop, arm/<arm>/estop": StopRequest,
+    "reset, arm/<arm>/reset": ResetRequest,
+    "arm/<arm>/estop/ack": StopAck,
 }

@@ -1,0 +1,176 @@
+"""Test harness: a fleet of real processes on loopback, isolated per test.
+
+Each ``FleetHarness`` gets a DDS domain id and a Zenoh port of its own, writes an inventory for
+them, starts the router, simulated arms, agents (and whatever else a test needs) as separate
+processes, and stops every process it started by PID. Waits are bounded: ``wait_until``.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import TypeVar
+
+from fleet.client import FleetClient
+from fleet.inventory import Inventory, load_inventory
+
+T = TypeVar("T")
+
+# Domains 1..99 keep CycloneDDS's ports (7400 + 250 * domain ...) below the ephemeral range that
+# free Zenoh ports come from. The run's PID spreads parallel runs; the counter separates tests.
+_domains = itertools.count((os.getpid() * 7) % 90)
+
+
+def unique_domain() -> int:
+    """A DDS domain id for one test, different from the other tests of this run."""
+    return 1 + next(_domains) % 99
+
+
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that nothing listens on right now."""
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return int(probe.getsockname()[1])
+
+
+def wait_until(predicate: Callable[[], T], timeout_s: float, interval_s: float = 0.05) -> T:
+    """Poll ``predicate`` until it returns something truthy; AssertionError after ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        value = predicate()
+        if value:
+            return value
+        if time.monotonic() >= deadline:
+            raise AssertionError(f"condition not met within {timeout_s} s: {predicate}")
+        time.sleep(interval_s)
+
+
+def inventory_text(fleet: str, port: int, domain: int, arms: int = 1, extra: str = "") -> str:
+    """An inventory of ``arms`` simulated arms (a1.. with suffixes _1..) on loopback."""
+    lines = [
+        f'[fleet]\nname = "{fleet}"\n',
+        f'[zenoh]\nendpoints = ["tcp/127.0.0.1:{port}"]\n',
+        f'[dds]\ndomain_id = {domain}\npeers = ["127.0.0.1"]\n',
+        '[defaults]\ninterface = "lo"\nsimulated = true\n',
+    ]
+    for i in range(1, arms + 1):
+        lines.append(f'[arms.a{i}]\nsuffix = "_{i}"\nbase_xyz = [0.0, {0.6 * (i - 1):.1f}, 0.0]\n')
+    lines.append(extra)
+    return "\n".join(lines)
+
+
+class FleetHarness:
+    """Processes of one test's fleet. Use as a context manager (the fixture does)."""
+
+    def __init__(self, tmp_path: Path, arms: int = 1, extra: str = "") -> None:
+        self.tmp_path = tmp_path
+        self.port = free_port()
+        self.domain = unique_domain()
+        self.endpoint = f"tcp/127.0.0.1:{self.port}"
+        self.inventory_path = tmp_path / "inventory.toml"
+        self.inventory_path.write_text(
+            inventory_text("test", self.port, self.domain, arms, extra), encoding="utf-8"
+        )
+        self.inventory: Inventory = load_inventory(self.inventory_path)
+        self.processes: dict[str, subprocess.Popen[bytes]] = {}
+        self._logs: dict[str, Path] = {}
+        self._clients: list[FleetClient] = []
+
+    # ------------------------------------------------------------------ processes
+
+    def start(self, name: str, argv: list[str]) -> subprocess.Popen[bytes]:
+        """Start ``python argv...`` with the inventory option appended; output to a log file."""
+        log_path = self.tmp_path / f"{name}.log"
+        self._logs[name] = log_path
+        with open(log_path, "wb") as log:
+            process = subprocess.Popen(
+                [sys.executable, *argv, "--inventory", str(self.inventory_path)],
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                env={**os.environ, "PYTHONUNBUFFERED": "1"},
+            )
+        self.processes[name] = process
+        return process
+
+    def start_router(self) -> subprocess.Popen[bytes]:
+        """``fleet router``; returns once the port accepts connections."""
+        process = self.start("router", ["-m", "fleet.cli.main", "router"])
+        wait_until(lambda: self._port_open() or process.poll() is not None, 15.0)
+        assert process.poll() is None, self.log("router")
+        return process
+
+    def start_sim(self, *arms: str, name: str = "sim") -> subprocess.Popen[bytes]:
+        """``fleet sim`` for the given arms (all simulated arms if none)."""
+        argv = ["-m", "fleet.cli.main", "sim"]
+        for arm in arms:
+            argv += ["--arm", arm]
+        return self.start(name, argv)
+
+    def start_agent(self, *arms: str, name: str = "agent") -> subprocess.Popen[bytes]:
+        """``edge-agent --arm ...``."""
+        argv = ["-m", "edge_agent"]
+        for arm in arms or tuple(self.inventory.arms):
+            argv += ["--arm", arm]
+        return self.start(name, argv)
+
+    def start_fleet(self) -> FleetClient:
+        """Router, all simulated arms, one agent for all arms; returns a connected client once
+        every arm's link is ok."""
+        self.start_router()
+        self.start_sim()
+        self.start_agent()
+        client = self.client()
+        wait_until(lambda: self.all_links_ok(client), 30.0)
+        return client
+
+    def client(self) -> FleetClient:
+        """A FleetClient on this fleet (closed at teardown)."""
+        client = FleetClient(self.inventory)
+        self._clients.append(client)
+        return client
+
+    def all_links_ok(self, client: FleetClient) -> bool:
+        """True when every arm reports status with link ok."""
+        snapshot = client.snapshot(wait_s=1.5)
+        return all(s is not None and s.link == "ok" for s, _j in snapshot.values())
+
+    def stop(self, name: str, sig: int = signal.SIGTERM, timeout_s: float = 10.0) -> int:
+        """Signal the process by PID and wait; SIGKILL if it does not exit. Returns its code."""
+        process = self.processes[name]
+        if process.poll() is None:
+            process.send_signal(sig)
+            try:
+                process.wait(timeout=timeout_s)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait(timeout=timeout_s)
+        return int(process.returncode)
+
+    def log(self, name: str) -> str:
+        """The output of process ``name`` so far."""
+        path = self._logs.get(name)
+        return path.read_text(errors="replace") if path and path.exists() else ""
+
+    def _port_open(self) -> bool:
+        with socket.socket() as probe:
+            return probe.connect_ex(("127.0.0.1", self.port)) == 0
+
+    def close(self) -> None:
+        """Close clients, then stop every process, newest first."""
+        for client in self._clients:
+            client.close()
+        for name in reversed(list(self.processes)):
+            self.stop(name)
+
+    def __enter__(self) -> FleetHarness:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
