@@ -23,6 +23,8 @@ import zenoh
 from edge_agent.commands import InFlight, Refused, plan
 from edge_agent.link import DdsLink
 from edge_agent.relay import JSON, IncomingQuery, ZenohRelay
+from edge_agent.safety import ArmSafety, LeaseRefused
+from edge_agent.stops import SafetyLoop
 from edge_agent.tracker import ArmTracker
 from fleet.d1 import protocol as p
 from fleet.d1.seq import SeqAllocator
@@ -37,9 +39,14 @@ STATUS_PERIOD_S = 1.0
 """Status and diag are re-published every second so late joiners learn them."""
 
 
+MAX_START_DELAY_S = 5.0
+"""A synchronized start further ahead than this is refused (a clock problem, not a plan)."""
+
+
 @dataclass
 class _ArmSlot:
     tracker: ArmTracker
+    safety: ArmSafety
     seqs: SeqAllocator = field(default_factory=SeqAllocator)
     in_flight: dict[int, tuple[InFlight, zenoh.Query]] = field(default_factory=dict)
     joints_seq: int = 0
@@ -71,9 +78,10 @@ class EdgeAgent:
     def __init__(self, inventory: Inventory, arm_ids: list[str]) -> None:
         domain_id, interface, peers = serving_slot(inventory, arm_ids)
         self.inventory = inventory
-        self._lock = threading.Lock()
-        self._slots = {a: _ArmSlot(ArmTracker(inventory.arm(a))) for a in arm_ids}
-        self._stop = threading.Event()
+        self.lock = threading.Lock()
+        self.arm_ids = list(arm_ids)
+        self.slots = {a: self._slot(inventory, a) for a in arm_ids}
+        self.stopping = threading.Event()
         suffixes = {a: inventory.arm(a).suffix for a in arm_ids}
         # DDS first: if the interface is wrong we fail before announcing anything on Zenoh.
         self.link = DdsLink(domain_id, interface, peers, suffixes, self._on_feedback)
@@ -82,7 +90,9 @@ class EdgeAgent:
         except BaseException:
             self.link.close()
             raise
+        self.safety_loop = SafetyLoop(self)
         self._threads = [
+            self.safety_loop.thread,
             threading.Thread(
                 target=self._guarded(self._command_loop), name="commands", daemon=True
             ),
@@ -97,6 +107,11 @@ class EdgeAgent:
         for thread in self._threads:
             thread.start()
         return self
+
+    @staticmethod
+    def _slot(inventory: Inventory, arm: str) -> _ArmSlot:
+        config = inventory.arm(arm)
+        return _ArmSlot(ArmTracker(config), ArmSafety(config.lease_s, config.watchdog_s))
 
     def _guarded(self, loop):  # type: ignore[no-untyped-def]
         def run() -> None:
@@ -114,8 +129,8 @@ class EdgeAgent:
         stamp_ns = time.time_ns()
         pubs = self.relay.publishers[arm]
         out = _Outbox(puts=[(pubs.raw_feedback, text)])
-        with self._lock:
-            slot = self._slots[arm]
+        with self.lock:
+            slot = self.slots[arm]
             tracker = slot.tracker
             decoded = tracker.on_feedback(text, now)
             status_changed = tracker.update_link(now)
@@ -127,6 +142,8 @@ class EdgeAgent:
                     out.puts.append((pubs.joints, encode(joints)))
                     for flight, _query in slot.in_flight.values():
                         flight.on_angles(message.angles_deg)
+                    if slot.safety.on_angles(message.angles_deg, stamp_ns):
+                        self.safety_loop.on_still(arm, slot, out)
                 elif isinstance(message, (p.ReceiveAck, p.ExecuteAck)):
                     entry = slot.in_flight.get(message.seq)
                     if entry is not None:
@@ -136,12 +153,12 @@ class EdgeAgent:
             if status_changed:
                 out.puts.append((pubs.status, encode(tracker.status(now, stamp_ns))))
             self._collect_finished(slot, now, out)
-        self._flush(out)
+        self.flush(out)
 
     # ------------------------------------------------------------------ commands
 
     def _command_loop(self) -> None:
-        while not self._stop.is_set():
+        while not self.stopping.is_set():
             try:
                 item = self.relay.commands.get(timeout=0.2)
             except queue.Empty:
@@ -150,53 +167,114 @@ class EdgeAgent:
 
     def _handle(self, item: IncomingQuery) -> None:
         now = time.monotonic()
-        slot = self._slots[item.arm]
+        slot = self.slots[item.arm]
         try:
             command = m.command_decoder.decode(item.payload)
         except msgspec.DecodeError as exc:
-            with self._lock:
+            with self.lock:
                 slot.tracker.rejected += 1
                 slot.tracker.last_error = f"bad command payload: {exc}"
             self._refuse(item, ErrorCode.PARAMETER, f"bad command payload: {exc}", now)
             return
-        texts: list[str] = []
-        with self._lock:
-            tracker = slot.tracker
-            tracker.commands += 1
+        with self.lock:
+            slot.tracker.commands += 1
             try:
-                planned = plan(command, tracker)
+                texts, flight, delay_s = self._accept(slot, item, command, now)
             except Refused as exc:
-                tracker.rejected += 1
-                tracker.last_error = str(exc)
+                slot.tracker.rejected += 1
+                slot.tracker.last_error = str(exc)
                 refused: Refused | None = exc
             else:
                 refused = None
-                seqs = tuple(slot.seqs.allocate() for _ in planned.commands)
-                texts = [
-                    p.encode_command(c, s) for c, s in zip(planned.commands, seqs, strict=False)
-                ]
-                config = tracker.config
-                flight = InFlight(
-                    arm=item.arm,
-                    seqs=seqs,
-                    started_s=now,
-                    recv_deadline_s=now + config.recv_ack_timeout_s,
-                    exec_deadline_s=now + config.exec_ack_timeout_s,
-                    reach_deadline_s=now + command.timeout_s if command.wait_reached else None,
-                    targets_deg=planned.targets_deg,
-                    tolerance_deg=command.tolerance_deg,
-                )
-                for seq in seqs:
-                    slot.in_flight[seq] = (flight, item.query)
         if refused is not None:
             self._refuse(item, refused.code, str(refused), now)
             return
-        pubs = self.relay.publishers[item.arm]
+        if flight is None:  # a lease release: nothing goes to the arm
+            self._reply_now(item, now)
+        elif delay_s > 0:
+            timer = threading.Timer(delay_s, self._write_all, (item.arm, texts, flight))
+            timer.name = f"start-{item.arm}"
+            timer.daemon = True
+            timer.start()
+        else:
+            self._write_all(item.arm, texts, flight)
+
+    def _accept(
+        self, slot: _ArmSlot, item: IncomingQuery, command: m.ArmCommand, now: float
+    ) -> tuple[list[str], InFlight | None, float]:
+        """Check, plan and register one command (caller holds the lock); raises Refused."""
+        safety = slot.safety
+        if isinstance(command, m.Release):
+            if command.owner is None or not safety.release(command.owner):
+                holder = safety.lease.owner if safety.lease else "nobody"
+                raise Refused(ErrorCode.LEASE_INVALID, f"arm {item.arm!r} is held by {holder}")
+            return [], None, 0.0
+        planned = plan(command, slot.tracker)
+        if not isinstance(command, m.Hold):
+            try:
+                safety.check_owner(command.owner, command.takeover, now)
+            except LeaseRefused as exc:
+                raise Refused(ErrorCode.LEASE_EXISTS, f"arm {item.arm!r} is {exc}") from None
+        delay_s = 0.0
+        if command.start_at_ns is not None:
+            delay_s = (command.start_at_ns - time.time_ns()) / 1e9
+            if delay_s > MAX_START_DELAY_S:
+                raise Refused(
+                    ErrorCode.PARAMETER,
+                    f"start_at_ns is {delay_s:.1f} s ahead (max {MAX_START_DELAY_S:g} s); "
+                    "are the hosts' clocks synchronized?",
+                )
+        if isinstance(command, m.MOTION_OPS) and command.owner in self.safety_loop.last_heartbeat_s:
+            safety.watch(command.owner)
+        seqs = tuple(slot.seqs.allocate() for _ in planned.commands)
+        texts = [p.encode_command(c, s) for c, s in zip(planned.commands, seqs)]
+        config = slot.tracker.config
+        start = now + max(0.0, delay_s)
+        flight = InFlight(
+            arm=item.arm,
+            seqs=seqs,
+            started_s=now,
+            recv_deadline_s=start + config.recv_ack_timeout_s,
+            exec_deadline_s=start + config.exec_ack_timeout_s,
+            reach_deadline_s=start + command.timeout_s if command.wait_reached else None,
+            targets_deg=planned.targets_deg,
+            tolerance_deg=command.tolerance_deg,
+        )
+        for seq in seqs:
+            slot.in_flight[seq] = (flight, item.query)
+        return texts, flight, delay_s
+
+    def _write_all(self, arm: str, texts: list[str], flight: InFlight) -> None:
+        """Write a command's DDS strings (now, or from a synchronized-start timer)."""
+        pubs = self.relay.publishers[arm]
         for text in texts:
-            if not self.link.write(item.arm, text):
-                with self._lock:
-                    flight._fail(ErrorCode.SEND_FAILED, "the DDS write failed (maybe sent)")
+            with self.lock:
+                if flight.error is not None:
+                    return  # cancelled meanwhile (a stop latched before the start time)
+            ok = self.link.write(arm, text)
+            flight.written_ns = flight.written_ns or time.time_ns()
+            if not ok:
+                with self.lock:
+                    flight.fail(ErrorCode.SEND_FAILED, "the DDS write failed (maybe sent)")
             pubs.raw_command.put(text)
+
+    def _reply_now(self, item: IncomingQuery, started: float) -> None:
+        reply = m.CommandReply(
+            ok=True,
+            arm=item.arm,
+            seq=None,
+            received=False,
+            executed=None,
+            reached=None,
+            latency_ms=round((time.monotonic() - started) * 1000.0, 3),
+        )
+        self.flush(_Outbox(replies=[(item.query, reply)]))
+
+    def cancel_in_flight(self, slot: _ArmSlot, now: float, why: str, out: _Outbox) -> None:
+        """Fail every command in flight on ``slot`` (caller holds the lock)."""
+        for flight, _query in slot.in_flight.values():
+            flight.fail(ErrorCode.REJECTED, why)
+        self._collect_finished(slot, now, out)
 
     def _refuse(self, item: IncomingQuery, code: ErrorCode, message: str, started: float) -> None:
         reply = m.CommandReply(
@@ -209,21 +287,21 @@ class EdgeAgent:
             latency_ms=round((time.monotonic() - started) * 1000.0, 3),
             error=ErrorInfo(int(code), message),
         )
-        self._flush(_Outbox(replies=[(item.query, reply)]))
+        self.flush(_Outbox(replies=[(item.query, reply)]))
 
     # ------------------------------------------------------------------ housekeeping
 
     def _housekeeping_loop(self) -> None:
         next_status = 0.0
-        while not self._stop.wait(HOUSEKEEPING_PERIOD_S):
+        while not self.stopping.wait(HOUSEKEEPING_PERIOD_S):
             now = time.monotonic()
             stamp_ns = time.time_ns()
             periodic = now >= next_status
             if periodic:
                 next_status = now + STATUS_PERIOD_S
             out = _Outbox()
-            with self._lock:
-                for arm, slot in self._slots.items():
+            with self.lock:
+                for arm, slot in self.slots.items():
                     tracker = slot.tracker
                     pubs = self.relay.publishers[arm]
                     if tracker.update_link(now) or periodic:
@@ -233,7 +311,7 @@ class EdgeAgent:
                     for flight, _query in list(slot.in_flight.values()):
                         flight.on_time(now, tracker.angles_deg)
                     self._collect_finished(slot, now, out)
-            self._flush(out)
+            self.flush(out)
 
     def _collect_finished(self, slot: _ArmSlot, now: float, out: _Outbox) -> None:
         """Move finished commands from the in-flight table to ``out`` (caller holds the lock)."""
@@ -251,7 +329,7 @@ class EdgeAgent:
                     slot.tracker.ack_timeouts += 1
             out.replies.append((query, reply))
 
-    def _flush(self, out: _Outbox) -> None:
+    def flush(self, out: _Outbox) -> None:
         for publisher, payload in out.puts:
             publisher.put(payload)
         for query, reply in out.replies:
@@ -262,16 +340,16 @@ class EdgeAgent:
 
     def tracker(self, arm: str) -> ArmTracker:
         """The tracker of ``arm`` (read it under no assumption of consistency)."""
-        return self._slots[arm].tracker
+        return self.slots[arm].tracker
 
     # ------------------------------------------------------------------ shutdown
 
     def close(self) -> None:
         """Shutdown order: stop taking commands -> stop loops -> join -> undeclare Zenoh
         (tokens first, so the fleet sees the agent leave) -> delete DDS entities. Idempotent."""
-        if self._stop.is_set():
+        if self.stopping.is_set():
             return
-        self._stop.set()
+        self.stopping.set()
         for thread in self._threads:
             if thread.is_alive():
                 thread.join(timeout=2.0)

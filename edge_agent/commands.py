@@ -95,6 +95,10 @@ def _plan(command: m.ArmCommand, tracker: ArmTracker) -> Plan:
     if isinstance(command, m.Torque):
         return _plan_torque(command, tracker)
     if isinstance(command, m.Power):
+        if command.on and tracker.estopped:
+            raise Refused(
+                ErrorCode.REJECTED, f"arm {tracker.config.id!r} is stopped; reset it first"
+            )
         return Plan((p.SetPower(command.on),), {})
     raise Refused(ErrorCode.NOT_IMPLEMENTED, f"unknown command {type(command).__name__}")
 
@@ -138,18 +142,19 @@ class InFlight:
     executed: set[int] = field(default_factory=set)
     reached: bool | None = None
     error: ErrorInfo | None = None
+    written_ns: int | None = None
 
     def on_ack(self, ack: p.ReceiveAck | p.ExecuteAck) -> None:
         """Record an acknowledgment for one of our seqs."""
         if isinstance(ack, p.ReceiveAck):
             if not ack.ok:
-                self._fail(
+                self.fail(
                     ErrorCode.INVALID_RESPONSE, f"the arm refused seq {ack.seq} (recv_status 0)"
                 )
             self.received.add(ack.seq)
         else:
             if not ack.ok:
-                self._fail(
+                self.fail(
                     ErrorCode.INVALID_RESPONSE,
                     f"the arm failed to execute seq {ack.seq} (exec_status 0)",
                 )
@@ -171,20 +176,20 @@ class InFlight:
                 self.reached = False
                 worst = _worst_joint(self.targets_deg, angles_deg)
                 waited = self.reach_deadline_s - self.started_s
-                self._fail(ErrorCode.TIMEOUT, f"target not reached within {waited:.1f} s{worst}")
+                self.fail(ErrorCode.TIMEOUT, f"target not reached within {waited:.1f} s{worst}")
             return
         if now >= self.recv_deadline_s and len(self.received) < len(self.seqs):
-            self._fail(
+            self.fail(
                 ErrorCode.TIMEOUT,
                 f"no receive ack from the arm within {self.recv_deadline_s - self.started_s:.2f} s",
             )
         elif now >= self.exec_deadline_s and len(self.executed) < len(self.seqs):
-            self._fail(
+            self.fail(
                 ErrorCode.TIMEOUT,
                 f"no execute ack from the arm within {self.exec_deadline_s - self.started_s:.2f} s",
             )
 
-    def _fail(self, code: ErrorCode, message: str) -> None:
+    def fail(self, code: ErrorCode, message: str) -> None:
         if self.error is None:
             self.error = ErrorInfo(int(code), f"arm {self.arm!r}: {message}")
 
@@ -211,6 +216,7 @@ class InFlight:
             reached=self.reached,
             latency_ms=round((now - self.started_s) * 1000.0, 3),
             error=self.error,
+            written_ns=self.written_ns,
         )
 
 

@@ -4,6 +4,7 @@ Publisher QoS, and why:
 - ``joints`` and ``raw/*``: congestion control DROP. They are latest-wins state at 10 Hz; a slow
   subscriber must never stall the relay of the next sample (the newest sample is what counts).
 - ``status`` and ``diag``: BLOCK, DATA_HIGH: rare and small, and a missed link change matters.
+- ``estop/ack``: BLOCK, REAL_TIME: a stop's acknowledgment must arrive, and first.
 - command replies go back on the query itself.
 Queryable callbacks run on Zenoh threads: they only put the query on a queue (never block there).
 """
@@ -32,6 +33,28 @@ class ArmPublishers:
     diag: zenoh.Publisher
     raw_feedback: zenoh.Publisher
     raw_command: zenoh.Publisher
+    stop_ack: zenoh.Publisher
+
+    def all(self) -> tuple[zenoh.Publisher, ...]:
+        """Every publisher (for undeclaring)."""
+        return (
+            self.joints,
+            self.status,
+            self.diag,
+            self.raw_feedback,
+            self.raw_command,
+            self.stop_ack,
+        )
+
+
+@dataclass(frozen=True)
+class SafetyEvent:
+    """A stop, reset or heartbeat sample, handed from a Zenoh thread to the safety thread.
+    ``arm`` is None for fleet-wide keys."""
+
+    channel: str
+    arm: str | None
+    payload: bytes
 
 
 @dataclass(frozen=True)
@@ -51,9 +74,26 @@ class ZenohRelay:
         self.session = open_client(endpoints)
         self.commands: queue.Queue[IncomingQuery] = queue.Queue(maxsize=COMMAND_QUEUE_DEPTH)
         self.dropped_queries = 0
+        # Stops must never be dropped: an unbounded queue, drained by a thread that does
+        # nothing else. Heartbeats share it (10 Hz, tiny) so a stop they repeat is in order.
+        self.safety: queue.SimpleQueue[SafetyEvent] = queue.SimpleQueue()
         self.publishers: dict[str, ArmPublishers] = {}
         self._tokens: list[zenoh.LivelinessToken] = []
         self._queryables: list[zenoh.Queryable[None]] = []
+        self._subscribers: list[zenoh.Subscriber[None]] = [
+            self.session.declare_subscriber(self.keys.estop, self._on_safety(keys.ESTOP, None)),
+            self.session.declare_subscriber(self.keys.reset, self._on_safety(keys.RESET, None)),
+            self.session.declare_subscriber(
+                self.keys.heartbeat, self._on_safety(keys.HEARTBEAT, None)
+            ),
+        ]
+        for arm in arm_ids:
+            for channel in (keys.ESTOP, keys.RESET):
+                self._subscribers.append(
+                    self.session.declare_subscriber(
+                        self.keys.arm(arm, channel), self._on_safety(channel, arm)
+                    )
+                )
         for arm in arm_ids:
             self.publishers[arm] = self._declare_publishers(arm)
             self._queryables.append(
@@ -84,7 +124,14 @@ class ZenohRelay:
             diag=pub(keys.DIAG, block, data),
             raw_feedback=pub(keys.RAW_FEEDBACK, drop, data),
             raw_command=pub(keys.RAW_COMMAND, block, data),
+            stop_ack=pub(keys.ESTOP_ACK, block, zenoh.Priority.REAL_TIME),
         )
+
+    def _on_safety(self, channel: str, arm: str | None):  # type: ignore[no-untyped-def]
+        def handler(sample: zenoh.Sample) -> None:
+            self.safety.put(SafetyEvent(channel, arm, sample.payload.to_bytes()))
+
+        return handler
 
     def _on_query(self, arm: str):  # type: ignore[no-untyped-def]
         def handler(query: zenoh.Query) -> None:

@@ -5,7 +5,11 @@ Nothing here is private to d1-fleet: every call is a query or a subscription on 
 
 from __future__ import annotations
 
+import os
+import socket
 import threading
+import time
+import uuid
 from collections.abc import Iterable
 
 import msgspec
@@ -33,6 +37,18 @@ def _no_reply(arm: str, why: str) -> m.CommandReply:
         latency_ms=0.0,
         error=ErrorInfo(int(ErrorCode.NOT_REGISTERED), why),
     )
+
+
+STOP_QOS: dict[str, object] = {
+    "congestion_control": zenoh.CongestionControl.BLOCK,
+    "priority": zenoh.Priority.REAL_TIME,
+}
+"""Stops and resets: never dropped under congestion, and sent ahead of everything else."""
+
+
+def default_source() -> str:
+    """``user@host`` for stops and commands a person triggers."""
+    return f"{os.environ.get('USER', 'user')}@{socket.gethostname()}"
 
 
 class FleetClient:
@@ -65,6 +81,75 @@ class FleetClient:
             f"arm {arm!r}: no reply from its agent within {timeout:g} s "
             f"(no token on {self.keys.arm(arm, keys.AGENT)}?); is its edge-agent running?",
         )
+
+    # ------------------------------------------------------------------ protective stop
+
+    def estop(
+        self,
+        arm: str | None = None,
+        reason: str = "",
+        source: str | None = None,
+        timeout_s: float = 3.0,
+        wait_still: bool = True,
+    ) -> dict[str, m.StopAck | None]:
+        """Stop one arm (or every arm) and wait for the agents' acknowledgments.
+
+        The stop is re-put every 100 ms with the same ``stop_id`` until every targeted arm
+        acknowledged it (Zenoh's reliability is hop by hop, not end to end); agents ignore the
+        repeats. With ``wait_still`` it also waits for each arm to be seen still. Returns the
+        last ack per arm (None: no ack within ``timeout_s``: is that arm's agent running?).
+        """
+        arms = [self.inventory.arm(arm).id] if arm is not None else list(self.inventory.arms)
+        request = m.StopRequest(
+            stamp_ns=time.time_ns(),
+            source=source or default_source(),
+            stop_id=uuid.uuid4().hex,
+            reason=reason,
+        )
+        acks: dict[str, m.StopAck | None] = dict.fromkeys(arms)
+        lock = threading.Lock()
+
+        def on_ack(sample: zenoh.Sample) -> None:
+            try:
+                ack = m.stop_ack_decoder.decode(sample.payload.to_bytes())
+            except msgspec.DecodeError:
+                return
+            if ack.stop_id == request.stop_id and ack.arm in acks:
+                with lock:
+                    acks[ack.arm] = ack
+
+        def complete() -> bool:
+            with lock:
+                return all(
+                    a is not None and (a.still_ns is not None or not wait_still)
+                    for a in acks.values()
+                )
+
+        subscriber = self.session.declare_subscriber(self.keys.all_arms(keys.ESTOP_ACK), on_ack)
+        key = self.keys.estop if arm is None else self.keys.arm(arm, keys.ESTOP)
+        payload = encode(request)
+        deadline = time.monotonic() + timeout_s
+        try:
+            while True:
+                with lock:
+                    unacked = any(a is None for a in acks.values())
+                if unacked:
+                    self.session.put(key, payload, encoding=JSON, **STOP_QOS)
+                if complete() or time.monotonic() >= deadline:
+                    break
+                time.sleep(0.1)
+        finally:
+            subscriber.undeclare()
+        with lock:
+            return dict(acks)
+
+    def reset(self, arm: str | None = None, source: str | None = None) -> None:
+        """Release the stop latch of one arm (or every arm). Never moves an arm."""
+        if arm is not None:
+            self.inventory.arm(arm)
+        key = self.keys.reset if arm is None else self.keys.arm(arm, keys.RESET)
+        request = m.ResetRequest(stamp_ns=time.time_ns(), source=source or default_source())
+        self.session.put(key, encode(request), encoding=JSON, **STOP_QOS)
 
     # ------------------------------------------------------------------ state
 

@@ -65,6 +65,16 @@ class ArmConfig(Struct, frozen=True, forbid_unknown_fields=True):
     recv_ack_timeout_s: float = 0.5
     exec_ack_timeout_s: float = 2.0
     joint_sign: tuple[int, ...] = (1,) * JOINT_COUNT
+    watchdog_s: float = 0.5
+    lease_s: float = 3.0
+
+
+class CoordinatorSection(Struct, frozen=True, forbid_unknown_fields=True):
+    """``[coordinator]``: heartbeat rate and the lead-in of synchronized starts."""
+
+    heartbeat_hz: float = 10.0
+    sync_lead_s: float = 0.3
+    offline_after_s: float = 1.0
 
 
 class Inventory(Struct, frozen=True):
@@ -77,6 +87,7 @@ class Inventory(Struct, frozen=True):
     peers: list[str]
     arms: dict[str, ArmConfig]
     groups: dict[str, list[str]]
+    coordinator: CoordinatorSection = CoordinatorSection()
 
     def arm(self, arm_id: str) -> ArmConfig:
         """The arm ``arm_id``; raises InventoryError naming the known arms."""
@@ -138,6 +149,8 @@ def _check_arm(arm: ArmConfig, path: str) -> None:
         raise _fail(path, where, "need 0 < link_stale_s < link_lost_s")
     if arm.recv_ack_timeout_s <= 0 or arm.exec_ack_timeout_s <= 0:
         raise _fail(path, where, "ack timeouts must be positive")
+    if arm.watchdog_s <= 0 or arm.lease_s <= 0:
+        raise _fail(path, where, "watchdog_s and lease_s must be positive")
 
 
 def parse_inventory(text: str, path: str = DEFAULT_INVENTORY) -> Inventory:
@@ -148,7 +161,7 @@ def parse_inventory(text: str, path: str = DEFAULT_INVENTORY) -> Inventory:
         raise InventoryError(f"{path}: not valid TOML: {exc}") from None
     if not isinstance(raw, dict):
         raise InventoryError(f"{path}: expected a TOML document")
-    known = {"fleet", "zenoh", "dds", "defaults", "arms", "groups"}
+    known = {"fleet", "zenoh", "dds", "coordinator", "defaults", "arms", "groups"}
     for key in raw:
         if key not in known:
             raise InventoryError(
@@ -159,6 +172,9 @@ def parse_inventory(text: str, path: str = DEFAULT_INVENTORY) -> Inventory:
     fleet = _convert(raw["fleet"], FleetSection, path, "fleet")
     zenoh = _convert(raw.get("zenoh", {}), ZenohSection, path, "zenoh")
     dds = _convert(raw.get("dds", {}), DdsSection, path, "dds")
+    coordinator = _convert(raw.get("coordinator", {}), CoordinatorSection, path, "coordinator")
+    if coordinator.heartbeat_hz <= 0 or coordinator.sync_lead_s < 0:
+        raise InventoryError(f"{path}: coordinator: heartbeat_hz must be > 0, sync_lead_s >= 0")
     defaults = raw.get("defaults", {})
     if "id" in defaults:
         raise InventoryError(f"{path}: defaults: 'id' cannot have a default")
@@ -196,6 +212,7 @@ def parse_inventory(text: str, path: str = DEFAULT_INVENTORY) -> Inventory:
         peers=dds.peers,
         arms=arms,
         groups=groups,
+        coordinator=coordinator,
     )
 
 

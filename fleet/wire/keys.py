@@ -24,6 +24,7 @@ DIAG = "diag"
 ESTOP = "estop"
 ESTOP_ACK = "estop/ack"
 RESET = "reset"
+HEARTBEAT = "heartbeat"
 CONTACT = "contact"
 SIM_FAULT = "sim/fault"
 
@@ -96,7 +97,7 @@ class KeySpace:
 
     @property
     def reset(self) -> str:
-        """Operator reset of a latched stop (the coordinator's queryable)."""
+        """Fleet-wide operator reset (agents subscribe to it)."""
         return f"{self.prefix}/reset"
 
     @property

@@ -87,11 +87,17 @@ class _CommandBase(Struct, tag_field="op", kw_only=True, forbid_unknown_fields=T
 
     ``wait_reached``: also wait until feedback shows the target reached (within
     ``tolerance_deg``, at most ``timeout_s``); the arm's own acks are known to be unreliable.
+    ``owner``: who commands (a lease: others are refused with 3207 until it expires), and
+    ``takeover`` to take the arm from its current owner. ``start_at_ns``: wall-clock time at
+    which the agent writes the command (synchronized multi-arm starts); at most 5 s ahead.
     """
 
     wait_reached: bool = False
     tolerance_deg: float = 2.0
     timeout_s: float = 10.0
+    owner: str | None = None
+    takeover: bool = False
+    start_at_ns: int | None = None
 
 
 class MoveJoint(_CommandBase, tag="move_joint", kw_only=True):
@@ -131,7 +137,11 @@ class Hold(_CommandBase, tag="hold", kw_only=True):
     """Make the measured angles the target: the arm stays where it is."""
 
 
-ArmCommand = MoveJoint | MoveJoints | Torque | Power | Zero | Hold
+class Release(_CommandBase, tag="release", kw_only=True):
+    """``owner`` gives up its lease on the arm (nothing is sent to the arm)."""
+
+
+ArmCommand = MoveJoint | MoveJoints | Torque | Power | Zero | Hold | Release
 MOTION_OPS = (MoveJoint, MoveJoints, Zero)
 
 
@@ -150,6 +160,7 @@ class CommandReply(Struct, frozen=True):
     reached: bool | None
     latency_ms: float
     error: ErrorInfo | None = None
+    written_ns: int | None = None
 
 
 # ----------------------------------------------------------------------------- protective stop
@@ -193,6 +204,20 @@ class StopAck(Struct, frozen=True):
     still_ns: int | None = None
 
 
+class Heartbeat(Struct, frozen=True):
+    """``fleet/<fleet>/heartbeat``: the coordinator is alive (default 10 Hz).
+
+    ``stops`` repeats every latched stop (key: arm id, or ``*`` for the whole fleet), so an
+    agent that missed a stop, joined late or reconnected learns it within one period.
+    """
+
+    stamp_ns: int
+    coordinator: str
+    seq: int
+    period_s: float
+    stops: dict[str, StopRequest] = {}
+
+
 # ----------------------------------------------------------------------------- helpers
 
 _encoder = msgspec.json.Encoder()
@@ -211,6 +236,7 @@ diag_decoder = msgspec.json.Decoder(Diag)
 stop_decoder = msgspec.json.Decoder(StopRequest)
 reset_decoder = msgspec.json.Decoder(ResetRequest)
 stop_ack_decoder = msgspec.json.Decoder(StopAck)
+heartbeat_decoder = msgspec.json.Decoder(Heartbeat)
 
 PUBLIC_SCHEMA: dict[str, object] = {
     "arm/<arm>/joints": Joints,
@@ -221,4 +247,5 @@ PUBLIC_SCHEMA: dict[str, object] = {
     "estop, arm/<arm>/estop": StopRequest,
     "reset, arm/<arm>/reset": ResetRequest,
     "arm/<arm>/estop/ack": StopAck,
+    "heartbeat": Heartbeat,
 }

@@ -27,7 +27,7 @@ def zenoh_config(
     connect_timeout_s: float = 10.0,
 ) -> zenoh.Config:
     """A Zenoh config with multicast scouting off and only the given endpoints."""
-    config = zenoh.Config()
+    config: zenoh.Config = zenoh.Config()
     config.insert_json5("mode", json.dumps(mode))
     config.insert_json5("scouting/multicast/enabled", "false")
     config.insert_json5("scouting/gossip/enabled", "true" if mode == "router" else "false")

@@ -1,0 +1,183 @@
+"""Per-arm safety state of the agent: the stop latch, standstill, the ownership lease and the
+coordinator watchdog. Pure, with an injected clock (monotonic seconds); the agent does the I/O.
+
+The rules:
+- a stop latches at once and stays latched until an explicit reset; while latched every motion
+  command is refused; the stop command is repeated until feedback shows the arm still;
+- a reset never moves the arm: the agent makes the measured pose the target;
+- one owner at a time: a motion command from someone else while a lease is held is refused
+  (3207) unless it asks to take over; a lease expires when its holder goes silent;
+- an arm moving under a coordinator's command is held, and latched, when that coordinator's
+  heartbeat stops for longer than the watchdog period.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+
+STILL_SAMPLES = 3
+"""Three consecutive angle reports (about 0.3 s) ..."""
+STILL_TOLERANCE_DEG = 0.3
+"""... within 0.3 deg of each other on every joint mean the arm is still."""
+STOP_REPEAT_S = 0.2
+"""Until the arm is seen still, the stop command is re-sent every 0.2 s (two control cycles):
+a stop is not trusted to one DDS sample or to an ack the arm may not send."""
+
+
+@dataclass
+class Standstill:
+    """Detects standstill from the last few angle reports."""
+
+    window: deque[tuple[float, ...]] = field(default_factory=lambda: deque(maxlen=STILL_SAMPLES))
+
+    def add(self, angles_deg: tuple[float, ...]) -> None:
+        """Record one angle report."""
+        self.window.append(angles_deg)
+
+    def clear(self) -> None:
+        """Forget history (a new stop starts a new observation)."""
+        self.window.clear()
+
+    @property
+    def still(self) -> bool:
+        """True when the last STILL_SAMPLES reports agree within STILL_TOLERANCE_DEG."""
+        if len(self.window) < STILL_SAMPLES:
+            return False
+        first = self.window[0]
+        return all(
+            abs(a - b) <= STILL_TOLERANCE_DEG
+            for sample in self.window
+            for a, b in zip(sample, first)
+        )
+
+
+@dataclass
+class ActiveStop:
+    """A latched stop on one arm."""
+
+    stop_id: str
+    source: str
+    reason: str
+    received_ns: int
+    received_s: float
+    dds_written_ns: int | None = None
+    still_ns: int | None = None
+    last_sent_s: float = 0.0
+
+
+@dataclass
+class Lease:
+    """Who may move the arm, until when (monotonic seconds)."""
+
+    owner: str
+    expires_s: float
+
+
+class LeaseRefused(Exception):
+    """Motion from a non-owner while a lease is held; ``holder`` says who holds it."""
+
+    def __init__(self, holder: str, remaining_s: float) -> None:
+        super().__init__(
+            f"held by {holder!r} (lease expires in {remaining_s:.1f} s unless renewed); "
+            "pass takeover=true to take it"
+        )
+        self.holder = holder
+
+
+@dataclass
+class ArmSafety:
+    """Stop latch, lease and watchdog of one arm."""
+
+    lease_s: float
+    watchdog_s: float
+    stop: ActiveStop | None = None
+    reset_stop_ids: set[str] = field(default_factory=set)
+    standstill: Standstill = field(default_factory=Standstill)
+    lease: Lease | None = None
+    watched_by: str | None = None
+    last_reason: str | None = None
+
+    # ------------------------------------------------------------------ stop latch
+
+    @property
+    def latched(self) -> bool:
+        """True while a stop is latched."""
+        return self.stop is not None
+
+    def latch(self, stop_id: str, source: str, reason: str, now_s: float, now_ns: int) -> bool:
+        """Latch a stop; False if this stop is already latched or was reset (a repeat)."""
+        if stop_id in self.reset_stop_ids or (
+            self.stop is not None and self.stop.stop_id == stop_id
+        ):
+            return False
+        if self.stop is None:
+            self.standstill.clear()
+        self.stop = ActiveStop(stop_id, source, reason, now_ns, now_s)
+        self.last_reason = f"stopped by {source}" + (f": {reason}" if reason else "")
+        self.watched_by = None
+        return True
+
+    def needs_resend(self, now_s: float) -> bool:
+        """The stop should be written again: not yet seen still and the repeat period passed."""
+        stop = self.stop
+        return (
+            stop is not None and stop.still_ns is None and now_s - stop.last_sent_s >= STOP_REPEAT_S
+        )
+
+    def on_angles(self, angles_deg: tuple[float, ...], now_ns: int) -> bool:
+        """Feed one angle report; True when a latched stop has just been confirmed still."""
+        self.standstill.add(angles_deg)
+        if self.watched_by is not None and self.standstill.still:
+            self.watched_by = None  # the move under fleet command is over
+        stop = self.stop
+        if stop is not None and stop.still_ns is None and self.standstill.still:
+            stop.still_ns = now_ns
+            return True
+        return False
+
+    def reset(self) -> ActiveStop | None:
+        """Release the latch (operator action); returns the stop that was released."""
+        stop, self.stop = self.stop, None
+        if stop is not None:
+            self.reset_stop_ids.add(stop.stop_id)
+        return stop
+
+    # ------------------------------------------------------------------ lease
+
+    def check_owner(self, owner: str | None, takeover: bool, now_s: float) -> None:
+        """Raise LeaseRefused unless ``owner`` may move the arm now; renews/takes the lease."""
+        lease = self.lease
+        if lease is not None and lease.expires_s <= now_s:
+            lease = self.lease = None
+        if lease is not None and lease.owner != owner and not takeover:
+            raise LeaseRefused(lease.owner, lease.expires_s - now_s)
+        if owner is not None:
+            self.lease = Lease(owner, now_s + self.lease_s)
+        elif takeover:
+            self.lease = None
+
+    def renew(self, owner: str, now_s: float) -> None:
+        """A sign of life from ``owner`` (its heartbeat) renews its lease."""
+        if self.lease is not None and self.lease.owner == owner:
+            self.lease.expires_s = now_s + self.lease_s
+
+    def release(self, owner: str) -> bool:
+        """``owner`` gives the arm up; False if it did not hold it."""
+        if self.lease is not None and self.lease.owner == owner:
+            self.lease = None
+            return True
+        return False
+
+    # ------------------------------------------------------------------ watchdog
+
+    def watch(self, coordinator: str) -> None:
+        """The arm starts moving under ``coordinator``'s command: arm the watchdog."""
+        self.watched_by = coordinator
+        self.standstill.clear()
+
+    def watchdog_expired(self, last_heartbeat_s: float | None, now_s: float) -> bool:
+        """True when the arm moves under a coordinator whose heartbeat is older than allowed."""
+        if self.watched_by is None or self.latched:
+            return False
+        return last_heartbeat_s is None or now_s - last_heartbeat_s > self.watchdog_s

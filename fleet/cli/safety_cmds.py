@@ -1,0 +1,60 @@
+"""``fleet estop [arm]`` and ``fleet reset [arm]``."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from collections.abc import Callable
+
+from fleet.client import FleetClient
+from fleet.runtime import inventory_from_args
+
+
+def register(
+    sub: argparse._SubParsersAction, add_common: Callable[[argparse.ArgumentParser], None]
+) -> None:  # type: ignore[type-arg]
+    """Add ``estop`` and ``reset``."""
+    estop = sub.add_parser("estop", help="protective stop of every arm, or of one arm")
+    add_common(estop)
+    estop.add_argument("arm", nargs="?", default=None)
+    estop.add_argument("--reason", default="")
+    estop.add_argument("--timeout", type=float, default=3.0, help="seconds to wait for standstill")
+    estop.set_defaults(run=run_estop)
+
+    reset = sub.add_parser("reset", help="release a latched stop (never moves an arm)")
+    add_common(reset)
+    reset.add_argument("arm", nargs="?", default=None)
+    reset.set_defaults(run=run_reset)
+
+
+def _ms(later: int | None, earlier: int) -> str:
+    return "-" if later is None else f"{(later - earlier) / 1e6:+.1f} ms"
+
+
+def run_estop(args: argparse.Namespace) -> int:
+    """Stop, then print per arm the times to receipt, DDS write and standstill."""
+    inventory = inventory_from_args(args)
+    with FleetClient(inventory) as client:
+        sent_ns = time.time_ns()
+        acks = client.estop(args.arm, reason=args.reason, timeout_s=args.timeout)
+    missing = [arm for arm, ack in acks.items() if ack is None]
+    for arm, ack in acks.items():
+        if ack is None:
+            print(f"{arm}: NO ACK: is its edge-agent running? (its arm was not confirmed stopped)")
+            continue
+        print(
+            f"{arm}: stopped ({ack.action}): received {_ms(ack.received_ns, sent_ns)}, "
+            f"DDS written {_ms(ack.dds_written_ns, sent_ns)}, still {_ms(ack.still_ns, sent_ns)}"
+        )
+    if missing:
+        return 3
+    return 0 if all(a is not None and a.still_ns is not None for a in acks.values()) else 1
+
+
+def run_reset(args: argparse.Namespace) -> int:
+    """Put a reset; the agents make each arm's measured pose its target."""
+    inventory = inventory_from_args(args)
+    with FleetClient(inventory) as client:
+        client.reset(args.arm)
+    print(f"reset sent to {args.arm or 'every arm'} (arms stay where they are)")
+    return 0
