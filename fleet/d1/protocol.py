@@ -158,6 +158,8 @@ _MOTOR_KEYS = tuple(f"motor{i}_status" for i in range(JOINT_COUNT))
 
 def _number(value: float) -> int | float:
     """Integral values are written as integers, as the spec's examples do."""
+    if isinstance(value, int):
+        return int(value)  # (bool -> 0/1; math.isfinite overflows on a huge int)
     if not math.isfinite(value):
         raise InvalidCommand(f"non-finite number {value!r} cannot be sent to the arm")
     return int(value) if float(value).is_integer() else float(value)
@@ -181,12 +183,16 @@ def check_angle(joint: int, angle_deg: float) -> None:
     check_joint(joint)
     if not isinstance(angle_deg, (int, float)) or isinstance(angle_deg, bool):
         raise InvalidCommand(f"joint {joint}: angle {angle_deg!r} is not a number")
-    if not math.isfinite(angle_deg):
-        raise InvalidCommand(f"joint {joint}: angle {angle_deg!r} is not finite")
     low, high = JOINT_RANGE_DEG[joint]
-    if not low <= angle_deg <= high:
+    try:
+        value = float(angle_deg)
+    except OverflowError:  # an int too large for a float
+        raise InvalidCommand(f"joint {joint}: angle is far outside its range") from None
+    if not math.isfinite(value):
+        raise InvalidCommand(f"joint {joint}: angle {angle_deg!r} is not finite")
+    if not low <= value <= high:
         raise InvalidCommand(
-            f"joint {joint}: angle {angle_deg:g} deg is outside its range [{low:g}, {high:g}] deg"
+            f"joint {joint}: angle {value:g} deg is outside its range [{low:g}, {high:g}] deg"
         )
 
 
@@ -273,6 +279,8 @@ def encode_message(message: ArmMessage, seq: int = ARM_REPORT_SEQ) -> str:
         }
         address, funcode = REPORT_ADDRESS, 3
     elif isinstance(message, MotorStatus):
+        if len(message.motors_ok) != JOINT_COUNT:
+            raise InvalidCommand(f"expected {JOINT_COUNT} motors, got {len(message.motors_ok)}")
         data = {k: _flag(ok) for k, ok in zip(_MOTOR_KEYS, message.motors_ok, strict=False)}
         address, funcode = REPORT_ADDRESS, 4
     elif isinstance(message, ReceiveAck):
@@ -322,9 +330,14 @@ def _read_number(data: dict[str, Any], key: str) -> float:
     value = data.get(key)
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise MalformedMessage(f"data.{key} is missing or not a number: {value!r}")
-    if not math.isfinite(value):
+    try:
+        number = float(value)
+    except OverflowError:
+        # msgspec decodes a 400-digit integer to an int that no float can hold.
+        raise MalformedMessage(f"data.{key} is an integer too large for a number") from None
+    if not math.isfinite(number):
         raise MalformedMessage(f"data.{key} is not finite: {value!r}")
-    return float(value)
+    return number
 
 
 def _read_int(data: dict[str, Any], key: str) -> int:
@@ -391,7 +404,7 @@ def decode_command(text: str | bytes) -> tuple[int, Command]:
         command = _command_from(address, funcode, data)
         validate_command(command)
     except (InvalidCommand, MalformedMessage) as exc:
-        exc.seq = seq  # type: ignore[union-attr]
+        exc.seq = seq
         raise
     return seq, command
 
