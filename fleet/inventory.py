@@ -22,7 +22,7 @@ DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 
 StopAction = Literal["hold", "unload", "power_off"]
 
-_SUFFIX = re.compile(r"^(_[A-Za-z0-9_]+)?$")
+_SUFFIX = re.compile(r"^(_[A-Za-z0-9_]+)?\Z")  # \Z: "$" accepts a trailing newline
 
 
 class InventoryError(ValueError):
@@ -176,6 +176,8 @@ def parse_inventory(text: str, path: str = DEFAULT_INVENTORY) -> Inventory:
     if coordinator.heartbeat_hz <= 0 or coordinator.sync_lead_s < 0:
         raise InventoryError(f"{path}: coordinator: heartbeat_hz must be > 0, sync_lead_s >= 0")
     defaults = raw.get("defaults", {})
+    if not isinstance(defaults, dict):
+        raise InventoryError(f"{path}: defaults: expected a table ([defaults])")
     if "id" in defaults:
         raise InventoryError(f"{path}: defaults: 'id' cannot have a default")
     _convert(defaults, ArmConfig, path, "defaults")

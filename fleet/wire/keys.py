@@ -11,7 +11,7 @@ import re
 
 from msgspec import Struct
 
-_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_\-]{0,62}$")
+_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_\-]{0,62}\Z")  # \Z: "$" accepts a trailing newline
 
 # Channels under fleet/<fleet>/arm/<arm>/...
 JOINTS = "joints"
