@@ -51,6 +51,8 @@ class SimArmModel:
     angle_feed_stopped: bool = False
     faults: Faults = field(default_factory=Faults)
     time_s: float = 0.0
+    # joint -> (stall angle, joint was at or below it when the stall was first met)
+    _stall_side: dict[int, tuple[float, bool]] = field(default_factory=dict, repr=False)
 
     # ------------------------------------------------------------------ physics
 
@@ -77,13 +79,21 @@ class SimArmModel:
             delta = (self.target_deg[j] - current) * alpha
             limit = vmax * dt
             delta = max(-limit, min(limit, delta))
-            new = current + delta
-            stall = self.faults.stalls.get(j)
-            if stall is not None:
-                # An obstacle at `stall`: the joint cannot cross it from the side it is on
-                # (a joint resting on it counts as below it).
-                new = min(new, stall) if current <= stall else max(new, stall)
-            self.angles_deg[j] = new
+            self.angles_deg[j] = self._stalled(j, current, current + delta)
+
+    def _stalled(self, joint: int, current: float, new: float) -> float:
+        """An obstacle at ``stall``: the joint cannot cross it from the side it was on when it
+        first met the stall (a joint resting on it then counts as below it). The side is
+        remembered: a joint that reached the obstacle from above rests on it, still above."""
+        stall = self.faults.stalls.get(joint)
+        if stall is None:
+            self._stall_side.pop(joint, None)
+            return new
+        side = self._stall_side.get(joint)
+        if side is None or side[0] != stall:
+            side = (stall, current <= stall)
+            self._stall_side[joint] = side
+        return min(new, stall) if side[1] else max(new, stall)
 
     # ------------------------------------------------------------------ commands
 
