@@ -1,0 +1,192 @@
+"""The 3D scene: every inventory arm at its base pose, drawn with one instanced mesh per link.
+
+Why instanced meshes: viser's ``ViserUrdf.update_cfg`` costs about 2 ms per arm per update (one
+scene node per link per arm); here each link is one ``add_batched_meshes_simple`` node with an
+instance per arm, and forward kinematics runs for the whole fleet in numpy. A tick sends at most
+two small arrays per link, inside one ``server.atomic()`` so the browser never sees half a tick.
+
+Arm looks: normal colours; grey when stale (no fresh joints, link not ok); dark grey when
+offline (no agent token); red tint when stopped; a red ball above an arm in error. The label
+says the same in words.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+import viser
+
+from fleet.inventory import Inventory
+from viewer.kinematics import (
+    ArmModel,
+    base_transforms,
+    forward,
+    matrix_to_wxyz,
+    wire_to_q,
+)
+from viewer.meshes import LinkMesh
+from viewer.state import Snapshot
+
+DEADBAND_DEG = 0.05
+"""Joint changes smaller than this are not drawn (feedback jitter would resend every tick)."""
+
+LABEL_HEIGHT_M = 0.72
+ERROR_MARK_HEIGHT_M = 0.64
+
+# Look codes per arm, in priority order (the first that applies wins).
+NORMAL, STALE, OFFLINE, STOPPED = 0, 1, 2, 3
+STALE_RGB = np.array([170, 170, 170], dtype=float)
+OFFLINE_RGB = np.array([85, 85, 90], dtype=float)
+STOP_RGB = np.array([230, 30, 30], dtype=float)
+
+
+def looks(snapshot: Snapshot) -> npt.NDArray[np.int8]:
+    """(N,) look code per arm: offline beats stale beats stopped beats normal."""
+    code = np.full(len(snapshot.arms), NORMAL, dtype=np.int8)
+    code[snapshot.estopped] = STOPPED
+    code[snapshot.stale] = STALE
+    code[~snapshot.online] = OFFLINE
+    return code
+
+
+def tinted(rgb: tuple[int, int, int], code: npt.NDArray[np.int8]) -> npt.NDArray[np.uint8]:
+    """(N, 3) instance colours of one link for the arms' look codes."""
+    base = np.asarray(rgb, dtype=float)
+    out = np.tile(base, (len(code), 1))
+    out[code == STALE] = 0.35 * base + 0.65 * STALE_RGB
+    out[code == OFFLINE] = 0.15 * base + 0.85 * OFFLINE_RGB
+    out[code == STOPPED] = 0.45 * base + 0.55 * STOP_RGB
+    return np.clip(out, 0, 255).astype(np.uint8)
+
+
+def label_text(arm: str, code: int, error: bool) -> str:
+    """The arm's label: its id and, when not normal, its state in words."""
+    words = {NORMAL: "", STALE: "stale", OFFLINE: "OFFLINE", STOPPED: "STOPPED"}[code]
+    if error:
+        words = f"{words} ERROR".strip()
+    return f"{arm} · {words}" if words else arm
+
+
+class FleetScene:
+    """Scene nodes of the whole fleet; ``render(snapshot)`` draws one tick (viewer thread only)."""
+
+    def __init__(
+        self,
+        server: viser.ViserServer,
+        inventory: Inventory,
+        model: ArmModel,
+        meshes: list[LinkMesh],
+    ) -> None:
+        self.server = server
+        self.model = model
+        self.arms = tuple(inventory.arms)
+        configs = [inventory.arms[a] for a in self.arms]
+        self.joint_sign = np.array([c.joint_sign for c in configs], dtype=float)
+        xyz = np.array([c.base_xyz for c in configs], dtype=float)
+        self.base = base_transforms(xyz, [c.base_rpy_deg for c in configs])
+        self.meshes = meshes
+        self._link_index = [model.links.index(mesh.link) for mesh in meshes]
+        n = len(self.arms)
+        self._drawn_deg = np.zeros((n, 7))
+        self._drawn_code = np.full(n, -1, dtype=np.int8)
+        self._drawn_error = np.zeros(n, dtype=bool)
+        self.ticks_sent = 0
+
+        scene = server.scene
+        scene.set_up_direction("+z")
+        span = float(np.max(np.abs(xyz[:, :2]))) if n else 0.0
+        size = 2.0 * (np.ceil(span) + 1.0)
+        scene.add_grid("/ground", width=size, height=size, plane="xy", cell_size=0.1)
+        scene.add_frame("/world", axes_length=0.15, axes_radius=0.006)
+        centre = xyz.mean(axis=0) if n else np.zeros(3)
+        reach = 1.2 + 0.8 * span
+        server.initial_camera.look_at = tuple(centre + [0.0, 0.0, 0.25])
+        server.initial_camera.position = tuple(centre + [reach, -reach, 0.8 * reach])
+        wxyz, pos = self._poses(np.zeros((n, 7)))
+        self._links = [
+            scene.add_batched_meshes_simple(
+                f"/fleet/{mesh.link}",
+                vertices=mesh.vertices,
+                faces=mesh.faces,
+                batched_wxyzs=wxyz[k],
+                batched_positions=pos[k],
+                batched_colors=tinted(mesh.rgb, np.zeros(n, dtype=np.int8)),
+                lod="off",
+            )
+            for k, mesh in enumerate(meshes)
+        ]
+        top = xyz + np.array([0.0, 0.0, ERROR_MARK_HEIGHT_M])
+        self._error_marks = scene.add_batched_meshes_simple(
+            "/fleet/error_marks",
+            vertices=_ball()[0],
+            faces=_ball()[1],
+            batched_wxyzs=np.tile([1.0, 0.0, 0.0, 0.0], (n, 1)),
+            batched_positions=top,
+            batched_scales=np.zeros(n),
+            batched_colors=(230, 20, 20),
+            lod="off",
+        )
+        self._labels = [
+            scene.add_label(
+                f"/labels/{arm}", arm, position=tuple(xyz[i] + [0.0, 0.0, LABEL_HEIGHT_M])
+            )
+            for i, arm in enumerate(self.arms)
+        ]
+
+    def _poses(
+        self, angles_deg: npt.NDArray[np.float64]
+    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+        """(K links, N, 4) orientations and (K, N, 3) positions in the world."""
+        q = wire_to_q(angles_deg, self.joint_sign)
+        world = self.base[:, None] @ forward(self.model, q)[:, self._link_index]
+        wxyz = matrix_to_wxyz(world[..., :3, :3]).transpose(1, 0, 2)
+        return wxyz, world[..., :3, 3].transpose(1, 0, 2)
+
+    def render(self, snapshot: Snapshot) -> bool:
+        """Draw ``snapshot`` if anything visible changed; True when something was sent."""
+        moved = np.any(np.abs(snapshot.angles_deg - self._drawn_deg) > DEADBAND_DEG, axis=1)
+        code = looks(snapshot)
+        error = snapshot.error
+        recolour = code != self._drawn_code
+        relabel = recolour | (error != self._drawn_error)
+        if not (moved.any() or relabel.any()):
+            return False
+        # Arms inside the deadband keep their drawn angles, so the jitter never accumulates.
+        self._drawn_deg[moved] = snapshot.angles_deg[moved]
+        with self.server.atomic():
+            if moved.any():
+                wxyz, pos = self._poses(self._drawn_deg)
+                for k, handle in enumerate(self._links):
+                    if self.model.parent[self._link_index[k]] == -1:
+                        continue  # the base never moves
+                    handle.batched_wxyzs = wxyz[k]
+                    handle.batched_positions = pos[k]
+            if recolour.any():
+                for mesh, handle in zip(self.meshes, self._links, strict=True):
+                    handle.batched_colors = tinted(mesh.rgb, code)
+            if relabel.any():
+                self._error_marks.batched_scales = error.astype(float)
+                for i in np.flatnonzero(relabel):
+                    self._labels[i].text = label_text(self.arms[i], int(code[i]), bool(error[i]))
+        self._drawn_code = code
+        self._drawn_error = error
+        self.ticks_sent += 1
+        return True
+
+
+def _ball() -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint32]]:
+    """A small icosahedron (the error mark)."""
+    t = (1.0 + 5**0.5) / 2.0
+    v = np.array(
+        [[-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0], [0, -1, t], [0, 1, t]]
+        + [[0, -1, -t], [0, 1, -t], [t, 0, -1], [t, 0, 1], [-t, 0, -1], [-t, 0, 1]],
+        dtype=np.float32,
+    )
+    v *= 0.035 / np.linalg.norm(v[0])
+    f = np.array(
+        [[0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4]]
+        + [[11, 10, 2], [10, 7, 6], [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8]]
+        + [[3, 8, 9], [4, 9, 5], [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1]],
+        dtype=np.uint32,
+    )
+    return v, f

@@ -1,0 +1,183 @@
+"""The viewer's picture of the fleet: the newest sample per arm, fed by Zenoh subscribers.
+
+Zenoh callbacks run on Zenoh threads. They only decode and store the newest payload per arm
+(latest wins, nothing queues up) and return; the viewer's own thread takes ``snapshot()`` copies
+at its render rate. ``_lock`` guards the arrays and dicts below it, never any I/O.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import msgspec
+import numpy as np
+import numpy.typing as npt
+import zenoh
+
+from fleet.d1.limits import JOINT_COUNT
+from fleet.inventory import Inventory
+from fleet.wire import keys
+from fleet.wire import messages as m
+
+log = logging.getLogger("viewer.state")
+
+STALE_S = 1.0
+"""No joints for this long (at the viewer) and the arm is drawn stale (grey)."""
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """A consistent copy of the fleet's latest state, arms in inventory order."""
+
+    arms: tuple[str, ...]
+    angles_deg: npt.NDArray[np.float64]  # (N, 7), the newest joints (zeros before the first)
+    joints_age_s: npt.NDArray[np.float64]  # (N,), seconds since the viewer got joints (inf: never)
+    status: tuple[m.ArmStatus | None, ...]
+    online: npt.NDArray[np.bool_]  # (N,), the agent's liveliness token is present
+    joints_received: int  # joints samples received so far (all arms)
+
+    @property
+    def stale(self) -> npt.NDArray[np.bool_]:
+        """(N,) no fresh joints, or the agent reports the arm's link not ok."""
+        link_bad = np.array([s is not None and s.link != "ok" for s in self.status], dtype=bool)
+        return (self.joints_age_s > STALE_S) | link_bad
+
+    @property
+    def estopped(self) -> npt.NDArray[np.bool_]:
+        """(N,) the agent reports the arm stopped (latched)."""
+        return np.array([s is not None and s.estopped for s in self.status], dtype=bool)
+
+    @property
+    def error(self) -> npt.NDArray[np.bool_]:
+        """(N,) the arm reports an error."""
+        return np.array([s is not None and bool(s.error) for s in self.status], dtype=bool)
+
+
+class FleetState:
+    """Latest joints, status and agent liveliness of every inventory arm. A context manager."""
+
+    def __init__(
+        self,
+        inventory: Inventory,
+        session: zenoh.Session,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.keys = keys.KeySpace(inventory.fleet)
+        self.arms = tuple(inventory.arms)
+        self._index = {arm: i for i, arm in enumerate(self.arms)}
+        self._clock = clock
+        self._session = session
+        n = len(self.arms)
+        self._lock = threading.Lock()
+        # Guarded by _lock:
+        self._angles = np.zeros((n, JOINT_COUNT))
+        self._joints_at = np.full(n, -math.inf)
+        self._status: list[m.ArmStatus | None] = [None] * n
+        self._online = np.zeros(n, dtype=bool)
+        self._received = 0
+        self.malformed = 0  # payloads we could not decode (counted, dropped)
+        self._last_warning = -math.inf
+        self._handles: list[zenoh.Subscriber[None]] = []
+
+    def start(self) -> None:
+        """Declare the subscribers (liveliness with history: tokens already present count)."""
+        self._handles = [
+            self._session.declare_subscriber(self.keys.all_arms(keys.JOINTS), self._on_joints),
+            self._session.declare_subscriber(self.keys.all_arms(keys.STATUS), self._on_status),
+            self._session.liveliness().declare_subscriber(
+                self.keys.all_arms(keys.AGENT), self._on_token, history=True
+            ),
+        ]
+
+    # ------------------------------------------------------------------ zenoh callbacks
+
+    def _arm_index(self, sample: zenoh.Sample) -> int | None:
+        try:
+            return self._index.get(self.keys.parse_arm_key(str(sample.key_expr)).arm)
+        except keys.KeyError_:
+            return None
+
+    def _bad(self, what: str, exc: Exception) -> None:
+        with self._lock:
+            self.malformed += 1
+            now = self._clock()
+            if now - self._last_warning < 10.0:
+                return
+            self._last_warning = now
+        log.warning("dropped a malformed %s payload (%s); %d so far", what, exc, self.malformed)
+
+    def _on_joints(self, sample: zenoh.Sample) -> None:
+        i = self._arm_index(sample)
+        if i is None:
+            return
+        try:
+            joints = m.joints_decoder.decode(sample.payload.to_bytes())
+        except msgspec.DecodeError as exc:
+            self._bad("joints", exc)
+            return
+        row = np.asarray(joints.angles_deg, dtype=float)
+        if row.shape != (JOINT_COUNT,) or not np.all(np.isfinite(row)):
+            self._bad("joints", ValueError(f"{len(joints.angles_deg)} angles or non-finite"))
+            return
+        now = self._clock()
+        with self._lock:
+            self._angles[i] = row
+            self._joints_at[i] = now
+            self._received += 1
+
+    def _on_status(self, sample: zenoh.Sample) -> None:
+        i = self._arm_index(sample)
+        if i is None:
+            return
+        try:
+            status = m.status_decoder.decode(sample.payload.to_bytes())
+        except msgspec.DecodeError as exc:
+            self._bad("status", exc)
+            return
+        with self._lock:
+            self._status[i] = status
+
+    def _on_token(self, sample: zenoh.Sample) -> None:
+        i = self._arm_index(sample)
+        if i is None:
+            return
+        with self._lock:
+            self._online[i] = sample.kind == zenoh.SampleKind.PUT
+
+    # ------------------------------------------------------------------ readers
+
+    def snapshot(self) -> Snapshot:
+        """Copy the newest state (cheap: a few small arrays and a tuple of references)."""
+        now = self._clock()
+        with self._lock:
+            angles = self._angles.copy()
+            joints_at = self._joints_at.copy()
+            status = tuple(self._status)
+            online = self._online.copy()
+            received = self._received
+        return Snapshot(
+            arms=self.arms,
+            angles_deg=angles,
+            joints_age_s=now - joints_at,
+            status=status,
+            online=online,
+            joints_received=received,
+        )
+
+    def close(self) -> None:
+        """Undeclare the subscribers (idempotent); the session belongs to the caller."""
+        handles, self._handles = self._handles, []
+        for handle in handles:
+            handle.undeclare()
+
+    def __enter__(self) -> FleetState:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
