@@ -1,0 +1,219 @@
+"""The viewer in a real headless Chromium (Debian's, driven by playwright; no browser downloads),
+against a fleet of real processes: the 3D canvas draws and moves, STOP ALL reaches the key space,
+a killed agent shows as offline. Screenshots are kept under artifacts/viewer/.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import zenoh
+from PIL import Image
+from playwright.sync_api import Page, sync_playwright
+
+from fleet.wire import keys
+from fleet.wire import messages as m
+from fleet.wire.session import open_client
+from tests.harness import FleetHarness, free_port, wait_until
+
+CHROMIUM = Path("/usr/bin/chromium")
+CHROMIUM_ARGS = [
+    "--headless",
+    "--no-sandbox",
+    "--enable-unsafe-swiftshader",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--no-first-run",
+]
+ARTIFACTS = Path(__file__).resolve().parents[1] / "artifacts" / "viewer"
+
+
+class Browser:
+    """One page in a fresh Chromium profile; counts the viewer's websocket frames."""
+
+    def __init__(self, page: Page) -> None:
+        self.page = page
+        self.frames = 0
+        self.bytes = 0
+        page.on("websocket", self._on_websocket)
+
+    def _on_websocket(self, ws: Any) -> None:
+        def on_frame(payload: str | bytes) -> None:
+            self.frames += 1
+            self.bytes += len(payload)
+
+        ws.on("framereceived", on_frame)
+
+    def canvas(self, name: str) -> np.ndarray:
+        """A screenshot of the 3D canvas (kept as an artefact) as an RGB array."""
+        png = self.page.locator("canvas").first.screenshot()
+        ARTIFACTS.mkdir(parents=True, exist_ok=True)
+        (ARTIFACTS / f"{name}.png").write_bytes(png)
+        return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), dtype=np.int16)
+
+    def save_page(self, name: str) -> None:
+        ARTIFACTS.mkdir(parents=True, exist_ok=True)
+        self.page.screenshot(path=str(ARTIFACTS / f"{name}.png"))
+
+    def arm_online(self, arm: str) -> str | None:
+        row = self.page.locator(f"tr[data-arm='{arm}']")
+        return row.get_attribute("data-online") if row.count() else None
+
+
+@pytest.fixture
+def browser(tmp_path: Path) -> Iterator[Browser]:
+    if not CHROMIUM.exists():
+        pytest.fail("no /usr/bin/chromium: run scripts/ensure-chromium (make test does)")
+    with sync_playwright() as playwright:
+        context = playwright.chromium.launch_persistent_context(
+            str(tmp_path / "chromium-profile"),  # a fresh user-data dir per test
+            executable_path=str(CHROMIUM),
+            headless=True,
+            args=CHROMIUM_ARGS,
+            viewport={"width": 1280, "height": 800},
+        )
+        try:
+            yield Browser(context.new_page())
+        finally:
+            context.close()
+
+
+def start_viewer(harness: FleetHarness) -> str:
+    """``fleet viewer`` as its own process; returns the URL it printed (the real port)."""
+    harness.start("viewer", ["-m", "fleet.cli.main", "viewer", "--port", str(free_port())])
+    line = wait_until(
+        lambda: (
+            next(
+                (ln for ln in harness.log("viewer").splitlines() if "d1-fleet viewer: http" in ln),
+                None,
+            )
+            or (harness.processes["viewer"].poll() is not None and "exited")
+        ),
+        30.0,
+    )
+    assert line != "exited", harness.log("viewer")
+    return line.split("d1-fleet viewer: ", 1)[1].split()[0]
+
+
+def open_viewer(browser: Browser, url: str, arms: list[str]) -> None:
+    assert url.startswith("http://127.0.0.1:")
+    browser.page.goto(url)
+    browser.page.locator("canvas").first.wait_for(timeout=30_000)
+    wait_until(lambda: all(browser.arm_online(a) == "yes" for a in arms), 30.0)
+    time.sleep(1.0)  # let the first frames render (swiftshader is slow); all asserts poll
+
+
+def not_blank(image: np.ndarray) -> bool:
+    colours = len(np.unique(image.reshape(-1, 3), axis=0))
+    return bool(image.std() > 5.0 and colours > 50)
+
+
+def changed_canvas(
+    browser: Browser, before: np.ndarray, step: int, diffs: list[int]
+) -> tuple[np.ndarray] | None:
+    """A new canvas screenshot (in a 1-tuple) if it differs from ``before`` in > 200 pixels."""
+    now = browser.canvas(f"02-a1-move-{step}")
+    diffs.append(int((np.abs(now - before).max(axis=2) > 30).sum()))
+    return (now,) if diffs[-1] > 200 else None
+
+
+def test_canvas_draws_the_fleet_moving_and_stop_all_reaches_the_key_space(
+    fleet3_harness: FleetHarness, browser: Browser
+) -> None:
+    harness = fleet3_harness
+    client = harness.start_fleet()
+    url = start_viewer(harness)
+    stops: list[m.StopRequest] = []
+    lock = threading.Lock()
+
+    def on_stop(sample: zenoh.Sample) -> None:
+        with lock:  # a zenoh thread: decode, store, return
+            stops.append(m.stop_decoder.decode(sample.payload.to_bytes()))
+
+    space = keys.KeySpace(harness.inventory.fleet)
+    with open_client(harness.inventory.endpoints) as session:
+        subscriber = session.declare_subscriber(space.estop, on_stop)
+        open_viewer(browser, url, ["a1", "a2", "a3"])
+        first = browser.canvas("01-fleet-at-rest")
+        assert not_blank(first), "the 3D canvas is blank"
+        browser.save_page("01-page")
+
+        # Move a1 twice: each move must show up on the canvas as a different picture.
+        frames_before, t0 = browser.frames, time.monotonic()
+        diffs: list[int] = []
+        shot = first
+        for step, target in enumerate(([60.0, 40.0, -60.0, 30.0, 45.0, 20.0, 50.0], [0.0] * 7)):
+            reply = client.command("a1", m.MoveJoints(angles_deg=target, mode=1))
+            assert reply.ok, reply.error
+            shot = wait_until(lambda s=shot, k=step: changed_canvas(browser, s, k, diffs), 15.0)[0]
+        rate = (browser.frames - frames_before) / (time.monotonic() - t0)
+        browser.save_page("03-page-a1-moved")
+
+        # STOP ALL: the button's click must reach the key space as a StopRequest.
+        browser.page.get_by_role("button", name="STOP ALL").click()
+        wait_until(lambda: any(s.source == "viewer" for s in stops), 10.0)
+        with lock:
+            ids = {s.stop_id for s in stops}
+        assert len(ids) == 1 and len(next(iter(ids))) == 32  # one stop (repeated), a uuid4 hex
+        assert harness.processes["viewer"].poll() is None, harness.log("viewer")
+        # The agents latch the stop: the fleet panel says so, and the arms hold still.
+        wait_until(
+            lambda: browser.page.locator("#fleet-table").inner_text().count("STOPPED") == 3, 10.0
+        )
+        before = client.snapshot()
+        time.sleep(1.0)
+        after = client.snapshot()
+        for arm in ("a1", "a2", "a3"):
+            j0, j1 = before[arm][1], after[arm][1]
+            assert j0 is not None and j1 is not None
+            assert max(abs(a - b) for a, b in zip(j0.angles_deg, j1.angles_deg)) < 1.0, arm
+        browser.save_page("04-page-after-stop")
+        subscriber.undeclare()
+
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    (ARTIFACTS / "browser-stats.json").write_text(
+        json.dumps({"ws_frames_per_s_while_moving": round(rate, 1), "pixel_diffs": diffs})
+    )
+
+
+def test_the_fleet_panel_shows_a_killed_agent_as_offline(browser: Browser, tmp_path: Path) -> None:
+    harness = fleet_harness_with_two_agents(tmp_path)
+    try:
+        url = start_viewer(harness)
+        open_viewer(browser, url, ["a1", "a2"])
+        harness.stop("agent-a2")
+        wait_until(lambda: browser.arm_online("a2") == "no", 20.0)
+        assert browser.arm_online("a1") == "yes"
+        row = browser.page.locator("tr[data-arm='a2']").inner_text()
+        assert "OFFLINE" in row
+        time.sleep(0.5)
+        browser.save_page("05-page-a2-offline")
+        assert not_blank(browser.canvas("05-a2-offline"))
+    finally:
+        harness.close()
+
+
+def fleet_harness_with_two_agents(tmp_path: Path) -> FleetHarness:
+    """Two simulated arms, each with an agent of its own, so one can be killed alone."""
+    (tmp_path / "two").mkdir()
+    harness = FleetHarness(tmp_path / "two", arms=2)
+    harness.start_router()
+    harness.start_sim()
+    harness.start_agent("a1", name="agent-a1")
+    harness.start_agent("a2", name="agent-a2")
+    client = harness.client()
+    try:
+        wait_until(lambda: harness.all_links_ok(client), 30.0)
+    except AssertionError:
+        harness.close()
+        raise
+    return harness
