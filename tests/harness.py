@@ -7,18 +7,21 @@ processes, and stops every process it started by PID. Waits are bounded: ``wait_
 
 from __future__ import annotations
 
+import fcntl
 import itertools
 import os
 import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import TypeVar
+from typing import IO, TypeVar
 
 from fleet.client import FleetClient
+from fleet.d1.dds import MAX_PARTICIPANTS_PER_HOST
 from fleet.inventory import Inventory, load_inventory
 
 T = TypeVar("T")
@@ -26,10 +29,47 @@ T = TypeVar("T")
 # Domains 1..99 keep CycloneDDS's ports (7400 + 250 * domain ...) below the ephemeral range that
 # free Zenoh ports come from. The run's PID spreads parallel runs; the counter separates tests.
 _domains = itertools.count((os.getpid() * 7) % 90)
+_DOMAIN_LOCKS = Path(tempfile.gettempdir()) / "d1-fleet-test-domains"
+
+
+def _domain_in_use(domain: int) -> bool:
+    """True when some participant on this host holds a discovery port of ``domain``.
+
+    CycloneDDS's unicast discovery port of participant index i is 7400 + 250 * domain + 10 + 2i;
+    a demo or another test run on the same host (the domain of a `fleet demo` is random) would
+    otherwise cross-talk with this test's arms.
+    """
+    for index in range(MAX_PARTICIPANTS_PER_HOST + 1):
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+            try:
+                probe.bind(("0.0.0.0", 7400 + 250 * domain + 10 + 2 * index))
+            except OSError:
+                return True
+    return False
+
+
+def claim_domain() -> tuple[int, IO[bytes]]:
+    """A DDS domain id no other process of this host uses, with the lock file that reserves it
+    against other test runs until closed (the OS drops the lock if the run dies)."""
+    _DOMAIN_LOCKS.mkdir(exist_ok=True)
+    for _ in range(99):
+        domain = 1 + next(_domains) % 99
+        lock = open(_DOMAIN_LOCKS / f"{domain}.lock", "wb")  # noqa: SIM115 - held until close
+        try:
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            lock.close()
+            continue
+        if _domain_in_use(domain):
+            lock.close()
+            continue
+        return domain, lock
+    raise RuntimeError("every DDS domain 1..99 is in use on this host")
 
 
 def unique_domain() -> int:
-    """A DDS domain id for one test, different from the other tests of this run."""
+    """A DDS domain id for one test, different from the other tests of this run (not reserved
+    against other processes: FleetHarness uses claim_domain)."""
     return 1 + next(_domains) % 99
 
 
@@ -72,7 +112,7 @@ class FleetHarness:
     def __init__(self, tmp_path: Path, arms: int = 1, extra: str = "") -> None:
         self.tmp_path = tmp_path
         self.port = free_port()
-        self.domain = unique_domain()
+        self.domain, self._domain_lock = claim_domain()
         self.endpoint = f"tcp/127.0.0.1:{self.port}"
         self.inventory_path = tmp_path / "inventory.toml"
         self.inventory_path.write_text(
@@ -168,6 +208,7 @@ class FleetHarness:
             client.close()
         for name in reversed(list(self.processes)):
             self.stop(name)
+        self._domain_lock.close()
 
     def __enter__(self) -> FleetHarness:
         return self
