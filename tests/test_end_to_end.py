@@ -133,10 +133,17 @@ def test_out_of_range_is_refused_without_reaching_dds(fleet_harness: FleetHarnes
             seen.extend(_texts(reader))
             return any(p.decode_command(t)[1] == p.SetJointAngle(0, angle) for t in seen)
 
+        def seen_after_sending() -> bool:
+            # The reader can match the agent's writer before the writer matches the reader
+            # (volatile: what is sent before then never reaches us), so send until one arrives.
+            if sees(1.0):
+                return True
+            before = client.command("a1", m.MoveJoint(joint=0, angle_deg=1.0))
+            assert before.ok, before.error
+            return False
+
         # A valid command first: proves this reader sees what the agent writes.
-        before = client.command("a1", m.MoveJoint(joint=0, angle_deg=1.0))
-        assert before.ok, before.error
-        wait_until(lambda: sees(1.0), 5.0)
+        wait_until(seen_after_sending, 10.0, interval_s=0.2)
         seen.clear()
         raw_before = len(raw)
         for bad in (
