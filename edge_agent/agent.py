@@ -35,8 +35,10 @@ from fleet.wire.messages import ErrorCode, ErrorInfo, encode
 log = logging.getLogger("edge_agent")
 
 HOUSEKEEPING_PERIOD_S = 0.05
-STATUS_PERIOD_S = 1.0
-"""Status and diag are re-published every second so late joiners learn them."""
+STATUS_PERIOD_S = 0.25
+"""Status is re-published 4 times a second: late joiners learn it, and it is the agent's
+heartbeat (the coordinator calls an agent offline after 1 s of silence)."""
+DIAG_PERIOD_S = 1.0
 
 
 MAX_START_DELAY_S = 5.0
@@ -225,7 +227,7 @@ class EdgeAgent:
                     "are the hosts' clocks synchronized?",
                 )
         if isinstance(command, m.MOTION_OPS) and command.owner in self.safety_loop.last_heartbeat_s:
-            safety.watch(command.owner)
+            safety.watch(command.owner, planned.targets_deg)
         seqs = tuple(slot.seqs.allocate() for _ in planned.commands)
         texts = [p.encode_command(c, s) for c, s in zip(planned.commands, seqs)]
         config = slot.tracker.config
@@ -292,13 +294,16 @@ class EdgeAgent:
     # ------------------------------------------------------------------ housekeeping
 
     def _housekeeping_loop(self) -> None:
-        next_status = 0.0
+        next_status = next_diag = 0.0
         while not self.stopping.wait(HOUSEKEEPING_PERIOD_S):
             now = time.monotonic()
             stamp_ns = time.time_ns()
             periodic = now >= next_status
             if periodic:
                 next_status = now + STATUS_PERIOD_S
+            diag = now >= next_diag
+            if diag:
+                next_diag = now + DIAG_PERIOD_S
             out = _Outbox()
             with self.lock:
                 for arm, slot in self.slots.items():
@@ -306,7 +311,7 @@ class EdgeAgent:
                     pubs = self.relay.publishers[arm]
                     if tracker.update_link(now) or periodic:
                         out.puts.append((pubs.status, encode(tracker.status(now, stamp_ns))))
-                    if periodic:
+                    if diag:
                         out.puts.append((pubs.diag, encode(tracker.diag(now, stamp_ns))))
                     for flight, _query in list(slot.in_flight.values()):
                         flight.on_time(now, tracker.angles_deg)

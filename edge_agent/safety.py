@@ -20,6 +20,8 @@ STILL_SAMPLES = 3
 """Three consecutive angle reports (about 0.3 s) ..."""
 STILL_TOLERANCE_DEG = 0.3
 """... within 0.3 deg of each other on every joint mean the arm is still."""
+WATCH_TOLERANCE_DEG = 1.0
+"""A watched move is over when the arm is still within 1 deg of its targets."""
 STOP_REPEAT_S = 0.2
 """Until the arm is seen still, the stop command is re-sent every 0.2 s (two control cycles):
 a stop is not trusted to one DDS sample or to an ack the arm may not send."""
@@ -96,6 +98,7 @@ class ArmSafety:
     standstill: Standstill = field(default_factory=Standstill)
     lease: Lease | None = None
     watched_by: str | None = None
+    watched_targets: dict[int, float] = field(default_factory=dict)
     last_reason: str | None = None
 
     # ------------------------------------------------------------------ stop latch
@@ -128,7 +131,7 @@ class ArmSafety:
     def on_angles(self, angles_deg: tuple[float, ...], now_ns: int) -> bool:
         """Feed one angle report; True when a latched stop has just been confirmed still."""
         self.standstill.add(angles_deg)
-        if self.watched_by is not None and self.standstill.still:
+        if self.watched_by is not None and self.standstill.still and self._at_targets(angles_deg):
             self.watched_by = None  # the move under fleet command is over
         stop = self.stop
         if stop is not None and stop.still_ns is None and self.standstill.still:
@@ -171,10 +174,18 @@ class ArmSafety:
 
     # ------------------------------------------------------------------ watchdog
 
-    def watch(self, coordinator: str) -> None:
-        """The arm starts moving under ``coordinator``'s command: arm the watchdog."""
+    def watch(self, coordinator: str, targets_deg: dict[int, float]) -> None:
+        """The arm is sent towards ``targets_deg`` under ``coordinator``'s command: arm the
+        watchdog until the arm is seen still at its targets (a move that cannot finish, an
+        arm against an obstacle, stays watched: losing the coordinator then holds it)."""
         self.watched_by = coordinator
+        self.watched_targets = dict(targets_deg)
         self.standstill.clear()
+
+    def _at_targets(self, angles_deg: tuple[float, ...]) -> bool:
+        return all(
+            abs(angles_deg[j] - t) <= WATCH_TOLERANCE_DEG for j, t in self.watched_targets.items()
+        )
 
     def watchdog_expired(self, last_heartbeat_s: float | None, now_s: float) -> bool:
         """True when the arm moves under a coordinator whose heartbeat is older than allowed."""

@@ -112,6 +112,7 @@ class SafetyLoop:
             if not slot.safety.latch(request.stop_id, request.source, request.reason, now, now_ns):
                 return
             slot.tracker.estopped = True
+            slot.tracker.stop_reason = slot.safety.last_reason
             self.agent.cancel_in_flight(slot, now, "a protective stop was latched", out)
             text = self._stop_text(slot, now)
         written_ns = self._write(arm, text)

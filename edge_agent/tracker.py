@@ -29,6 +29,7 @@ class ArmTracker:
     error: bool | None = None
     motors_ok: tuple[bool, ...] | None = None
     estopped: bool = False
+    stop_reason: str | None = None
     last_feedback_s: float | None = None
     link: LinkState = "lost"
     relayed: int = 0
@@ -103,6 +104,7 @@ class ArmTracker:
             motors_ok=None if self.motors_ok is None else list(self.motors_ok),
             estopped=self.estopped,
             feedback_age_s=None if age is None else round(age, 3),
+            stop_reason=self.stop_reason if self.estopped else None,
         )
 
     def diag(self, now: float, stamp_ns: int) -> Diag:

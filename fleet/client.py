@@ -82,6 +82,26 @@ class FleetClient:
             f"(no token on {self.keys.arm(arm, keys.AGENT)}?); is its edge-agent running?",
         )
 
+    def multi(
+        self, target: str, command: m.ArmCommand, sync: bool = True, lead_s: float | None = None
+    ) -> m.MultiArmReply:
+        """Send ``command`` to an arm, a group or ``all`` through the coordinator (one owner,
+        synchronized start). Fails with 3103 when no coordinator answers."""
+        self.inventory.resolve(target)
+        request = m.MultiArmRequest(target=target, command=command, sync=sync, lead_s=lead_s)
+        timeout = (command.timeout_s if command.wait_reached else 3.0) + 2 * REPLY_MARGIN_S
+        for reply in self.session.get(
+            self.keys.coordinator_cmd, payload=encode(request), encoding=JSON, timeout=timeout
+        ):
+            if reply.ok is not None:
+                try:
+                    return m.multi_reply_decoder.decode(reply.ok.payload.to_bytes())
+                except msgspec.DecodeError as exc:
+                    why = f"unreadable reply from the coordinator: {exc}"
+                    return m.MultiArmReply(False, {}, None, ErrorInfo(int(ErrorCode.UNKNOWN), why))
+        why = f"no coordinator answered on {self.keys.coordinator_cmd}; is `fleet coordinator` running?"
+        return m.MultiArmReply(False, {}, None, ErrorInfo(int(ErrorCode.NOT_REGISTERED), why))
+
     # ------------------------------------------------------------------ protective stop
 
     def estop(

@@ -34,6 +34,11 @@ def register(
             "--timeout", type=float, default=10.0, help="seconds to wait for --wait"
         )
         parser.add_argument("--json", action="store_true", help="print the replies as JSON")
+        parser.add_argument(
+            "--sync",
+            action="store_true",
+            help="through the coordinator: one owner, all arms start at the same time",
+        )
         return parser
 
     move = arm_parser("move", "move joints: --angles A0..A6, or --joint J --angle A")
@@ -97,11 +102,17 @@ def run_raw(args: argparse.Namespace) -> int:
 def _send(args: argparse.Namespace, command: m.ArmCommand) -> int:
     inventory = inventory_from_args(args)
     arms = inventory.resolve(args.target)
-    with (
-        FleetClient(inventory) as client,
-        ThreadPoolExecutor(max_workers=min(16, len(arms))) as pool,
-    ):
-        replies = list(pool.map(lambda arm: client.command(arm, command), arms))
+    skew = None
+    with FleetClient(inventory) as client:
+        if args.sync:
+            multi = client.multi(args.target, command)
+            if multi.error is not None:
+                print(f"FAILED [{multi.error.code}] {multi.error.message}")
+                return 3 if multi.error.code == ErrorCode.NOT_REGISTERED else 1
+            replies, skew = list(multi.replies.values()), multi.start_skew_ms
+        else:
+            with ThreadPoolExecutor(max_workers=min(16, len(arms))) as pool:
+                replies = list(pool.map(lambda arm: client.command(arm, command), arms))
     for reply in replies:
         if args.json:
             print(msgspec.json.encode(reply).decode())
@@ -111,6 +122,8 @@ def _send(args: argparse.Namespace, command: m.ArmCommand) -> int:
         else:
             err = reply.error
             print(f"{reply.arm}: FAILED [{err.code if err else '?'}] {err.message if err else ''}")
+    if skew is not None and not args.json:
+        print(f"start skew across arms: {skew:.2f} ms")
     if all(r.ok for r in replies):
         return 0
     unreachable = all(

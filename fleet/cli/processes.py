@@ -33,6 +33,10 @@ def register(
     sim.add_argument("--seed", type=int, default=0, help="seed of the feedback jitter")
     sim.set_defaults(run=run_sim)
 
+    coordinator = sub.add_parser("coordinator", help="fleet state, heartbeat, multi-arm commands")
+    add_common(coordinator)
+    coordinator.set_defaults(run=run_coordinator)
+
     demo = sub.add_parser("demo", help="router + simulated arms + one agent per arm, with status")
     add_common(demo)
     demo.add_argument("--for-s", type=float, default=None, help="stop after this many seconds")
@@ -69,6 +73,18 @@ def run_sim(args: argparse.Namespace) -> int:
             ", ".join(arms),
             inventory.domain_of(inventory.arm(arms[0])),
         )
+        wait_for(stop)
+    return 0
+
+
+def run_coordinator(args: argparse.Namespace) -> int:
+    """Run the coordinator until SIGINT/SIGTERM."""
+    from fleet.coordinator.service import Coordinator
+
+    inventory = inventory_from_args(args)
+    stop = shutdown_event()
+    with Coordinator(inventory) as coordinator:
+        coordinator.start()
         wait_for(stop)
     return 0
 
@@ -121,6 +137,7 @@ def run_demo(args: argparse.Namespace) -> int:
             children.append(_spawn(["-m", "fleet.cli.main", "sim", *common]))
         for arm in inventory.arms:
             children.append(_spawn(["-m", "edge_agent", "--arm", arm, *common]))
+        children.append(_spawn(["-m", "fleet.cli.main", "coordinator", *common]))
         print(
             f"d1-fleet demo: fleet {inventory.fleet!r}, DDS domain {inventory.domain_id}, "
             f"Zenoh router on {', '.join(inventory.endpoints)}"

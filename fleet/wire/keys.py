@@ -111,6 +111,11 @@ class KeySpace:
         return f"{self.prefix}/coordinator/cmd"
 
     @property
+    def stop_report(self) -> str:
+        """The coordinator's per-arm timing of each stop."""
+        return f"{self.prefix}/estop/report"
+
+    @property
     def everything(self) -> str:
         """Every key of this fleet (for recorders and debugging)."""
         return f"{self.prefix}/**"

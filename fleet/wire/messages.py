@@ -60,6 +60,7 @@ class ArmStatus(Struct, frozen=True):
     motors_ok: list[bool] | None = None
     estopped: bool = False
     feedback_age_s: float | None = None
+    stop_reason: str | None = None
 
 
 class Diag(Struct, frozen=True):
@@ -218,6 +219,70 @@ class Heartbeat(Struct, frozen=True):
     stops: dict[str, StopRequest] = {}
 
 
+# ----------------------------------------------------------------------------- coordinator
+
+
+class ArmSummary(Struct, frozen=True):
+    """One arm in the fleet summary. ``online``: its agent's token is present and the agent
+    was heard from within ``offline_after_s`` (a partition shows here before Zenoh's lease)."""
+
+    online: bool
+    link: LinkState
+    enabled: bool | None = None
+    powered: bool | None = None
+    error: bool | None = None
+    estopped: bool = False
+    contact: bool | None = None
+    feedback_age_s: float | None = None
+    heard_age_s: float | None = None
+
+
+class FleetState(Struct, frozen=True):
+    """``fleet/<fleet>/state``: the coordinator's summary of every arm of the inventory."""
+
+    stamp_ns: int
+    coordinator: str
+    arms: dict[str, ArmSummary]
+
+
+class MultiArmRequest(Struct, frozen=True, forbid_unknown_fields=True):
+    """``fleet/<fleet>/coordinator/cmd`` request: one command for an arm, a group or ``all``.
+
+    With ``sync`` (default) and more than one arm, the coordinator gives every arm the same
+    ``start_at_ns``, ``lead_s`` ahead (default: the inventory's ``sync_lead_s``)."""
+
+    target: str
+    command: ArmCommand
+    sync: bool = True
+    lead_s: float | None = None
+
+
+class MultiArmReply(Struct, frozen=True):
+    """Per arm, what happened; ``start_skew_ms`` is the spread of the arms' DDS write times."""
+
+    ok: bool
+    replies: dict[str, CommandReply]
+    start_skew_ms: float | None = None
+    error: ErrorInfo | None = None
+
+
+class StopTiming(Struct, frozen=True):
+    """Milliseconds from the stop's ``stamp_ns`` to each step on one arm (None: not yet)."""
+
+    received_ms: float | None
+    dds_written_ms: float | None
+    still_ms: float | None
+
+
+class StopReport(Struct, frozen=True):
+    """``fleet/<fleet>/estop/report``: the coordinator's view of one stop's fan-out."""
+
+    stop_id: str
+    source: str
+    stamp_ns: int
+    arms: dict[str, StopTiming]
+
+
 # ----------------------------------------------------------------------------- helpers
 
 _encoder = msgspec.json.Encoder()
@@ -237,6 +302,10 @@ stop_decoder = msgspec.json.Decoder(StopRequest)
 reset_decoder = msgspec.json.Decoder(ResetRequest)
 stop_ack_decoder = msgspec.json.Decoder(StopAck)
 heartbeat_decoder = msgspec.json.Decoder(Heartbeat)
+state_decoder = msgspec.json.Decoder(FleetState)
+multi_request_decoder = msgspec.json.Decoder(MultiArmRequest)
+multi_reply_decoder = msgspec.json.Decoder(MultiArmReply)
+stop_report_decoder = msgspec.json.Decoder(StopReport)
 
 PUBLIC_SCHEMA: dict[str, object] = {
     "arm/<arm>/joints": Joints,
@@ -248,4 +317,8 @@ PUBLIC_SCHEMA: dict[str, object] = {
     "reset, arm/<arm>/reset": ResetRequest,
     "arm/<arm>/estop/ack": StopAck,
     "heartbeat": Heartbeat,
+    "state": FleetState,
+    "coordinator/cmd (request)": MultiArmRequest,
+    "coordinator/cmd (reply)": MultiArmReply,
+    "estop/report": StopReport,
 }

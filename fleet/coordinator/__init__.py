@@ -1,0 +1,1 @@
+"""The fleet coordinator: fleet state, multi-arm commanding, stop bookkeeping, heartbeat."""

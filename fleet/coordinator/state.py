@@ -1,0 +1,101 @@
+"""Fleet state from what the agents publish: pure, fed samples with an injected clock.
+
+An arm is online when its agent's liveliness token is present AND the agent was heard from
+(status at 4 Hz, joints at 10 Hz) within ``offline_after_s``. The token goes away at once when
+an agent's process dies (its TCP session closes); silence catches a partition, where the
+token would only go after the Zenoh lease.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from fleet.wire import messages as m
+
+
+@dataclass
+class _ArmView:
+    token: bool = False
+    heard_s: float | None = None
+    status: m.ArmStatus | None = None
+    status_s: float | None = None
+    contact: bool | None = None
+
+
+class FleetStateTracker:
+    """The coordinator's view of every arm of the inventory."""
+
+    def __init__(self, arms: list[str], offline_after_s: float) -> None:
+        self.offline_after_s = offline_after_s
+        self._arms = {arm: _ArmView() for arm in arms}
+
+    def knows(self, arm: str) -> bool:
+        """True for an arm of the inventory."""
+        return arm in self._arms
+
+    def on_token(self, arm: str, present: bool, now: float) -> None:
+        """The agent's liveliness token appeared or went away."""
+        if arm in self._arms:
+            self._arms[arm].token = present
+            if present:
+                self._arms[arm].heard_s = now
+
+    def on_heard(self, arm: str, now: float) -> None:
+        """Any sample from the arm's agent."""
+        if arm in self._arms:
+            self._arms[arm].heard_s = now
+
+    def on_status(self, arm: str, status: m.ArmStatus, now: float) -> None:
+        """The agent's latest status."""
+        if arm in self._arms:
+            view = self._arms[arm]
+            view.status, view.status_s, view.heard_s = status, now, now
+
+    def on_contact(self, arm: str, in_contact: bool) -> None:
+        """Contact state (from the contact detector, once it reports)."""
+        if arm in self._arms:
+            self._arms[arm].contact = in_contact
+
+    def online(self, arm: str, now: float) -> bool:
+        """Token present and heard from recently."""
+        view = self._arms[arm]
+        return (
+            view.token and view.heard_s is not None and now - view.heard_s <= self.offline_after_s
+        )
+
+    def summary(self, arm: str, now: float) -> m.ArmSummary:
+        """One arm's line of the fleet state."""
+        view = self._arms[arm]
+        online = self.online(arm, now)
+        status = view.status
+        heard = None if view.heard_s is None else round(now - view.heard_s, 3)
+        if status is None or not online:
+            return m.ArmSummary(
+                online=online,
+                link="lost",
+                estopped=bool(status and status.estopped),
+                contact=view.contact,
+                heard_age_s=heard,
+            )
+        age = status.feedback_age_s
+        if age is not None and view.status_s is not None:
+            age = round(age + (now - view.status_s), 3)
+        return m.ArmSummary(
+            online=True,
+            link=status.link,
+            enabled=status.enabled,
+            powered=status.powered,
+            error=status.error,
+            estopped=status.estopped,
+            contact=view.contact,
+            feedback_age_s=age,
+            heard_age_s=heard,
+        )
+
+    def state(self, coordinator: str, now: float, stamp_ns: int) -> m.FleetState:
+        """The whole fleet summary."""
+        return m.FleetState(
+            stamp_ns=stamp_ns,
+            coordinator=coordinator,
+            arms={arm: self.summary(arm, now) for arm in self._arms},
+        )

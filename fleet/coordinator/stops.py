@@ -1,0 +1,73 @@
+"""The coordinator's record of latched stops (repeated in every heartbeat) and of their
+fan-out timings (from the agents' acknowledgments). Pure."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from fleet.wire import messages as m
+
+FLEET = "*"
+
+
+@dataclass
+class _Fanout:
+    request: m.StopRequest
+    acks: dict[str, m.StopAck] = field(default_factory=dict)
+
+
+class StopBook:
+    """Which stops are latched, and how each one fanned out."""
+
+    def __init__(self, arms: list[str], keep: int = 32) -> None:
+        self._arms = arms
+        self._latched: dict[str, m.StopRequest] = {}
+        self._fanouts: dict[str, _Fanout] = {}
+        self._keep = keep
+
+    def on_stop(self, target: str, request: m.StopRequest) -> None:
+        """A stop was put on the fleet key (``target`` = ``*``) or on one arm's key."""
+        self._latched.setdefault(target, request)
+        if request.stop_id not in self._fanouts:
+            self._fanouts[request.stop_id] = _Fanout(request)
+            while len(self._fanouts) > self._keep:
+                del self._fanouts[next(iter(self._fanouts))]
+
+    def on_reset(self, target: str) -> None:
+        """A reset of the fleet (``*``: clears everything) or of one arm."""
+        if target == FLEET:
+            self._latched.clear()
+        else:
+            self._latched.pop(target, None)
+
+    def latched(self) -> dict[str, m.StopRequest]:
+        """The stops the heartbeat repeats."""
+        return dict(self._latched)
+
+    def on_ack(self, ack: m.StopAck) -> m.StopReport | None:
+        """Record an agent's ack; returns the updated report of that stop (None if unknown)."""
+        fanout = self._fanouts.get(ack.stop_id)
+        if fanout is None:
+            return None
+        fanout.acks[ack.arm] = ack
+        return self.report(ack.stop_id)
+
+    def report(self, stop_id: str) -> m.StopReport | None:
+        """Per-arm timings of one stop, in ms from the stop's stamp."""
+        fanout = self._fanouts.get(stop_id)
+        if fanout is None:
+            return None
+        t0 = fanout.request.stamp_ns
+
+        def ms(t: int | None) -> float | None:
+            return None if t is None else round((t - t0) / 1e6, 3)
+
+        return m.StopReport(
+            stop_id=stop_id,
+            source=fanout.request.source,
+            stamp_ns=t0,
+            arms={
+                arm: m.StopTiming(ms(a.received_ns), ms(a.dds_written_ns), ms(a.still_ns))
+                for arm, a in fanout.acks.items()
+            },
+        )
