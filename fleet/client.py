@@ -99,7 +99,10 @@ class FleetClient:
                 except msgspec.DecodeError as exc:
                     why = f"unreadable reply from the coordinator: {exc}"
                     return m.MultiArmReply(False, {}, None, ErrorInfo(int(ErrorCode.UNKNOWN), why))
-        why = f"no coordinator answered on {self.keys.coordinator_cmd}; is `fleet coordinator` running?"
+        why = (
+            f"no coordinator answered on {self.keys.coordinator_cmd}; "
+            "is `fleet coordinator` running?"
+        )
         return m.MultiArmReply(False, {}, None, ErrorInfo(int(ErrorCode.NOT_REGISTERED), why))
 
     # ------------------------------------------------------------------ protective stop
