@@ -25,6 +25,9 @@ PLOT_RATE_HZ = 10.0
 PLOTS_ON_BY_DEFAULT_UP_TO = 10
 """Fleets up to this many arms show every arm's plot at start; larger ones start with plots off
 (each can be switched on in its folder): 200 live plots would cost the browser more than the 3D."""
+READOUTS_PER_TICK = 12
+"""Arm folders refreshed per panel tick (round robin): fleets up to this size refresh every
+arm every tick; a 200-arm fleet refreshes each arm's readout about every 4 s."""
 JOINT_COLOURS = ("#e6194b", "#3cb44b", "#4363d8", "#f58231", "#911eb4", "#008080", "#9a6324")
 
 
@@ -32,9 +35,15 @@ def _yes(value: bool | None, yes: str = "yes", no: str = "no") -> str:
     return "?" if value is None else (yes if value else no)
 
 
-def fleet_row(arm: str, status: m.ArmStatus | None, online: bool, age_s: float) -> str:
+def age_text(age_s: float) -> str:
+    """Feedback age, coarse enough that the table does not change every tick at 10 Hz."""
+    if not np.isfinite(age_s):
+        return "-"
+    return "< 0.5 s" if age_s < 0.5 else f"{age_s:.0f} s" if age_s >= 10 else f"{age_s:.1f} s"
+
+
+def fleet_row(arm: str, status: m.ArmStatus | None, online: bool, age: str) -> str:
     """One ``<tr>`` of the fleet table (``data-arm``/``data-online`` for scripts and tests)."""
-    age = "-" if not np.isfinite(age_s) else f"{age_s:.1f} s"
     cells = [
         arm,
         "online" if online else "OFFLINE",
@@ -53,17 +62,29 @@ def fleet_row(arm: str, status: m.ArmStatus | None, online: bool, age_s: float) 
     return f"<tr data-arm='{html.escape(arm)}' data-online='{online_attr}'{style}>{tds}</tr>"
 
 
-def fleet_table(snapshot: Snapshot) -> str:
-    """The fleet panel's HTML table."""
-    head = "".join(
+class FleetTable:
+    """The fleet panel's HTML table; rows are rebuilt only when their inputs changed."""
+
+    HEAD = "".join(
         f"<th style='padding:0 6px;text-align:left'>{h}</th>"
         for h in ("arm", "agent", "link", "enabled", "powered", "error", "stop", "age")
     )
-    rows = "".join(
-        fleet_row(arm, snapshot.status[i], bool(snapshot.online[i]), snapshot.joints_age_s[i])
-        for i, arm in enumerate(snapshot.arms)
-    )
-    return f"<table id='fleet-table' style='font-size:0.8em'><tr>{head}</tr>{rows}</table>"
+
+    def __init__(self) -> None:
+        self._rows: dict[str, tuple[object, str]] = {}
+
+    def html(self, snapshot: Snapshot) -> str:
+        """The whole table for ``snapshot``."""
+        rows = []
+        for i, arm in enumerate(snapshot.arms):
+            key = (snapshot.status[i], bool(snapshot.online[i]), age_text(snapshot.joints_age_s[i]))
+            cached = self._rows.get(arm)
+            if cached is None or cached[0] != key:
+                cached = (key, fleet_row(arm, key[0], key[1], key[2]))
+                self._rows[arm] = cached
+            rows.append(cached[1])
+        body = "".join(rows)
+        return f"<table id='fleet-table' style='font-size:0.8em'><tr>{self.HEAD}</tr>{body}</table>"
 
 
 class _ArmPanel:
@@ -110,13 +131,15 @@ class _ArmPanel:
 
         return on_update
 
-    def update(self, angles: npt.NDArray[np.float64], has_joints: bool, blocked: bool) -> None:
+    def set_blocked(self, blocked: bool) -> None:
+        """Disable the jog sliders while the arm is stopped, stale or offline."""
         if blocked != self.blocked:
             self.blocked = blocked
             for slider in self.sliders:
                 slider.disabled = blocked
-        if not has_joints:
-            return
+
+    def show(self, angles: npt.NDArray[np.float64]) -> None:
+        """Refresh the readout (and, once, the sliders) from measured angles."""
         text = "  \n".join(
             f"j{j}: **{a:7.1f}**°" for j, a in enumerate(np.round(angles, 1).tolist())
         )
@@ -146,6 +169,8 @@ class FleetPanels:
         self.reset_button.on_click(self._on_reset)
         self.stop_info = gui.add_markdown("")
         self.table_html = ""
+        self.fleet_table = FleetTable()
+        self._next_readout = 0
         with gui.add_folder("Fleet"):
             self.table = gui.add_html("")
         plot_on = len(self.arms) <= PLOTS_ON_BY_DEFAULT_UP_TO
@@ -189,16 +214,25 @@ class FleetPanels:
 
     def update(self, snapshot: Snapshot) -> None:
         """Refresh the table, readouts, plots and slider states (only what changed)."""
-        table = fleet_table(snapshot)
+        table = self.fleet_table.html(snapshot)
         if table != self.table_html:
             self.table_html = table
             self.table.content = table
-        estopped, has = snapshot.estopped, np.isfinite(snapshot.joints_age_s)
+        has = np.isfinite(snapshot.joints_age_s)
+        blocked = snapshot.estopped | ~snapshot.online | snapshot.stale
         for i, panel in enumerate(self.arm_panels):
-            blocked = bool(estopped[i] or not snapshot.online[i] or snapshot.stale[i])
-            panel.update(snapshot.angles_deg[i], bool(has[i]), blocked)
-            if panel.show_plot.value and has[i]:
-                panel.plot.data = (self._history_t, *self._history[i].T.copy())
+            panel.set_blocked(bool(blocked[i]))
+        # Readouts and plots: at most READOUTS_PER_TICK arms per tick, round robin, so a large
+        # fleet costs the same per tick as a small one (each arm refreshes less often).
+        count = min(READOUTS_PER_TICK, len(self.arm_panels))
+        for k in range(count):
+            i = (self._next_readout + k) % len(self.arm_panels)
+            panel = self.arm_panels[i]
+            if has[i]:
+                panel.show(snapshot.angles_deg[i])
+                if panel.show_plot.value:
+                    panel.plot.data = (self._history_t, *self._history[i].T.copy())
+        self._next_readout = (self._next_readout + count) % max(1, len(self.arm_panels))
 
     def notify(self, title: str, body: str, is_error: bool) -> None:
         """A notification in every connected browser (callable from any thread)."""
