@@ -119,6 +119,7 @@ class ArmSafety:
         self.stop = ActiveStop(stop_id, source, reason, now_ns, now_s)
         self.last_reason = f"stopped by {source}" + (f": {reason}" if reason else "")
         self.watched_by = None
+        self.lease = None  # a stop ends every ownership: whoever resets decides who goes next
         return True
 
     def needs_resend(self, now_s: float) -> bool:
@@ -161,8 +162,9 @@ class ArmSafety:
             self.lease = None
 
     def renew(self, owner: str, now_s: float) -> None:
-        """A sign of life from ``owner`` (its heartbeat) renews its lease."""
-        if self.lease is not None and self.lease.owner == owner:
+        """A heartbeat from ``owner`` renews its lease while the arm moves under its command;
+        otherwise the lease runs out ``lease_s`` after the owner's last command."""
+        if self.lease is not None and self.lease.owner == owner and self.watched_by == owner:
             self.lease.expires_s = now_s + self.lease_s
 
     def release(self, owner: str) -> bool:

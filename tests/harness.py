@@ -160,6 +160,10 @@ class FleetHarness:
             argv += ["--arm", arm]
         return self.start(name, argv)
 
+    def start_coordinator(self) -> subprocess.Popen[bytes]:
+        """``fleet coordinator``."""
+        return self.start("coordinator", ["-m", "fleet.cli.main", "coordinator"])
+
     def start_fleet(self) -> FleetClient:
         """Router, all simulated arms, one agent for all arms; returns a connected client once
         every arm's link is ok."""
