@@ -23,6 +23,7 @@ lint: $(STAMP)
 	$(BIN)/mypy fleet/wire fleet/d1
 
 test: $(STAMP) lint
+	sh scripts/ensure-chromium
 	$(BIN)/python -m pytest
 
 bench: $(STAMP)
