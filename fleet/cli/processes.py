@@ -8,6 +8,7 @@ import random
 import socket
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable
 
@@ -40,6 +41,8 @@ def register(
     demo = sub.add_parser("demo", help="router + simulated arms + one agent per arm, with status")
     add_common(demo)
     demo.add_argument("--for-s", type=float, default=None, help="stop after this many seconds")
+    demo.add_argument("--port", type=int, default=8080, help="viewer web port (default 8080)")
+    demo.add_argument("--no-viewer", action="store_true", help="do not start the viewer")
     demo.set_defaults(run=run_demo)
 
 
@@ -138,21 +141,49 @@ def run_demo(args: argparse.Namespace) -> int:
         for arm in inventory.arms:
             children.append(_spawn(["-m", "edge_agent", "--arm", arm, *common]))
         children.append(_spawn(["-m", "fleet.cli.main", "coordinator", *common]))
+        url = "not started (--no-viewer)"
+        if not args.no_viewer:
+            viewer_argv = ["-m", "fleet.cli.main", "viewer", "--port", str(args.port), *common]
+            viewer = subprocess.Popen(
+                [sys.executable, *viewer_argv], stdout=subprocess.PIPE, text=True
+            )
+            children.append(viewer)  # type: ignore[arg-type]
+            url = _viewer_url(viewer)
         print(
             f"d1-fleet demo: fleet {inventory.fleet!r}, DDS domain {inventory.domain_id}, "
-            f"Zenoh router on {', '.join(inventory.endpoints)}"
+            f"Zenoh router on {', '.join(inventory.endpoints)}\n"
+            f"viewer: {url}\nCtrl-C stops the demo",
+            flush=True,
         )
-        print("viewer: not part of this build yet (see the README); Ctrl-C stops the demo")
         _print_status_until(stop, inventory, args.for_s, children)
     finally:
         _stop_children(children)
     return 0
 
 
+def _viewer_url(viewer: subprocess.Popen[str], timeout_s: float = 30.0) -> str:
+    """The URL the viewer prints once it serves (it may move to another port if busy)."""
+    found: list[str] = []
+
+    def read() -> None:
+        assert viewer.stdout is not None
+        for line in viewer.stdout:
+            if "http://" in line and not found:
+                found.append(line[line.index("http://") :].split()[0])
+            # keep draining so the viewer never blocks on a full pipe
+
+    threading.Thread(target=read, name="viewer-stdout", daemon=True).start()
+    deadline = time.monotonic() + timeout_s
+    while not found and time.monotonic() < deadline and viewer.poll() is None:
+        time.sleep(0.1)
+    return found[0] if found else "did not start (see its log above)"
+
+
 def _print_status_until(stop, inventory: Inventory, for_s: float | None, children) -> None:  # type: ignore[no-untyped-def]
     from fleet.cli.status import status_lines
 
     deadline = None if for_s is None else time.monotonic() + for_s
+    printed = 0
     with FleetClient(inventory) as client:
         while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
             dead = [c.args for c in children if c.poll() is not None]
@@ -160,7 +191,10 @@ def _print_status_until(stop, inventory: Inventory, for_s: float | None, childre
                 print(f"fleet demo: a process exited: {dead[0]}", file=sys.stderr)
                 return
             lines = status_lines(inventory, client.snapshot(wait_s=1.0), client.agents_alive())
+            if printed and sys.stdout.isatty():
+                print(f"\033[{printed}F", end="")  # redraw the block in place
             print("\n".join(lines), flush=True)
+            printed = len(lines)
             stop.wait(1.0)
 
 
