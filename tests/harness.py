@@ -171,8 +171,20 @@ class FleetHarness:
         self.start_sim()
         self.start_agent()
         client = self.client()
-        wait_until(lambda: self.all_links_ok(client), 30.0)
+        try:
+            wait_until(lambda: self.all_links_ok(client), 30.0)
+        except AssertionError:
+            raise AssertionError(f"the fleet did not come up:\n{self.diagnose(client)}") from None
         return client
+
+    def diagnose(self, client: FleetClient) -> str:
+        """What each process said and what the key space shows, for a failure message."""
+        lines = [f"domain {self.domain}, endpoint {self.endpoint}"]
+        lines.append(f"snapshot: {client.snapshot(wait_s=1.0)}")
+        lines.append(f"agents alive: {client.agents_alive()}")
+        for name, process in self.processes.items():
+            lines.append(f"--- {name} (exit code {process.poll()}):\n{self.log(name)[-3000:]}")
+        return "\n".join(lines)
 
     def client(self) -> FleetClient:
         """A FleetClient on this fleet (closed at teardown)."""
