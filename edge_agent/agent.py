@@ -62,23 +62,11 @@ class _Outbox:
     replies: list[tuple[zenoh.Query, m.CommandReply]] = field(default_factory=list)
 
 
-def serving_slot(inventory: Inventory, arm_ids: list[str]) -> tuple[int, str, tuple[str, ...]]:
-    """The one (domain, interface, peers) the arms share; one agent process per network card."""
-    arms = [inventory.arm(a) for a in arm_ids]
-    slots = {(inventory.domain_of(a), a.interface, inventory.peers_of(a)) for a in arms}
-    if len(slots) != 1:
-        raise ValueError(
-            "these arms are on different DDS domains or interfaces: run one edge-agent per "
-            f"network interface ({', '.join(f'{a.id}: {a.interface}' for a in arms)})"
-        )
-    return slots.pop()
-
-
 class EdgeAgent:
     """Serves the arms ``arm_ids`` of ``inventory``. A context manager."""
 
     def __init__(self, inventory: Inventory, arm_ids: list[str]) -> None:
-        domain_id, interface, peers = serving_slot(inventory, arm_ids)
+        domain_id, interface, peers = inventory.network_of(arm_ids)
         self.inventory = inventory
         self.lock = threading.Lock()
         self.arm_ids = list(arm_ids)
@@ -260,15 +248,19 @@ class EdgeAgent:
                     flight.fail(ErrorCode.SEND_FAILED, "the DDS write failed (maybe sent)")
             pubs.raw_command.put(text)
 
-    def _reply_now(self, item: IncomingQuery, started: float) -> None:
+    def _reply_now(
+        self, item: IncomingQuery, started: float, error: ErrorInfo | None = None
+    ) -> None:
+        """Reply to a command that sent nothing to the arm (a refusal, a lease release)."""
         reply = m.CommandReply(
-            ok=True,
+            ok=error is None,
             arm=item.arm,
             seq=None,
             received=False,
             executed=None,
             reached=None,
             latency_ms=round((time.monotonic() - started) * 1000.0, 3),
+            error=error,
         )
         self.flush(_Outbox(replies=[(item.query, reply)]))
 
@@ -279,17 +271,7 @@ class EdgeAgent:
         self._collect_finished(slot, now, out)
 
     def _refuse(self, item: IncomingQuery, code: ErrorCode, message: str, started: float) -> None:
-        reply = m.CommandReply(
-            ok=False,
-            arm=item.arm,
-            seq=None,
-            received=False,
-            executed=None,
-            reached=None,
-            latency_ms=round((time.monotonic() - started) * 1000.0, 3),
-            error=ErrorInfo(int(code), message),
-        )
-        self.flush(_Outbox(replies=[(item.query, reply)]))
+        self._reply_now(item, started, ErrorInfo(int(code), message))
 
     # ------------------------------------------------------------------ housekeeping
 

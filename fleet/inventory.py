@@ -113,6 +113,19 @@ class Inventory(Struct, frozen=True):
         """The arm's DDS unicast peers (its own, or the fleet's)."""
         return tuple(self.peers if arm.peers is None else arm.peers)
 
+    def network_of(self, arm_ids: list[str]) -> tuple[int, str, tuple[str, ...]]:
+        """The one (domain, interface, peers) that ``arm_ids`` share. One process serves one
+        network: CycloneDDS takes one configuration per domain and process, and arms on
+        different cards with the same topics must not hear each other (NIC binding)."""
+        arms = [self.arm(a) for a in arm_ids]
+        networks = {(self.domain_of(a), a.interface, self.peers_of(a)) for a in arms}
+        if len(networks) != 1:
+            raise InventoryError(
+                f"{self.path}: arms on different DDS domains or interfaces need one process per "
+                f"network interface ({', '.join(f'{a.id}: {a.interface}' for a in arms)})"
+            )
+        return networks.pop()
+
     def with_domain(self, domain_id: int) -> Inventory:
         """A copy with every arm on ``domain_id`` (tests and the demo isolate runs this way)."""
         arms = {k: msgspec.structs.replace(a, domain_id=None) for k, a in self.arms.items()}

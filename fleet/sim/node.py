@@ -13,7 +13,7 @@ import queue
 import random
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import msgspec
 import zenoh
@@ -57,7 +57,6 @@ class _SimArm:
     model: SimArmModel
     next_feedback_s: float
     reports: int = 0
-    pending_faults: list[tuple[zenoh.Query, bytes]] = field(default_factory=list)
 
 
 class SimulatedArms:
@@ -65,13 +64,7 @@ class SimulatedArms:
 
     def __init__(self, inventory: Inventory, arm_ids: list[str], seed: int = 0) -> None:
         arms = [inventory.arm(a) for a in arm_ids]
-        slots = {(inventory.domain_of(a), a.interface, inventory.peers_of(a)) for a in arms}
-        if len(slots) != 1:
-            raise ValueError(
-                "simulated arms on different DDS domains or interfaces need one `fleet sim` "
-                f"process each (got {sorted(s[:2] for s in slots)})"
-            )
-        domain_id, interface, peers = slots.pop()
+        domain_id, interface, peers = inventory.network_of(arm_ids)
         self._rng = random.Random(seed)
         self._stop = threading.Event()
         self._faults: queue.SimpleQueue[tuple[str, zenoh.Query, bytes]] = queue.SimpleQueue()
