@@ -199,6 +199,14 @@ class EdgeAgent:
                 holder = safety.lease.owner if safety.lease else "nobody"
                 raise Refused(ErrorCode.LEASE_INVALID, f"arm {item.arm!r} is held by {holder}")
             return [], None, 0.0
+        if command.lifetime_s is not None and command.stamp_ns is not None:
+            age_s = (time.time_ns() - command.stamp_ns) / 1e9
+            if age_s > command.lifetime_s:
+                raise Refused(
+                    ErrorCode.TIMEOUT,
+                    f"target for arm {item.arm!r} arrived {age_s * 1000:.0f} ms after it was sent, "
+                    f"past its lifetime of {command.lifetime_s * 1000:.0f} ms: not executed",
+                )
         planned = plan(command, slot.tracker)
         if not isinstance(command, m.Hold):
             try:

@@ -275,3 +275,17 @@ def test_sigterm_stops_every_process_with_code_0(fleet_harness: FleetHarness) ->
         elapsed = time.monotonic() - started
         assert code == 0, (name, code, fleet_harness.log(name))
         assert elapsed < 5.0, (name, elapsed)
+
+
+def test_a_streamed_target_past_its_lifetime_is_never_executed(fleet_harness: FleetHarness) -> None:
+    import time
+
+    client = fleet_harness.start_fleet()
+    late = m.MoveJoint(
+        joint=0, angle_deg=30.0, stamp_ns=time.time_ns() - 500_000_000, lifetime_s=0.2
+    )
+    reply = client.command("a1", late)
+    assert not reply.ok and reply.error is not None
+    assert reply.error.code == m.ErrorCode.TIMEOUT and "lifetime" in reply.error.message
+    fresh = m.MoveJoint(joint=0, angle_deg=30.0, stamp_ns=time.time_ns(), lifetime_s=0.2)
+    assert client.command("a1", fresh).ok

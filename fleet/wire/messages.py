@@ -91,6 +91,8 @@ class _CommandBase(Struct, tag_field="op", kw_only=True, forbid_unknown_fields=T
     ``owner``: who commands (a lease: others are refused with 3207 until it expires), and
     ``takeover`` to take the arm from its current owner. ``start_at_ns``: wall-clock time at
     which the agent writes the command (synchronized multi-arm starts); at most 5 s ahead.
+    ``stamp_ns`` + ``lifetime_s``: a streamed target sent at ``stamp_ns`` is refused (3104) if
+    it reaches the agent more than ``lifetime_s`` later: a late target is never executed.
     """
 
     wait_reached: bool = False
@@ -99,6 +101,8 @@ class _CommandBase(Struct, tag_field="op", kw_only=True, forbid_unknown_fields=T
     owner: str | None = None
     takeover: bool = False
     start_at_ns: int | None = None
+    stamp_ns: int | None = None
+    lifetime_s: float | None = None
 
 
 class MoveJoint(_CommandBase, tag="move_joint", kw_only=True):
