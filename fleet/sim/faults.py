@@ -6,6 +6,8 @@ applies it on its own thread and replies ``{"ok": true}`` or an error.
 
 from __future__ import annotations
 
+import math
+
 import msgspec
 from msgspec import Struct
 
@@ -54,11 +56,20 @@ class MuteAcks(_Fault, tag="mute_acks", frozen=True):
     on: bool = True
 
 
+class Drag(_Fault, tag="drag", frozen=True):
+    """A hand drags unloaded ``joint`` to ``angle_deg`` at ``speed_deg_s`` (drag-teach, mirror
+    tests); a loaded joint resists. The hand keeps it there; a new drag or `clear` replaces it."""
+
+    joint: int
+    angle_deg: float
+    speed_deg_s: float = 60.0
+
+
 class ClearFaults(_Fault, tag="clear", frozen=True):
     """Remove every injected fault."""
 
 
-Fault = Stall | Unstall | MotorOffline | ErrorStatus | DropFeedback | MuteAcks | ClearFaults
+Fault = Stall | Unstall | MotorOffline | ErrorStatus | DropFeedback | MuteAcks | Drag | ClearFaults
 
 fault_decoder: msgspec.json.Decoder[Fault] = msgspec.json.Decoder(Fault)
 
@@ -90,7 +101,12 @@ def apply_fault(faults: Faults, fault: Fault) -> None:
         faults.drop_feedback = fault.on
     elif isinstance(fault, MuteAcks):
         faults.mute_acks = fault.on
+    elif isinstance(fault, Drag):
+        if fault.speed_deg_s <= 0 or not math.isfinite(fault.angle_deg + fault.speed_deg_s):
+            raise ValueError("drag needs a finite angle_deg and a speed_deg_s above 0")
+        faults.drags[fault.joint] = (fault.angle_deg, fault.speed_deg_s)
     elif isinstance(fault, ClearFaults):
         fresh = Faults()
         faults.stalls, faults.motors_offline = fresh.stalls, fresh.motors_offline
+        faults.drags = fresh.drags
         faults.error_status = faults.drop_feedback = faults.mute_acks = False

@@ -37,6 +37,8 @@ class Faults:
     error_status: bool = False
     drop_feedback: bool = False
     mute_acks: bool = False
+    # joint -> (angle the hand drags it to, speed deg/s): moves only an unloaded joint
+    drags: dict[int, tuple[float, float]] = field(default_factory=dict)
 
 
 @dataclass
@@ -74,12 +76,22 @@ class SimArmModel:
         alpha = 1.0 - math.exp(-dt / tau)
         for j in range(JOINT_COUNT):
             if not self._tracking(j):
+                self._dragged(j, dt)
                 continue
             current = self.angles_deg[j]
             delta = (self.target_deg[j] - current) * alpha
             limit = vmax * dt
             delta = max(-limit, min(limit, delta))
             self.angles_deg[j] = self._stalled(j, current, current + delta)
+
+    def _dragged(self, joint: int, dt: float) -> None:
+        """A hand drags an unloaded joint towards its drag angle at the drag speed."""
+        drag = self.faults.drags.get(joint)
+        if drag is None:
+            return
+        target, speed = drag
+        step = max(-speed * dt, min(speed * dt, target - self.angles_deg[joint]))
+        self.angles_deg[joint] += step
 
     def _stalled(self, joint: int, current: float, new: float) -> float:
         """An obstacle at ``stall``: the joint cannot cross it from the side it was on when it
