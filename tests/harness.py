@@ -125,13 +125,18 @@ class FleetHarness:
 
     # ------------------------------------------------------------------ processes
 
-    def start(self, name: str, argv: list[str]) -> subprocess.Popen[bytes]:
-        """Start ``python argv...`` with the inventory option appended; output to a log file."""
+    def start(
+        self, name: str, argv: list[str], prefix: tuple[str, ...] = (), inventory: bool = True
+    ) -> subprocess.Popen[bytes]:
+        """Start ``[prefix] python argv...`` with the inventory option appended (unless
+        ``inventory`` is False); output to a log file. ``prefix`` runs it through another
+        command, e.g. ``ip netns exec <ns>``."""
         log_path = self.tmp_path / f"{name}.log"
         self._logs[name] = log_path
+        extra = ["--inventory", str(self.inventory_path)] if inventory else []
         with open(log_path, "wb") as log:
             process = subprocess.Popen(
-                [sys.executable, *argv, "--inventory", str(self.inventory_path)],
+                [*prefix, sys.executable, *argv, *extra],
                 stdout=log,
                 stderr=subprocess.STDOUT,
                 env={**os.environ, "PYTHONUNBUFFERED": "1"},

@@ -32,6 +32,11 @@ def register(
     add_common(sim)
     sim.add_argument("--arm", action="append", help="only these arms (default: all simulated)")
     sim.add_argument("--seed", type=int, default=0, help="seed of the feedback jitter")
+    sim.add_argument(
+        "--no-zenoh",
+        action="store_true",
+        help="DDS only, no fault-injection queryable (a simulated arm alone on its own network)",
+    )
     sim.set_defaults(run=run_sim)
 
     coordinator = sub.add_parser("coordinator", help="fleet state, heartbeat, multi-arm commands")
@@ -70,7 +75,7 @@ def run_sim(args: argparse.Namespace) -> int:
         return 2
     stop = shutdown_event()
     with SimulatedArms(inventory, arms, seed=args.seed) as sim:
-        sim.start()
+        sim.start(with_zenoh=not args.no_zenoh)
         log.info(
             "simulating arms %s on DDS domain %d",
             ", ".join(arms),
