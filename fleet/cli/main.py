@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from fleet.cli import arm_commands, processes, safety_cmds, status, viewer_cmd
+from fleet.cli import arm_commands, choreo_cmds, processes, safety_cmds, status, viewer_cmd
 from fleet.inventory import InventoryError
 from fleet.runtime import add_inventory_options, setup_logging
 from fleet.wire.session import RouterUnreachable
@@ -23,7 +23,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="fleet", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for module in (processes, status, arm_commands, safety_cmds, viewer_cmd):
+    for module in (processes, status, arm_commands, safety_cmds, viewer_cmd, choreo_cmds):
         module.register(sub, add_inventory_options)
     return parser
 
