@@ -1,0 +1,40 @@
+"""Grip confirmation for ``wait = "grip"``. Pure, fed samples.
+
+A contact detector that publishes ``ContactEvent`` on ``arm/<arm>/contact`` is being built in
+parallel; until it exists in ``fleet/wire/messages.py`` a grip is confirmed from the gripper's
+own angle: the gripper (wire joint 6, 0 = closed) was commanded to close further than it got
+and has stopped short of that target: it holds something. The player uses the contact key
+instead whenever the message type exists.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+
+from fleet.d1.limits import GRIPPER_JOINT
+
+STALL_SAMPLES = 3
+"""Three gripper reports (about 0.3 s) ..."""
+STALL_SPREAD_DEG = 0.3
+"""... within 0.3 deg of each other mean the gripper stopped ..."""
+SHORT_OF_TARGET_DEG = 2.0
+"""... and more than 2 deg short of (above) its closing target means it holds an object."""
+
+
+@dataclass
+class GripDetector:
+    """Confirms a grip on one arm from its gripper angle stalling short of the target."""
+
+    window: deque[float] = field(default_factory=lambda: deque(maxlen=STALL_SAMPLES))
+
+    def add(self, angles_deg: tuple[float, ...] | list[float]) -> None:
+        """Feed one joint report (seven angles)."""
+        self.window.append(float(angles_deg[GRIPPER_JOINT]))
+
+    def gripped(self, target_deg: float) -> bool:
+        """True when the gripper stopped more than SHORT_OF_TARGET_DEG above ``target_deg``."""
+        if len(self.window) < STALL_SAMPLES:
+            return False
+        still = max(self.window) - min(self.window) <= STALL_SPREAD_DEG
+        return still and self.window[-1] - target_deg > SHORT_OF_TARGET_DEG

@@ -1,0 +1,307 @@
+"""The choreography player: streams a timeline's targets to the arms at their control rate.
+
+One thread of ours (the caller's) ticks at 10 Hz: it checks every arm (stopped, link, path
+tolerance, failed replies), advances the pure ``Timeline`` and hands one ``MoveJoints`` (mode 0,
+owner = the player, short lifetime) per arm to a small thread pool: it never waits for a reply
+before the next tick. ``Liveness`` beats with the player's id so the agents hold the arms if the
+player dies. Shutdown order: stop commanding -> hold every arm -> wait until still -> stop the
+heartbeat -> release the leases -> undeclare.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import socket
+import threading
+import time
+import uuid
+from collections import deque
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor, wait
+from dataclasses import dataclass, field
+
+from fleet.choreo.grip import GripDetector
+from fleet.choreo.script import Pose, Script
+from fleet.choreo.timeline import ArmFacts, Frame, Timeline, max_error_deg
+from fleet.choreo.validate import check_motion
+from fleet.choreo.watch import ArmWatch, Liveness
+from fleet.client import FleetClient
+from fleet.d1.limits import CONTROL_RATE_HZ, GRIPPER_JOINT
+from fleet.wire import messages as m
+
+log = logging.getLogger("fleet.choreo")
+
+TARGET_LIFETIME_S = 0.3
+"""A streamed target older than this is refused by the agent: three control cycles."""
+PATH_WINDOW = 6
+"""The measured pose is compared with the targets of the last 6 ticks (feedback lags ~0.1 s)."""
+MAX_PENDING = 3
+"""Commands in flight per arm beyond which a tick skips the arm (and counts it)."""
+
+
+@dataclass
+class PlayResult:
+    """How a play ended. ``keyframe_error_deg``: per finished keyframe, the largest joint error
+    over the arms when its time came; ``start_skew_ms``: spread of the first DDS writes."""
+
+    ok: bool
+    reason: str
+    start_skew_ms: float | None = None
+    keyframe_error_deg: list[float] = field(default_factory=list)
+    max_path_error_deg: float = 0.0
+    skipped_ticks: int = 0
+    elapsed_s: float = 0.0
+
+
+def player_id() -> str:
+    """A unique owner id for one player."""
+    return f"player@{socket.gethostname()}:{os.getpid()}:{uuid.uuid4().hex[:6]}"
+
+
+class Abort(Exception):
+    """The play must stop now; the message says why."""
+
+
+class Player:
+    """Plays ``script`` on the arms it names, as owner ``owner``."""
+
+    def __init__(
+        self,
+        client: FleetClient,
+        script: Script,
+        owner: str | None = None,
+        on_progress: Callable[[Frame], None] | None = None,
+    ) -> None:
+        self.client = client
+        self.script = script
+        self.owner = owner or player_id()
+        self.on_progress = on_progress
+        self.period_s = 1.0 / CONTROL_RATE_HZ
+        self.pool = ThreadPoolExecutor(
+            max_workers=2 * len(script.arms) + 2, thread_name_prefix="cmd"
+        )
+        self.pending: dict[str, deque[Future[m.CommandReply]]] = {a: deque() for a in script.arms}
+        self.recent: dict[str, deque[Pose]] = {a: deque(maxlen=PATH_WINDOW) for a in script.arms}
+        self.grip = {a: GripDetector() for a in script.arms}
+        self._last_seq: dict[str, int] = {}
+        self.result = PlayResult(False, "not started")
+
+    # ------------------------------------------------------------------ public
+
+    def play(self, stop: threading.Event | None = None) -> PlayResult:
+        """Validate, start every arm at once, stream until done or aborted. Raises ScriptError
+        (nothing moved) when the script breaks a joint or speed limit from the measured poses."""
+        stop = stop or threading.Event()
+        watch = ArmWatch(self.client.session, self.client.keys, self.script.arms)
+        liveness: Liveness | None = None
+        started = time.monotonic()
+        try:
+            poses = self._start_poses(watch)
+            check_motion(self.script, poses)
+            liveness = Liveness(self.client.session, self.client.keys, self.owner)
+            stop.wait(0.3)  # the agents hear a beat before the first move: the watchdog arms
+            timeline = Timeline(self.script, poses)
+            try:
+                self._run(timeline, watch, stop)
+                self.result.ok, self.result.reason = True, "completed"
+                self._settle(watch, timeline.poses, 3.0)
+            except Abort as exc:
+                self.result.ok, self.result.reason = False, str(exc)
+                log.warning("choreography %r aborted: %s", self.script.name, exc)
+                self._hold_all(watch)
+        finally:
+            if liveness is not None:
+                liveness.close()
+                self._broadcast(lambda a: m.Release(owner=self.owner))
+            self.pool.shutdown(wait=False, cancel_futures=True)
+            watch.close()
+            self.result.elapsed_s = round(time.monotonic() - started, 3)
+        return self.result
+
+    # ------------------------------------------------------------------ phases
+
+    def _start_poses(self, watch: ArmWatch) -> dict[str, Pose]:
+        deadline = time.monotonic() + 3.0
+        while time.monotonic() < deadline:
+            latest = {a: watch.latest(a) for a in self.script.arms}
+            if all(x.joints is not None and x.status is not None for x in latest.values()):
+                break
+            time.sleep(0.05)
+        now = time.monotonic()
+        for arm in self.script.arms:
+            problem = watch.problem(arm, now)
+            if problem is not None:
+                raise Abort(f"not started: {problem}")
+        return {a: tuple(watch.latest(a).joints.angles_deg) for a in self.script.arms}  # type: ignore[union-attr]
+
+    def _run(self, timeline: Timeline, watch: ArmWatch, stop: threading.Event) -> None:
+        lead_ns = int(self.script.start_lead_s * 1e9)
+        start_ns = time.time_ns() + lead_ns
+        start_s = time.monotonic() + lead_ns / 1e9
+        timeline.start(start_s)
+        first = timeline.tick(start_s + self.period_s, {})
+        self.result.start_skew_ms = self._synchronized_start(first, start_ns)
+        tick = 1
+        shown = (-1, -1)
+        last_shown_s = 0.0
+        while True:
+            stop.wait(max(0.0, start_s + tick * self.period_s - time.monotonic()))
+            if stop.is_set():
+                raise Abort("interrupted by the operator")
+            now = time.monotonic()
+            self._check(watch, now)
+            frame = timeline.tick(now, self._facts(watch, timeline))
+            self._book_keyframes(frame, watch, timeline)
+            if frame.kind == "failed":
+                raise Abort(frame.error or "a wait failed")
+            if frame.kind == "done":
+                return
+            self._send(frame)
+            if self.on_progress and (
+                (frame.iteration, frame.step_index) != shown or now - last_shown_s >= 1.0
+            ):
+                self.on_progress(frame)
+                shown, last_shown_s = (frame.iteration, frame.step_index), now
+            tick += 1
+
+    def _synchronized_start(self, frame: Frame, start_ns: int) -> float | None:
+        """Every arm gets its first target with the same ``start_at_ns``; returns the skew."""
+        futures = {
+            arm: self.pool.submit(
+                self.client.command,
+                arm,
+                m.MoveJoints(
+                    angles_deg=list(frame.targets[arm]),
+                    mode=0,
+                    owner=self.owner,
+                    start_at_ns=start_ns,
+                ),
+            )
+            for arm in self.script.arms
+        }
+        replies = {arm: f.result() for arm, f in futures.items()}
+        failed = [r for r in replies.values() if not r.ok]
+        if failed:
+            error = failed[0].error
+            raise Abort(
+                f"arm {failed[0].arm!r} refused the start: {error.message if error else '?'}"
+            )
+        written = [r.written_ns for r in replies.values() if r.written_ns is not None]
+        return round((max(written) - min(written)) / 1e6, 3) if len(written) > 1 else None
+
+    # ------------------------------------------------------------------ per tick
+
+    def _check(self, watch: ArmWatch, now: float) -> None:
+        """Abort on a stopped or silent arm, a refused command, or an arm off its path."""
+        for arm in self.script.arms:
+            problem = watch.problem(arm, now)
+            if problem is not None:
+                raise Abort(problem)
+            queue = self.pending[arm]
+            while queue and queue[0].done():
+                reply = queue.popleft().result()
+                if not reply.ok and reply.error is not None:
+                    raise Abort(
+                        f"arm {arm!r} refused a target: [{reply.error.code}] {reply.error.message}"
+                    )
+            joints = watch.latest(arm).joints
+            if joints is None or not self.recent[arm]:
+                continue
+            measured = tuple(joints.angles_deg)
+            error = min(max_error_deg(measured, t) for t in self.recent[arm])
+            self.result.max_path_error_deg = max(self.result.max_path_error_deg, round(error, 2))
+            if error > self.script.tolerance_deg:
+                raise Abort(
+                    f"arm {arm!r} left its path: {error:.1f} deg from its targets "
+                    f"(tolerance {self.script.tolerance_deg:g} deg)"
+                )
+
+    def _facts(self, watch: ArmWatch, timeline: Timeline) -> dict[str, ArmFacts]:
+        facts = {}
+        for arm in self.script.arms:
+            latest = watch.latest(arm)
+            angles = tuple(latest.joints.angles_deg) if latest.joints is not None else None
+            if latest.joints is not None and self._last_seq.get(arm) != latest.joints.seq:
+                self._last_seq[arm] = latest.joints.seq
+                self.grip[arm].add(latest.joints.angles_deg)
+            if latest.contact is not None:  # a contact detector publishes: trust it
+                gripped = latest.contact
+            else:
+                gripped = self.grip[arm].gripped(timeline.poses[arm][GRIPPER_JOINT])
+            facts[arm] = ArmFacts(angles, gripped)
+        return facts
+
+    def _book_keyframes(self, frame: Frame, watch: ArmWatch, timeline: Timeline) -> None:
+        """The tracking error of each keyframe whose time came during this tick."""
+        for _index in frame.finished_keyframes:
+            errors = [
+                max_error_deg(tuple(j.angles_deg), timeline.poses[arm])
+                for arm in self.script.arms
+                if (j := watch.latest(arm).joints) is not None
+            ]
+            if errors:
+                self.result.keyframe_error_deg.append(round(max(errors), 2))
+
+    def _send(self, frame: Frame) -> None:
+        stamp = time.time_ns()
+        for arm in self.script.arms:
+            target = frame.targets[arm]
+            self.recent[arm].append(target)
+            if len(self.pending[arm]) >= MAX_PENDING:
+                self.result.skipped_ticks += 1
+                continue
+            command = m.MoveJoints(
+                angles_deg=list(target),
+                mode=0,
+                owner=self.owner,
+                stamp_ns=stamp,
+                lifetime_s=TARGET_LIFETIME_S,
+            )
+            self.pending[arm].append(self.pool.submit(self.client.command, arm, command))
+
+    # ------------------------------------------------------------------ ending
+
+    def _broadcast(self, make: Callable[[str], m.ArmCommand]) -> dict[str, m.CommandReply]:
+        futures = {a: self.pool.submit(self.client.command, a, make(a)) for a in self.script.arms}
+        wait(futures.values(), timeout=5.0)
+        return {a: f.result() for a, f in futures.items() if f.done()}
+
+    def _hold_all(self, watch: ArmWatch) -> None:
+        """Hold every arm where it is, then, once still, make that pose the watched target (so
+        the agents' watchdog does not trip when the heartbeat stops after a clean abort)."""
+        self._broadcast(lambda a: m.Hold(owner=self.owner))
+        still = self._settle(watch, None, 1.5)
+        self._broadcast(
+            lambda a: (
+                m.MoveJoints(angles_deg=list(still[a]), mode=0, owner=self.owner)
+                if a in still
+                else m.Hold(owner=self.owner)
+            )
+        )
+        self._settle(watch, None, 1.0)
+
+    def _settle(
+        self, watch: ArmWatch, goal: dict[str, Pose] | None, timeout_s: float
+    ) -> dict[str, Pose]:
+        """Wait (bounded) until every arm is still (and at ``goal``); returns the last poses."""
+        deadline = time.monotonic() + timeout_s
+        history: dict[str, deque[Pose]] = {a: deque(maxlen=4) for a in self.script.arms}
+        seen: dict[str, int] = {}
+        poses: dict[str, Pose] = {}
+        while time.monotonic() < deadline:
+            for arm in self.script.arms:
+                joints = watch.latest(arm).joints
+                if joints is not None and seen.get(arm) != joints.seq:
+                    seen[arm] = joints.seq
+                    history[arm].append(tuple(joints.angles_deg))
+                    poses[arm] = tuple(joints.angles_deg)
+            if all(
+                len(h) == h.maxlen
+                and max_error_deg(h[0], h[-1]) < 0.3
+                and (goal is None or max_error_deg(h[-1], goal[a]) < 0.8)
+                for a, h in history.items()
+            ):
+                break
+            time.sleep(0.05)
+        return poses

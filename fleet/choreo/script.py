@@ -1,0 +1,247 @@
+"""Choreography files (``fleet play dance.toml``): parse and validate. Pure: no I/O but the text.
+
+A script is a list of steps played in order by every arm involved, from one synchronized start:
+
+- a **move** step (a keyframe): ``duration_s``, ``easing`` and, per arm, the absolute pose
+  (seven angles in degrees, wire ids 0..6, or the name of a ``[poses]`` entry) the arm reaches
+  at the end of the step. Keys may be an arm id, a group of the inventory or ``all``; an arm the
+  step does not name keeps its previous keyframe;
+- a **wait** step: ``wait = "reached"`` (the arms are within ``reach_tolerance_deg`` of their
+  current keyframe) or ``wait = "grip"`` (the arms' grippers confirmed a grip), on ``arms``
+  (default: every arm involved), for at most ``timeout_s`` (then the script aborts).
+
+``[choreo]`` sets ``loops`` (1; 0 = until stopped), ``tolerance_deg`` (path tolerance while
+playing), ``reach_tolerance_deg``, ``max_speed_deg_s`` and ``start_lead_s``. Errors name the
+file and the path: ``dance.toml: step[2].a1: 7 angles expected, got 6``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Literal, cast
+
+import msgspec
+
+from fleet.d1.limits import JOINT_COUNT
+
+Easing = Literal["linear", "ease_in", "ease_out", "ease_in_out"]
+EASINGS: tuple[str, ...] = ("linear", "ease_in", "ease_out", "ease_in_out")
+Condition = Literal["reached", "grip"]
+Pose = tuple[float, ...]
+
+HARD_MAX_SPEED_DEG_S = 180.0
+"""No script may ask more of a joint than this (the simulated arm's mode-0 speed limit)."""
+
+_MOVE_KEYS = {"duration_s", "easing", "label"}
+_WAIT_KEYS = {"wait", "arms", "timeout_s", "label"}
+_CHOREO_KEYS = {
+    "name",
+    "arms",
+    "loops",
+    "tolerance_deg",
+    "reach_tolerance_deg",
+    "max_speed_deg_s",
+    "start_lead_s",
+}
+
+
+class ScriptError(ValueError):
+    """A choreography that cannot be played; the message names the file and the path."""
+
+
+@dataclass(frozen=True)
+class Move:
+    """A keyframe: each arm of ``poses`` reaches its pose ``duration_s`` after the step starts."""
+
+    duration_s: float
+    easing: Easing
+    poses: Mapping[str, Pose]
+    label: str = ""
+
+
+@dataclass(frozen=True)
+class Wait:
+    """Hold every pose until ``condition`` holds for ``arms`` (at most ``timeout_s``)."""
+
+    condition: Condition
+    arms: tuple[str, ...]
+    timeout_s: float
+    label: str = ""
+
+
+Step = Move | Wait
+
+
+@dataclass(frozen=True)
+class Script:
+    """A validated choreography (limits are checked again against the start poses by
+    ``check_motion`` before anything moves)."""
+
+    name: str
+    arms: tuple[str, ...]
+    steps: tuple[Step, ...]
+    loops: int = 1
+    tolerance_deg: float = 10.0
+    reach_tolerance_deg: float = 3.0
+    max_speed_deg_s: float = 90.0
+    start_lead_s: float = 0.5
+    source: str = field(default="<script>", compare=False)
+
+    @property
+    def moves(self) -> list[Move]:
+        """The move steps, in order."""
+        return [s for s in self.steps if isinstance(s, Move)]
+
+    @property
+    def iteration_s(self) -> float:
+        """The time one pass takes without its waits."""
+        return sum(m.duration_s for m in self.moves)
+
+
+def _fail(source: str, where: str, why: str) -> ScriptError:
+    return ScriptError(f"{source}: {where}: {why}" if where else f"{source}: {why}")
+
+
+def _number(value: Any, source: str, where: str, low: float, high: float | None = None) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise _fail(source, where, f"a number expected, got {value!r}")
+    number = float(value)
+    if not low <= number or (high is not None and number > high) or number != number:
+        bound = f"{low:g}..{high:g}" if high is not None else f">= {low:g}"
+        raise _fail(source, where, f"{number:g} is outside {bound}")
+    return number
+
+
+def _pose(value: Any, poses: Mapping[str, Pose], source: str, where: str) -> Pose:
+    if isinstance(value, str):
+        if value not in poses:
+            known = ", ".join(sorted(poses)) or "none defined"
+            raise _fail(source, where, f"unknown pose {value!r} (poses: {known})")
+        return poses[value]
+    if not isinstance(value, list) or len(value) != JOINT_COUNT:
+        raise _fail(source, where, f"{JOINT_COUNT} angles expected, got {value!r}")
+    return tuple(_number(v, source, f"{where}[{i}]", -1e6, 1e6) for i, v in enumerate(value))
+
+
+def _resolve(
+    target: str, arms: Sequence[str], groups: Mapping[str, Sequence[str]], source: str, where: str
+) -> list[str]:
+    if target == "all":
+        return list(arms)
+    if target in groups:
+        return list(groups[target])
+    if target in arms:
+        return [target]
+    raise _fail(source, where, f"{target!r} is not an arm, a group or 'all' (arms: {list(arms)})")
+
+
+def _move(
+    raw: Mapping[str, Any],
+    arms: Sequence[str],
+    groups: Mapping[str, Sequence[str]],
+    poses: Mapping[str, Pose],
+    source: str,
+    where: str,
+) -> Move:
+    duration = _number(raw.get("duration_s"), source, f"{where}.duration_s", 0.1, 3600.0)
+    easing = raw.get("easing", "ease_in_out")
+    if easing not in EASINGS:
+        raise _fail(source, f"{where}.easing", f"{easing!r} is not one of {', '.join(EASINGS)}")
+    targets: dict[str, Pose] = {}
+    # "all" first, then groups, then arms: the most specific entry wins.
+    order = sorted(
+        (k for k in raw if k not in _MOVE_KEYS),
+        key=lambda k: 0 if k == "all" else 1 if k in groups else 2,
+    )
+    for key in order:
+        pose = _pose(raw[key], poses, source, f"{where}.{key}")
+        for arm in _resolve(key, arms, groups, source, f"{where}.{key}"):
+            targets[arm] = pose
+    if not targets:
+        raise _fail(source, where, "a move step names no arm (give `a1 = [...]` or `all = ...`)")
+    return Move(duration, cast(Easing, easing), targets, str(raw.get("label", "")))
+
+
+def _wait(
+    raw: Mapping[str, Any],
+    arms: Sequence[str],
+    groups: Mapping[str, Sequence[str]],
+    source: str,
+    where: str,
+    involved: Sequence[str],
+) -> Wait:
+    unknown = set(raw) - _WAIT_KEYS
+    if unknown:
+        raise _fail(source, where, f"unknown field(s) in a wait step: {', '.join(sorted(unknown))}")
+    condition = raw["wait"]
+    if condition not in ("reached", "grip"):
+        raise _fail(source, f"{where}.wait", f"{condition!r} is not 'reached' or 'grip'")
+    names = raw.get("arms", list(involved))
+    if not isinstance(names, list) or not names:
+        raise _fail(source, f"{where}.arms", "a non-empty list of arms or groups expected")
+    waited: list[str] = []
+    for name in names:
+        waited += _resolve(str(name), arms, groups, source, f"{where}.arms")
+    timeout = _number(raw.get("timeout_s", 10.0), source, f"{where}.timeout_s", 0.1, 600.0)
+    label = str(raw.get("label", ""))
+    return Wait(cast(Condition, condition), tuple(dict.fromkeys(waited)), timeout, label)
+
+
+def parse_script(
+    text: str,
+    source: str = "<script>",
+    arms: Sequence[str] = (),
+    groups: Mapping[str, Sequence[str]] | None = None,
+) -> Script:
+    """Parse a choreography TOML against the inventory's ``arms`` and ``groups``."""
+    groups = dict(groups or {})
+    try:
+        raw = msgspec.toml.decode(text)
+    except msgspec.DecodeError as exc:
+        raise _fail(source, "", f"not valid TOML: {exc}") from None
+    unknown = set(raw) - {"choreo", "poses", "step"}
+    if unknown:
+        raise _fail(source, "", f"unknown table(s) {', '.join(sorted(unknown))}")
+    head = raw.get("choreo", {})
+    if set(head) - _CHOREO_KEYS:
+        raise _fail(source, "choreo", f"unknown field(s) {sorted(set(head) - _CHOREO_KEYS)}")
+    poses = {str(k): _pose(v, {}, source, f"poses.{k}") for k, v in raw.get("poses", {}).items()}
+    raw_steps = raw.get("step", [])
+    if not isinstance(raw_steps, list) or not raw_steps:
+        raise _fail(source, "step", "no [[step]] tables: a script needs at least one move")
+    moves: list[tuple[int, Move]] = []
+    for i, step in enumerate(raw_steps):
+        if "wait" not in step:
+            moves.append((i, _move(step, arms, groups, poses, source, f"step[{i}]")))
+    involved = list(dict.fromkeys(a for _i, mv in moves for a in mv.poses))
+    for name in head.get("arms", []):
+        for arm in _resolve(name, arms, groups, source, "choreo.arms"):
+            if arm not in involved:
+                involved.append(arm)
+    if not moves:
+        raise _fail(source, "step", "no move step: nothing would move")
+    by_index = dict(moves)
+    steps: list[Step] = [
+        by_index[i] if i in by_index else _wait(s, arms, groups, source, f"step[{i}]", involved)
+        for i, s in enumerate(raw_steps)
+    ]
+    loops = head.get("loops", 1)
+    if isinstance(loops, bool) or not isinstance(loops, int) or loops < 0:
+        why = f"a whole number >= 0 expected (0 = forever), got {loops!r}"
+        raise _fail(source, "choreo.loops", why)
+
+    def setting(key: str, default: float, low: float, high: float) -> float:
+        return _number(head.get(key, default), source, f"choreo.{key}", low, high)
+
+    return Script(
+        name=str(head.get("name", source)),
+        arms=tuple(involved),
+        steps=tuple(steps),
+        loops=loops,
+        tolerance_deg=setting("tolerance_deg", 10.0, 0.5, 90.0),
+        reach_tolerance_deg=setting("reach_tolerance_deg", 3.0, 0.1, 45.0),
+        max_speed_deg_s=setting("max_speed_deg_s", 90.0, 1.0, HARD_MAX_SPEED_DEG_S),
+        start_lead_s=setting("start_lead_s", 0.5, 0.1, 4.0),
+        source=source,
+    )

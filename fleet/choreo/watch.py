@@ -1,0 +1,164 @@
+"""What a streaming commander (the choreography player, the mirror) needs to know of its arms,
+and the heartbeat that makes the agents watch them.
+
+``ArmWatch`` subscribes to the arms' joints, status and contact keys and keeps the latest of
+each (a Zenoh callback only decodes and stores under a lock: no I/O, no Zenoh call).
+``Liveness`` publishes a ``Heartbeat`` with the commander's id on ``KeySpace.heartbeat`` at
+10 Hz on its own thread: agents treat any heartbeat publisher as a coordinator, so an arm moved
+by this commander is held by its agent when the commander dies.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+
+import msgspec
+import zenoh
+
+from fleet.client import JSON, STOP_QOS
+from fleet.wire import keys
+from fleet.wire import messages as m
+from fleet.wire.messages import encode
+
+log = logging.getLogger("fleet.choreo")
+
+HEARTBEAT_PERIOD_S = 0.1
+STATUS_SILENT_S = 1.0
+"""An arm whose agent published no status for this long has lost its link (status is 4 Hz)."""
+
+
+@dataclass
+class Latest:
+    """The newest samples of one arm (``*_at``: monotonic time received)."""
+
+    joints: m.Joints | None = None
+    joints_at: float = 0.0
+    status: m.ArmStatus | None = None
+    status_at: float = 0.0
+    contact: bool | None = None
+
+
+class ArmWatch:
+    """Latest joints/status/contact of ``arms``; ``on_joints`` (optional) is called from the
+    Zenoh thread with (arm, Joints) and must only hand off."""
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        space: keys.KeySpace,
+        arms: Iterable[str],
+        on_joints: Callable[[str, m.Joints], None] | None = None,
+    ) -> None:
+        self.space = space
+        self.arms = list(arms)
+        self.lock = threading.Lock()  # guards self._latest
+        self._latest = {a: Latest() for a in self.arms}
+        self._on_joints = on_joints
+        self._subs = [
+            session.declare_subscriber(space.all_arms(channel), self._on_sample)
+            for channel in (keys.JOINTS, keys.STATUS, keys.CONTACT)
+        ]
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        try:
+            key = self.space.parse_arm_key(str(sample.key_expr))
+        except keys.KeyError_:
+            return
+        if key.arm not in self._latest:
+            return
+        data, now = sample.payload.to_bytes(), time.monotonic()
+        try:
+            if key.channel == keys.JOINTS:
+                joints = m.joints_decoder.decode(data)
+                with self.lock:
+                    self._latest[key.arm].joints, self._latest[key.arm].joints_at = joints, now
+                if self._on_joints is not None:
+                    self._on_joints(key.arm, joints)
+            elif key.channel == keys.STATUS:
+                status = m.status_decoder.decode(data)
+                with self.lock:
+                    self._latest[key.arm].status, self._latest[key.arm].status_at = status, now
+            elif key.channel == keys.CONTACT:
+                contact = _contact_of(data)
+                with self.lock:
+                    self._latest[key.arm].contact = contact
+        except msgspec.DecodeError:
+            return  # a foreign payload: the agent counts malformed data, not us
+
+    def latest(self, arm: str) -> Latest:
+        """A copy of the newest samples of ``arm``."""
+        with self.lock:
+            got = self._latest[arm]
+            return Latest(got.joints, got.joints_at, got.status, got.status_at, got.contact)
+
+    def problem(self, arm: str, now_s: float) -> str | None:
+        """Why ``arm`` must not be commanded now (stopped, link not ok, silent), or None."""
+        got = self.latest(arm)
+        status = got.status
+        if status is None or now_s - got.status_at > STATUS_SILENT_S:
+            return f"arm {arm!r} lost its link: no status from its agent for {STATUS_SILENT_S:g} s"
+        if status.estopped:
+            return f"arm {arm!r} is stopped ({status.stop_reason or 'protective stop'})"
+        if status.link != "ok":
+            return f"arm {arm!r} lost its link (link {status.link})"
+        return None
+
+    def close(self) -> None:
+        """Undeclare the subscriptions (idempotent)."""
+        subs, self._subs = self._subs, []
+        for sub in subs:
+            sub.undeclare()
+
+
+def _contact_of(data: bytes) -> bool | None:
+    """The ``contact`` flag of a ContactEvent-shaped payload (decoded loosely: the message type
+    is owned by the contact detector; only its boolean is read here)."""
+    raw = msgspec.json.decode(data)
+    if isinstance(raw, dict):
+        for name in ("contact", "in_contact", "gripped"):
+            if isinstance(raw.get(name), bool):
+                return bool(raw[name])
+    return None
+
+
+class Liveness:
+    """A Heartbeat publisher for commander ``owner`` (10 Hz, own thread). A context manager."""
+
+    def __init__(self, session: zenoh.Session, space: keys.KeySpace, owner: str) -> None:
+        self.owner = owner
+        self._pub = session.declare_publisher(space.heartbeat, encoding=JSON, **STOP_QOS)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="liveness", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        try:
+            seq = 0
+            next_beat = time.monotonic()
+            while not self._stop.is_set():
+                beat = m.Heartbeat(time.time_ns(), self.owner, seq, HEARTBEAT_PERIOD_S)
+                self._pub.put(encode(beat))
+                seq += 1
+                next_beat += HEARTBEAT_PERIOD_S
+                self._stop.wait(max(0.0, next_beat - time.monotonic()))
+        except BaseException:
+            log.exception("liveness thread failed: agents will hold the arms")
+            raise
+
+    def close(self) -> None:
+        """Stop beating (agents then hold arms still moving under this owner); idempotent."""
+        if self._stop.is_set():
+            return
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+        self._pub.undeclare()
+
+    def __enter__(self) -> Liveness:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
