@@ -25,7 +25,7 @@ from fleet.choreo.grip import GripDetector
 from fleet.choreo.script import Pose, Script
 from fleet.choreo.timeline import ArmFacts, Frame, Timeline, max_error_deg
 from fleet.choreo.validate import check_motion
-from fleet.choreo.watch import ArmWatch, Liveness
+from fleet.choreo.watch import ArmWatch, Liveness, settle
 from fleet.client import FleetClient
 from fleet.d1.limits import CONTROL_RATE_HZ, GRIPPER_JOINT
 from fleet.wire import messages as m
@@ -102,13 +102,13 @@ class Player:
             liveness = Liveness(self.client.session, self.client.keys, self.owner)
             stop.wait(0.3)  # the agents hear a beat before the first move: the watchdog arms
             timeline = Timeline(self.script, poses)
-            try:
-                self._run(timeline, watch, stop)
-                self.result.ok, self.result.reason = True, "completed"
-                self._settle(watch, timeline.poses, 3.0)
-            except Abort as exc:
-                self.result.ok, self.result.reason = False, str(exc)
-                log.warning("choreography %r aborted: %s", self.script.name, exc)
+            self._run(timeline, watch, stop)
+            self.result.ok, self.result.reason = True, "completed"
+            settle(watch, self.script.arms, timeline.poses, 3.0)
+        except Abort as exc:
+            self.result.ok, self.result.reason = False, str(exc)
+            log.warning("choreography %r aborted: %s", self.script.name, exc)
+            if liveness is not None:  # something may have moved: hold every arm
                 self._hold_all(watch)
         finally:
             if liveness is not None:
@@ -122,17 +122,9 @@ class Player:
     # ------------------------------------------------------------------ phases
 
     def _start_poses(self, watch: ArmWatch) -> dict[str, Pose]:
-        deadline = time.monotonic() + 3.0
-        while time.monotonic() < deadline:
-            latest = {a: watch.latest(a) for a in self.script.arms}
-            if all(x.joints is not None and x.status is not None for x in latest.values()):
-                break
-            time.sleep(0.05)
-        now = time.monotonic()
-        for arm in self.script.arms:
-            problem = watch.problem(arm, now)
-            if problem is not None:
-                raise Abort(f"not started: {problem}")
+        problem = watch.wait_ready(3.0)
+        if problem is not None:
+            raise Abort(f"not started: {problem}")
         return {a: tuple(watch.latest(a).joints.angles_deg) for a in self.script.arms}  # type: ignore[union-attr]
 
     def _run(self, timeline: Timeline, watch: ArmWatch, stop: threading.Event) -> None:
@@ -271,7 +263,7 @@ class Player:
         """Hold every arm where it is, then, once still, make that pose the watched target (so
         the agents' watchdog does not trip when the heartbeat stops after a clean abort)."""
         self._broadcast(lambda a: m.Hold(owner=self.owner))
-        still = self._settle(watch, None, 1.5)
+        still = settle(watch, self.script.arms, None, 1.5)
         self._broadcast(
             lambda a: (
                 m.MoveJoints(angles_deg=list(still[a]), mode=0, owner=self.owner)
@@ -279,29 +271,4 @@ class Player:
                 else m.Hold(owner=self.owner)
             )
         )
-        self._settle(watch, None, 1.0)
-
-    def _settle(
-        self, watch: ArmWatch, goal: dict[str, Pose] | None, timeout_s: float
-    ) -> dict[str, Pose]:
-        """Wait (bounded) until every arm is still (and at ``goal``); returns the last poses."""
-        deadline = time.monotonic() + timeout_s
-        history: dict[str, deque[Pose]] = {a: deque(maxlen=4) for a in self.script.arms}
-        seen: dict[str, int] = {}
-        poses: dict[str, Pose] = {}
-        while time.monotonic() < deadline:
-            for arm in self.script.arms:
-                joints = watch.latest(arm).joints
-                if joints is not None and seen.get(arm) != joints.seq:
-                    seen[arm] = joints.seq
-                    history[arm].append(tuple(joints.angles_deg))
-                    poses[arm] = tuple(joints.angles_deg)
-            if all(
-                len(h) == h.maxlen
-                and max_error_deg(h[0], h[-1]) < 0.3
-                and (goal is None or max_error_deg(h[-1], goal[a]) < 0.8)
-                for a, h in history.items()
-            ):
-                break
-            time.sleep(0.05)
-        return poses
+        settle(watch, self.script.arms, None, 1.0)

@@ -13,7 +13,8 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable, Iterable
+from collections import deque
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import msgspec
@@ -107,6 +108,19 @@ class ArmWatch:
             return f"arm {arm!r} lost its link (link {status.link})"
         return None
 
+    def wait_ready(self, timeout_s: float) -> str | None:
+        """Wait (bounded) for every arm's joints and status; the first problem left, or None."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            now = time.monotonic()
+            problems = [p for a in self.arms if (p := self.problem(a, now)) is not None]
+            missing = [a for a in self.arms if self.latest(a).joints is None]
+            if missing and not problems:
+                problems = [f"no joints from arm {missing[0]!r} yet; is its agent running?"]
+            if not problems or now >= deadline:
+                return problems[0] if problems else None
+            time.sleep(0.05)
+
     def close(self) -> None:
         """Undeclare the subscriptions (idempotent)."""
         subs, self._subs = self._subs, []
@@ -162,3 +176,37 @@ class Liveness:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def settle(
+    watch: ArmWatch,
+    arms: Sequence[str],
+    goal: Mapping[str, tuple[float, ...]] | None,
+    timeout_s: float,
+) -> dict[str, tuple[float, ...]]:
+    """Wait (bounded) until every arm is still over 4 reports (and within 0.8 deg of ``goal``);
+    returns each arm's last pose."""
+    deadline = time.monotonic() + timeout_s
+    history: dict[str, deque[tuple[float, ...]]] = {a: deque(maxlen=4) for a in arms}
+    seen: dict[str, int] = {}
+    poses: dict[str, tuple[float, ...]] = {}
+    while time.monotonic() < deadline:
+        for arm in arms:
+            joints = watch.latest(arm).joints
+            if joints is not None and seen.get(arm) != joints.seq:
+                seen[arm] = joints.seq
+                history[arm].append(tuple(joints.angles_deg))
+                poses[arm] = tuple(joints.angles_deg)
+        if all(
+            len(h) == h.maxlen
+            and _spread(h[0], h[-1]) < 0.3
+            and (goal is None or _spread(h[-1], goal[a]) < 0.8)
+            for a, h in history.items()
+        ):
+            break
+        time.sleep(0.05)
+    return poses
+
+
+def _spread(a: tuple[float, ...], b: tuple[float, ...]) -> float:
+    return max(abs(x - y) for x, y in zip(a, b))

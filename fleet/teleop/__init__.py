@@ -1,0 +1,1 @@
+"""Leader/follower teleoperation (D1-T): a leader moved by hand, followers that copy it."""
