@@ -9,7 +9,15 @@ from __future__ import annotations
 import argparse
 import sys
 
-from fleet.cli import arm_commands, choreo_cmds, processes, safety_cmds, status, viewer_cmd
+from fleet.cli import (
+    arm_commands,
+    choreo_cmds,
+    processes,
+    record_cmds,
+    safety_cmds,
+    status,
+    viewer_cmd,
+)
 from fleet.inventory import InventoryError
 from fleet.runtime import add_inventory_options, setup_logging
 from fleet.wire.session import RouterUnreachable
@@ -23,7 +31,15 @@ def build_parser() -> argparse.ArgumentParser:
         prog="fleet", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for module in (processes, status, arm_commands, safety_cmds, viewer_cmd, choreo_cmds):
+    for module in (
+        processes,
+        status,
+        arm_commands,
+        safety_cmds,
+        viewer_cmd,
+        choreo_cmds,
+        record_cmds,
+    ):
         module.register(sub, add_inventory_options)
     return parser
 

@@ -1,0 +1,93 @@
+"""``fleet record`` (key space -> MCAP) and ``fleet replay`` (MCAP -> viewer, or onto an arm)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections.abc import Callable
+
+from fleet.client import FleetClient
+from fleet.runtime import inventory_from_args, shutdown_event
+
+
+def register(
+    sub: argparse._SubParsersAction, add_common: Callable[[argparse.ArgumentParser], None]
+) -> None:  # type: ignore[type-arg]
+    """Add ``record`` and ``replay``."""
+    record = sub.add_parser("record", help="record arms' keys to an MCAP file (Foxglove opens it)")
+    add_common(record)
+    record.add_argument(
+        "--arm", action="append", help="arm, group or 'all' (repeatable; default all)"
+    )
+    record.add_argument("-o", "--output", default=None, help="file (default fleet-<time>.mcap)")
+    record.add_argument("--for-s", type=float, default=None, help="stop after this many seconds")
+    record.set_defaults(run=run_record)
+
+    replay = sub.add_parser("replay", help="play a recording into the viewer, or onto an arm")
+    add_common(replay)
+    replay.add_argument("file", help="an MCAP file written by `fleet record`")
+    replay.add_argument(
+        "--fleet", default=None, help="read-only target fleet (default <fleet>-replay)"
+    )
+    replay.add_argument("--speed", type=float, default=1.0, help="read-only playback speed")
+    replay.add_argument("--onto", default=None, metavar="ARM", help="drive this arm (drag-teach)")
+    replay.add_argument("--arm", default=None, help="the recorded arm to use with --onto")
+    replay.set_defaults(run=run_replay)
+
+
+def run_record(args: argparse.Namespace) -> int:
+    """``fleet record``: until Ctrl-C or ``--for-s``; prints what it wrote."""
+    from fleet.record.recorder import Recorder
+
+    inventory = inventory_from_args(args)
+    arms: list[str] = []
+    for target in args.arm or ["all"]:
+        arms += [a for a in inventory.resolve(target) if a not in arms]
+    path = args.output or time.strftime("fleet-%Y%m%d-%H%M%S.mcap")
+    stop = shutdown_event()
+    with FleetClient(inventory) as client, Recorder(client.session, client.keys, arms, path) as rec:
+        print(f"recording {', '.join(arms)} to {path}; Ctrl-C stops", flush=True)
+        deadline = None if args.for_s is None else time.monotonic() + args.for_s
+        while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
+            stop.wait(0.2)
+    total = sum(rec.counts.values())
+    print(f"wrote {total} messages on {len(rec.counts)} keys to {path} ({rec.dropped} dropped)")
+    return 0
+
+
+def run_replay(args: argparse.Namespace) -> int:
+    """``fleet replay``: exit 0 done, 1 aborted on the arm, 2 bad file or limits."""
+    from fleet.choreo.player import Player
+    from fleet.choreo.script import ScriptError
+    from fleet.record.replay import read_recording, recorded_joints, replay_read_only, teach_script
+
+    inventory = inventory_from_args(args)
+    try:
+        messages = read_recording(args.file)
+    except (OSError, ValueError) as exc:
+        print(f"fleet replay: {args.file}: cannot read it: {exc}", file=sys.stderr)
+        return 2
+    stop = shutdown_event()
+    with FleetClient(inventory) as client:
+        if args.onto is None:
+            fleet = args.fleet or f"{inventory.fleet}-replay"
+            print(f"replaying {args.file} read-only as fleet/{fleet}/** (no commands)", flush=True)
+            count = replay_read_only(client.session, messages, fleet, stop, args.speed)
+            print(f"published {count} samples")
+            return 0
+        inventory.arm(args.onto)
+        try:
+            source, samples = recorded_joints(messages, args.arm)
+            snap = client.snapshot([args.onto])[args.onto][1]
+            if snap is None:
+                print(f"fleet replay: no joints from {args.onto!r}; is its agent running?")
+                return 3
+            script = teach_script(samples, args.onto, tuple(snap.angles_deg), args.file)
+            print(f"replaying {source}'s {len(samples)} samples onto {args.onto}", flush=True)
+            result = Player(client, script).play(stop)
+        except (ValueError, ScriptError) as exc:
+            print(f"fleet replay: {exc}", file=sys.stderr)
+            return 2
+    print("completed" if result.ok else f"ABORTED: {result.reason}", flush=True)
+    return 0 if result.ok else 1

@@ -1,0 +1,130 @@
+"""``fleet replay``: a recording back into the key space, read-only, or onto an arm.
+
+Read-only (default): the recorded state keys (joints, status, contact) are re-published, at
+their recorded pace, under another fleet name (``<fleet>-replay`` unless told): no agent serves
+that prefix, and command, stop and reset keys are never published, so nothing can move. Point
+a viewer at it with an inventory whose ``[fleet] name`` is the replay's.
+
+``--onto ARM`` (drag-teach): one recorded arm's joints become a choreography, resampled at the
+control rate (linear segments of 0.1 s) after a slow approach from the arm's pose; the player
+checks joint and speed limits against the arm's measured pose before anything moves.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import zenoh
+from mcap.reader import make_reader
+
+from fleet.choreo.script import Move, Pose, Script
+from fleet.d1.limits import CONTROL_RATE_HZ
+from fleet.wire import keys
+from fleet.wire import messages as m
+
+REPLAYED_CHANNELS = (keys.JOINTS, keys.STATUS, keys.CONTACT)
+APPROACH_SPEED_DEG_S = 30.0
+
+
+@dataclass(frozen=True)
+class Recorded:
+    """One recorded message: its original key, payload and log time."""
+
+    key: str
+    data: bytes
+    log_time_ns: int
+
+
+def read_recording(path: str | Path) -> list[Recorded]:
+    """Every message of an MCAP recording, in log-time order."""
+    with open(path, "rb") as stream:
+        reader = make_reader(stream)
+        messages = [
+            Recorded(channel.topic, message.data, message.log_time)
+            for _schema, channel, message in reader.iter_messages(log_time_order=True)
+        ]
+    return messages
+
+
+def _split(key: str) -> tuple[str, str, str] | None:
+    """(fleet, arm, channel) of a recorded arm key; None for anything else."""
+    parts = key.split("/", 4)
+    if len(parts) != 5 or parts[0] != "fleet" or parts[2] != "arm":
+        return None
+    fleet, arm, channel = parts[1], *parts[3:5]
+    return (fleet, arm, channel) if channel in keys.ARM_CHANNELS else None
+
+
+def recorded_joints(messages: list[Recorded], arm: str | None = None) -> tuple[str, list[m.Joints]]:
+    """The joints samples of ``arm`` (default: the only arm with joints in the file)."""
+    arms: dict[str, list[m.Joints]] = {}
+    for message in messages:
+        split = _split(message.key)
+        if split is not None and split[2] == keys.JOINTS:
+            arms.setdefault(split[1], []).append(m.joints_decoder.decode(message.data))
+    if arm is None:
+        if len(arms) != 1:
+            raise ValueError(f"the recording has joints of {sorted(arms)}: pass --arm")
+        arm = next(iter(arms))
+    if arm not in arms:
+        raise ValueError(f"the recording has no joints of {arm!r} (it has {sorted(arms)})")
+    return arm, arms[arm]
+
+
+def teach_script(samples: list[m.Joints], onto: str, start_pose: Pose, source: str) -> Script:
+    """The drag-teach choreography: approach the first sample, then follow the recording."""
+    if len(samples) < 2:
+        raise ValueError(f"{source}: fewer than two joint samples: nothing to replay")
+    t0 = samples[0].stamp_ns
+    times = [(s.stamp_ns - t0) / 1e9 for s in samples]
+    period = 1.0 / CONTROL_RATE_HZ
+    steps: list[Move] = []
+    first = tuple(samples[0].angles_deg)
+    distance = max(abs(a - b) for a, b in zip(first, start_pose))
+    approach = max(1.0, 1.5 * distance / APPROACH_SPEED_DEG_S)
+    steps.append(Move(approach, "ease_in_out", {onto: first}, "approach"))
+    t, index = period, 0
+    while t <= times[-1] + 1e-9:
+        while times[index + 1] < t:
+            index += 1
+        a, b = samples[index], samples[index + 1]
+        span = max(times[index + 1] - times[index], 1e-6)
+        u = min(1.0, max(0.0, (t - times[index]) / span))
+        pose = tuple(x + (y - x) * u for x, y in zip(a.angles_deg, b.angles_deg))
+        steps.append(Move(period, "linear", {onto: pose}, f"replay {t:.1f} s"))
+        t += period
+    return Script(name=f"replay of {source}", arms=(onto,), steps=tuple(steps), source=source)
+
+
+def replay_read_only(
+    session: zenoh.Session,
+    messages: list[Recorded],
+    fleet: str,
+    stop: threading.Event,
+    speed: float = 1.0,
+) -> int:
+    """Re-publish the state keys under ``fleet/<fleet>/...`` at the recorded pace; returns the
+    number of samples published. Never publishes a command, stop or reset key."""
+    space = keys.KeySpace(fleet)
+    state = [r for r in messages if (s := _split(r.key)) is not None and s[2] in REPLAYED_CHANNELS]
+    if not state:
+        return 0
+    start_log, start = state[0].log_time_ns, time.monotonic()
+    published = 0
+    for record in state:
+        split = _split(record.key)
+        assert split is not None
+        due = start + (record.log_time_ns - start_log) / 1e9 / speed
+        if stop.wait(max(0.0, due - time.monotonic())):
+            break
+        try:
+            session.put(
+                space.arm(split[1], split[2]), record.data, encoding=zenoh.Encoding.APPLICATION_JSON
+            )
+        except keys.KeyError_:
+            continue
+        published += 1
+    return published
