@@ -30,7 +30,8 @@ def dds_hop(count: int, rate_hz: float = 100.0) -> dict[str, Any]:
         )
         sent = writer.result(timeout_s=count / rate_hz + 60.0)["sent"]
         got = reader.finish()
-    return {**summary_ms(got["delays_ns"]), "sent": sent, "received": got["received"]}
+    delays = got["delays_ns"]
+    return {**summary_ms(delays), "sent": sent, "received": got["received"], "samples_ns": delays}
 
 
 def zenoh_fanout(subscribers: int, count: int, rate_hz: float, stop_qos: bool) -> dict[str, Any]:
@@ -60,6 +61,7 @@ def zenoh_fanout(subscribers: int, count: int, rate_hz: float, stop_qos: bool) -
     complete = [worst[i] for i in worst if arrivals[i] == subscribers]
     return {
         **summary_ms(complete),
+        "samples_ns": complete,
         "subscribers": subscribers,
         "processes": processes,
         "puts": count,
@@ -67,14 +69,19 @@ def zenoh_fanout(subscribers: int, count: int, rate_hz: float, stop_qos: bool) -
     }
 
 
-def run(quick: bool) -> dict[str, Any]:
-    """Every raw figure of section 1."""
-    hop_count = 300 if quick else 1000
-    fan_count = 40 if quick else 150
-    result: dict[str, Any] = {
-        "dds_hop": dds_hop(hop_count),
-        "zenoh_hop": zenoh_fanout(1, hop_count, 100.0, stop_qos=False),
-    }
-    for n in (10, 50, 100):
-        result[f"zenoh_fanout_{n}"] = zenoh_fanout(n, fan_count, 20.0, stop_qos=True)
-    return result
+def hops(quick: bool) -> dict[str, Any]:
+    """One DDS hop and one Zenoh hop (run at the start and again at the end of the bench)."""
+    count = 300 if quick else 800
+    return {"dds_hop": dds_hop(count), "zenoh_hop": zenoh_fanout(1, count, 100.0, stop_qos=False)}
+
+
+def fanouts(quick: bool) -> dict[str, Any]:
+    """Fan-out of one put (stop QoS) to 10, 50 and 100 subscribers."""
+    count = 40 if quick else 150
+    return {f"zenoh_fanout_{n}": zenoh_fanout(n, count, 20.0, stop_qos=True) for n in (10, 50, 100)}
+
+
+def pooled(first: dict[str, Any], second: dict[str, Any]) -> dict[str, Any]:
+    """The two repetitions of one raw hop as one summary over all their samples."""
+    samples = first.pop("samples_ns") + second.pop("samples_ns")
+    return {**summary_ms(samples), "repeats": [first, second]}
