@@ -89,7 +89,7 @@ class Player:
 
     # ------------------------------------------------------------------ public
 
-    def play(self, stop: threading.Event | None = None) -> PlayResult:
+    def play(self, stop: threading.Event | None = None, ready_s: float = 3.0) -> PlayResult:
         """Validate, start every arm at once, stream until done or aborted. Raises ScriptError
         (nothing moved) when the script breaks a joint or speed limit from the measured poses."""
         stop = stop or threading.Event()
@@ -97,7 +97,7 @@ class Player:
         liveness: Liveness | None = None
         started = time.monotonic()
         try:
-            poses = self._start_poses(watch)
+            poses = self._start_poses(watch, ready_s)
             check_motion(self.script, poses)
             liveness = Liveness(self.client.session, self.client.keys, self.owner)
             stop.wait(0.3)  # the agents hear a beat before the first move: the watchdog arms
@@ -121,8 +121,8 @@ class Player:
 
     # ------------------------------------------------------------------ phases
 
-    def _start_poses(self, watch: ArmWatch) -> dict[str, Pose]:
-        problem = watch.wait_ready(3.0)
+    def _start_poses(self, watch: ArmWatch, ready_s: float) -> dict[str, Pose]:
+        problem = watch.wait_ready(ready_s)
         if problem is not None:
             raise Abort(f"not started: {problem}")
         return {a: tuple(watch.latest(a).joints.angles_deg) for a in self.script.arms}  # type: ignore[union-attr]

@@ -28,6 +28,14 @@ def register(
     )
     play.add_argument("--check", action="store_true", help="validate against the measured poses")
     play.add_argument("--quiet", action="store_true", help="no progress lines")
+    play.add_argument(
+        "--ready-s", type=float, default=3.0, help="wait this long for the arms to be ready"
+    )
+    play.add_argument(
+        "--again",
+        action="store_true",
+        help="after an abort, wait for the arms to be ready (e.g. reset) and start over",
+    )
     play.set_defaults(run=run_play)
 
     mirror = sub.add_parser("mirror", help="followers copy a leader arm moved by hand (D1-T)")
@@ -100,11 +108,17 @@ def run_play(args: argparse.Namespace) -> int:
                 return 2
             print(f"{script.source}: ok ({len(script.steps)} steps, {script.iteration_s:g} s/pass)")
             return 0
-        try:
-            result = player.play(stop)
-        except ScriptError as exc:
-            print(f"fleet play: {exc}", file=sys.stderr)
-            return 2
+        while True:
+            try:
+                result = player.play(stop, ready_s=args.ready_s)
+            except ScriptError as exc:
+                print(f"fleet play: {exc}", file=sys.stderr)
+                return 2
+            if result.ok or not args.again or stop.is_set():
+                break
+            print(f"ABORTED: {result.reason}; starting over once the arms are ready", flush=True)
+            stop.wait(2.0)
+            player = Player(client, script, on_progress=player.on_progress)
     skew = "n/a" if result.start_skew_ms is None else f"{result.start_skew_ms:.2f} ms"
     worst = max(result.keyframe_error_deg, default=0.0)
     outcome = "completed" if result.ok else f"ABORTED: {result.reason}"

@@ -48,6 +48,10 @@ def register(
     demo.add_argument("--for-s", type=float, default=None, help="stop after this many seconds")
     demo.add_argument("--port", type=int, default=8080, help="viewer web port (default 8080)")
     demo.add_argument("--no-viewer", action="store_true", help="do not start the viewer")
+    demo.add_argument(
+        "--no-dance", action="store_true", help="do not play the default choreography"
+    )
+    demo.add_argument("--dance", default="choreo/demo.toml", help="the choreography the demo loops")
     demo.set_defaults(run=run_demo)
 
 
@@ -146,6 +150,13 @@ def run_demo(args: argparse.Namespace) -> int:
         for arm in inventory.arms:
             children.append(_spawn(["-m", "edge_agent", "--arm", arm, *common]))
         children.append(_spawn(["-m", "fleet.cli.main", "coordinator", *common]))
+        dancer = None
+        if not args.no_dance:
+            # Loops until the demo stops; after a stop it waits for the operator's reset and
+            # starts over. Not watched like the others: the fleet is fine without it.
+            dance = ["play", args.dance, "--loops", "0", "--quiet", "--ready-s", "30", "--again"]
+            dancer = _spawn(["-m", "fleet.cli.main", *dance, *common])
+            children.append(dancer)
         url = "not started (--no-viewer)"
         if not args.no_viewer:
             viewer_argv = ["-m", "fleet.cli.main", "viewer", "--port", str(args.port), *common]
@@ -160,7 +171,8 @@ def run_demo(args: argparse.Namespace) -> int:
             f"viewer: {url}\nCtrl-C stops the demo",
             flush=True,
         )
-        _print_status_until(stop, inventory, args.for_s, children)
+        watched = [c for c in children if c is not dancer]
+        _print_status_until(stop, inventory, args.for_s, watched)
     finally:
         _stop_children(children)
     return 0
