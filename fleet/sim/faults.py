@@ -12,6 +12,7 @@ import msgspec
 from msgspec import Struct
 
 from fleet.sim.model import Faults
+from fleet.sim.obstacles import Obstacle
 
 
 class _Fault(Struct, tag_field="op", forbid_unknown_fields=True, frozen=True):
@@ -65,11 +66,63 @@ class Drag(_Fault, tag="drag", frozen=True):
     speed_deg_s: float = 60.0
 
 
+class AddObstacle(_Fault, tag="obstacle", frozen=True):
+    """A compliant obstacle at ``angle_deg`` on ``joint`` (from the side the joint is on).
+
+    ``compliance``: penetration per degree of push (0 rigid); ``hunting_deg``/``hunting_hz``:
+    servo hunting while pushing; ``to_deg``/``speed_deg_s``: the obstacle moves (it pushes into
+    a held joint: an unexpected contact); ``error_after_s``: the arm flags ``error_status``
+    after pushing this long (whether a real D1 does is unknown)."""
+
+    joint: int
+    angle_deg: float
+    compliance: float = 0.1
+    hunting_deg: float = 0.0
+    hunting_hz: float = 3.0
+    to_deg: float | None = None
+    speed_deg_s: float = 0.0
+    error_after_s: float | None = None
+
+
+class RemoveObstacle(_Fault, tag="remove_obstacle", frozen=True):
+    """Remove the obstacle (or gripped object) on ``joint``."""
+
+    joint: int
+
+
+class GripObject(_Fault, tag="grip_object", frozen=True):
+    """An object between the fingers: the gripper (joint 6) cannot close below ``width_deg``."""
+
+    width_deg: float
+    compliance: float = 0.05
+
+
+class Noise(_Fault, tag="noise", frozen=True):
+    """Gaussian noise of ``noise_deg`` on reported angles, feedback period jitter up to
+    ``jitter_s`` (both seeded)."""
+
+    noise_deg: float = 0.05
+    jitter_s: float = 0.02
+
+
 class ClearFaults(_Fault, tag="clear", frozen=True):
     """Remove every injected fault."""
 
 
-Fault = Stall | Unstall | MotorOffline | ErrorStatus | DropFeedback | MuteAcks | Drag | ClearFaults
+Fault = (
+    Stall
+    | Unstall
+    | MotorOffline
+    | ErrorStatus
+    | DropFeedback
+    | MuteAcks
+    | Drag
+    | AddObstacle
+    | RemoveObstacle
+    | GripObject
+    | Noise
+    | ClearFaults
+)
 
 fault_decoder: msgspec.json.Decoder[Fault] = msgspec.json.Decoder(Fault)
 
@@ -105,8 +158,42 @@ def apply_fault(faults: Faults, fault: Fault) -> None:
         if fault.speed_deg_s <= 0 or not math.isfinite(fault.angle_deg + fault.speed_deg_s):
             raise ValueError("drag needs a finite angle_deg and a speed_deg_s above 0")
         faults.drags[fault.joint] = (fault.angle_deg, fault.speed_deg_s)
+    elif isinstance(fault, (AddObstacle, RemoveObstacle, GripObject, Noise)):
+        _apply_contact_fault(faults, fault)
     elif isinstance(fault, ClearFaults):
         fresh = Faults()
         faults.stalls, faults.motors_offline = fresh.stalls, fresh.motors_offline
-        faults.drags = fresh.drags
+        faults.drags, faults.obstacles = fresh.drags, fresh.obstacles
+        faults.noise_deg = faults.jitter_s = 0.0
         faults.error_status = faults.drop_feedback = faults.mute_acks = False
+
+
+def _apply_contact_fault(
+    faults: Faults, fault: AddObstacle | RemoveObstacle | GripObject | Noise
+) -> None:
+    """The contact faults (obstacles, gripped objects, noise); ValueError for bad figures."""
+    if isinstance(fault, RemoveObstacle):
+        faults.obstacles.pop(fault.joint, None)
+        return
+    if isinstance(fault, Noise):
+        if not (0.0 <= fault.noise_deg <= 5.0 and 0.0 <= fault.jitter_s <= 0.5):
+            raise ValueError("noise needs 0 <= noise_deg <= 5 and 0 <= jitter_s <= 0.5")
+        faults.noise_deg, faults.jitter_s = fault.noise_deg, fault.jitter_s
+        return
+    if not 0.0 <= fault.compliance < 1.0:
+        raise ValueError("compliance must be in 0..1 (0 = rigid)")
+    if isinstance(fault, GripObject):
+        faults.obstacles[6] = Obstacle(fault.width_deg, fault.compliance, side=-1)
+        return
+    values = (fault.angle_deg, fault.hunting_deg, fault.hunting_hz, fault.speed_deg_s)
+    if not all(math.isfinite(v) for v in values) or fault.hunting_deg < 0:
+        raise ValueError("obstacle figures must be finite and hunting_deg >= 0")
+    faults.obstacles[fault.joint] = Obstacle(
+        angle_deg=fault.angle_deg,
+        compliance=fault.compliance,
+        hunting_deg=fault.hunting_deg,
+        hunting_hz=fault.hunting_hz,
+        to_deg=fault.to_deg,
+        speed_deg_s=fault.speed_deg_s,
+        error_after_s=fault.error_after_s,
+    )

@@ -9,17 +9,22 @@ What it models, and why:
 - the field-reported quirk that an invalid joint id is acknowledged and then stops the arm's
   angle feed (so nothing invalid may reach it);
 - faults for tests: a joint stalled at an angle (an obstacle), a motor offline, error_status 0,
-  dropped feedback, acknowledgments that never come.
+  dropped feedback, acknowledgments that never come;
+- contact (``obstacles.py``): compliant obstacles, gripped objects, servo hunting, an obstacle
+  pushing into a held joint, an arm that may flag ``error_status`` while pushing; seeded
+  feedback noise (``noise_deg``) and extra feedback jitter (``jitter_s``, used by the node).
 """
 
 from __future__ import annotations
 
 import math
+import random
 from dataclasses import dataclass, field
 
 from fleet.d1 import protocol as p
 from fleet.d1.errors import InvalidJoint, MalformedMessage
 from fleet.d1.limits import JOINT_COUNT
+from fleet.sim.obstacles import Obstacle, constrain
 
 PHYSICS_STEP_S = 0.01
 
@@ -39,6 +44,12 @@ class Faults:
     mute_acks: bool = False
     # joint -> (angle the hand drags it to, speed deg/s): moves only an unloaded joint
     drags: dict[int, tuple[float, float]] = field(default_factory=dict)
+    # joint -> a compliant obstacle (or, on joint 6, the object the gripper closes on)
+    obstacles: dict[int, Obstacle] = field(default_factory=dict)
+    noise_deg: float = 0.0
+    """Standard deviation of Gaussian noise on reported angles (seeded by the model's rng)."""
+    jitter_s: float = 0.0
+    """Extra feedback period jitter, uniform 0..jitter_s (applied by the node)."""
 
 
 @dataclass
@@ -53,6 +64,7 @@ class SimArmModel:
     angle_feed_stopped: bool = False
     faults: Faults = field(default_factory=Faults)
     time_s: float = 0.0
+    rng: random.Random = field(default_factory=lambda: random.Random(0), repr=False)
     # joint -> (stall angle, joint was at or below it when the stall was first met)
     _stall_side: dict[int, tuple[float, bool]] = field(default_factory=dict, repr=False)
 
@@ -82,7 +94,11 @@ class SimArmModel:
             delta = (self.target_deg[j] - current) * alpha
             limit = vmax * dt
             delta = max(-limit, min(limit, delta))
-            self.angles_deg[j] = self._stalled(j, current, current + delta)
+            new = self._stalled(j, current, current + delta)
+            obstacle = self.faults.obstacles.get(j)
+            if obstacle is not None:
+                new = constrain(obstacle, current, new, self.target_deg[j], dt)
+            self.angles_deg[j] = new
 
     def _dragged(self, joint: int, dt: float) -> None:
         """A hand drags an unloaded joint towards its drag angle at the drag speed."""
@@ -158,6 +174,11 @@ class SimArmModel:
         """The 2/1 report, or None while the feed is stopped (a fault or the bad-id quirk)."""
         if self.faults.drop_feedback or self.angle_feed_stopped:
             return None
+        noise = self.faults.noise_deg
+        if noise > 0.0:
+            return p.JointAngles(
+                tuple(round(a + self.rng.gauss(0.0, noise), 2) for a in self.angles_deg)
+            )
         return p.JointAngles(tuple(round(a, 2) for a in self.angles_deg))
 
     def status_reports(self) -> list[p.ArmMessage]:
@@ -167,7 +188,10 @@ class SimArmModel:
         motors = tuple(j not in self.faults.motors_offline for j in range(JOINT_COUNT))
         return [
             p.ArmStatus(
-                enabled=any(self.enabled), powered=self.powered, error=self.faults.error_status
+                enabled=any(self.enabled),
+                powered=self.powered,
+                error=self.faults.error_status
+                or any(o.raises_error for o in self.faults.obstacles.values()),
             ),
             p.MotorStatus(motors),
         ]

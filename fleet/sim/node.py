@@ -150,7 +150,8 @@ class SimulatedArms:
         for arm in self._arms.values():
             if now < arm.next_feedback_s:
                 continue
-            arm.next_feedback_s = max(arm.next_feedback_s + self._period(), now + 0.05)
+            jitter = self._rng.uniform(0.0, arm.model.faults.jitter_s)  # the noise fault
+            arm.next_feedback_s = max(arm.next_feedback_s + self._period() + jitter, now + 0.05)
             arm.model.advance(now)
             report = arm.model.joint_report()
             if report is not None:

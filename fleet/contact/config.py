@@ -1,0 +1,101 @@
+"""Contact detector thresholds: the inventory's ``contact`` table (``[defaults.contact]`` or
+``[arms.<id>.contact]``, with ``arm`` and ``gripper`` sub-tables).
+
+The defaults are justified by the benchmark (``bench/contact.py``, README "Contact detection"):
+the simulated arm's free-motion tracking and model residuals, its feedback noise and jitter.
+Re-measure on a real arm before trusting them.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import msgspec
+from msgspec import Struct
+
+Method = Literal["tracking", "stall", "status", "oscillation", "model"]
+METHODS: tuple[Method, ...] = ("tracking", "stall", "status", "oscillation", "model")
+"""Methods 1..5 of the plan: tracking error, velocity stall (with 1), ``error_status``,
+oscillation (servo hunting), expected-versus-actual against the arm's smoothing model."""
+
+
+class Thresholds(Struct, frozen=True, forbid_unknown_fields=True):
+    """Thresholds for one kind of joint (the six arm joints, or the gripper)."""
+
+    suspect_deg: float = 3.0
+    """Method 1: tracking error |target - measured| that raises suspicion."""
+    confirm_deg: float = 5.0
+    """Method 1: tracking error that, held for ``confirm_s``, confirms a contact."""
+    stall_error_deg: float = 3.0
+    """Method 2: tracking error above this ..."""
+    stall_velocity_deg_s: float = 4.0
+    """... while the measured speed (one feedback interval) is below this."""
+    model_error_deg: float = 1.0
+    """Method 5: |measured - predicted by the smoothing model| above this ..."""
+    timing_tolerance_s: float = 0.04
+    """... plus the predicted speed times this (feedback stamps are late by jitter and
+    latency: 30 ms of jitter plus a few ms of transport in the benchmark)."""
+    oscillation_step_deg: float = 0.3
+    """Method 4: a reversal counts when both steps around it exceed this."""
+    oscillation_reversals: int = 4
+    """Method 4: reversals within ``oscillation_window_s`` while the target is unchanged."""
+    oscillation_window_s: float = 1.2
+    confirm_s: float = 0.05
+    """A method must fire continuously this long (two consecutive feedback samples) to
+    confirm; with 0 (one sample) the benchmark showed 47 false alarms in free motion."""
+    release_deg: float = 1.5
+    """A confirmed contact releases when no method fires and the tracking error is below this
+    (hysteresis: far below the confirming thresholds) ..."""
+    release_s: float = 0.3
+    """... for this long; RELEASED becomes FREE after another ``release_s`` of quiet."""
+    force_limit_deg: float | None = 8.0
+    """Force limiting by position: a confirmed contact whose tracking error passes this makes
+    the agent retract the joint's target to the measured angle (None: never)."""
+
+
+def _gripper() -> Thresholds:
+    # The gripper closes on objects by design: a grip may hold some error (the servo squeezes),
+    # so it is confirmed later and never force-limited below 20 deg of squeeze.
+    return Thresholds(
+        suspect_deg=3.0,
+        confirm_deg=6.0,
+        stall_error_deg=4.0,
+        stall_velocity_deg_s=4.0,
+        model_error_deg=2.0,
+        confirm_s=0.05,
+        force_limit_deg=20.0,
+    )
+
+
+class ContactConfig(Struct, frozen=True, forbid_unknown_fields=True):
+    """The detector's configuration for one arm."""
+
+    enabled: bool = True
+    methods: list[Method] = msgspec.field(
+        default_factory=lambda: ["stall", "status", "oscillation", "model"]
+    )
+    """Methods whose confirmation confirms a contact (the default combination). ``tracking``
+    alone confirms on large commanded steps: see the benchmark."""
+    arm: Thresholds = msgspec.field(default_factory=Thresholds)
+    gripper: Thresholds = msgspec.field(default_factory=_gripper)
+    buffer_size: int = 64
+    """Samples kept per joint (about 6 s at 10 Hz)."""
+
+    def for_joint(self, joint: int) -> Thresholds:
+        """The thresholds of wire joint ``joint`` (6 = gripper)."""
+        return self.gripper if joint == 6 else self.arm
+
+
+def check_config(config: ContactConfig) -> str | None:
+    """A description of what is wrong with ``config``, or None when it is usable."""
+    for name, t in (("arm", config.arm), ("gripper", config.gripper)):
+        if not 0 < t.release_deg < t.suspect_deg <= t.confirm_deg:
+            return f"{name}: need 0 < release_deg < suspect_deg <= confirm_deg"
+        positive = (t.stall_error_deg, t.stall_velocity_deg_s, t.model_error_deg, t.release_s)
+        if min(positive) <= 0 or t.confirm_s < 0 or t.oscillation_reversals < 2:
+            return f"{name}: thresholds must be positive (oscillation_reversals >= 2)"
+        if t.force_limit_deg is not None and t.force_limit_deg <= t.suspect_deg:
+            return f"{name}: force_limit_deg must exceed suspect_deg (or be omitted)"
+    if config.buffer_size < 8:
+        return "buffer_size must be at least 8"
+    return None
