@@ -14,6 +14,7 @@ from typing import Any, Literal
 import msgspec
 from msgspec import Struct
 
+from fleet.contact.config import ContactConfig, check_config
 from fleet.d1.limits import JOINT_COUNT
 from fleet.wire.keys import KeyError_, check_name
 
@@ -67,6 +68,7 @@ class ArmConfig(Struct, frozen=True, forbid_unknown_fields=True):
     joint_sign: tuple[int, ...] = (1,) * JOINT_COUNT
     watchdog_s: float = 0.5
     lease_s: float = 3.0
+    contact: ContactConfig = ContactConfig()
 
 
 class CoordinatorSection(Struct, frozen=True, forbid_unknown_fields=True):
@@ -164,6 +166,9 @@ def _check_arm(arm: ArmConfig, path: str) -> None:
         raise _fail(path, where, "ack timeouts must be positive")
     if arm.watchdog_s <= 0 or arm.lease_s <= 0:
         raise _fail(path, where, "watchdog_s and lease_s must be positive")
+    contact_problem = check_config(arm.contact)
+    if contact_problem is not None:
+        raise _fail(path, f"{where}.contact", contact_problem)
 
 
 def parse_inventory(text: str, path: str = DEFAULT_INVENTORY) -> Inventory:
@@ -214,7 +219,10 @@ def parse_inventory(text: str, path: str = DEFAULT_INVENTORY) -> Inventory:
             raise InventoryError(f"{path}: {where}: expected a table")
         if "id" in arm_raw:
             raise InventoryError(f"{path}: {where}: the id is the table's name; remove 'id'")
-        arm = _convert({**defaults, **arm_raw, "id": arm_id}, ArmConfig, path, where)
+        merged = {**defaults, **arm_raw, "id": arm_id}
+        if isinstance(defaults.get("contact"), dict) and isinstance(arm_raw.get("contact"), dict):
+            merged["contact"] = _merge(defaults["contact"], arm_raw["contact"])
+        arm = _convert(merged, ArmConfig, path, where)
         _check_arm(arm, path)
         arms[arm_id] = arm
     _check_unique_topics(arms, dds.domain_id, path)
@@ -229,6 +237,18 @@ def parse_inventory(text: str, path: str = DEFAULT_INVENTORY) -> Inventory:
         groups=groups,
         coordinator=coordinator,
     )
+
+
+def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    """``over`` on top of ``base``, table by table (an arm overrides one contact threshold
+    without repeating the others of ``[defaults.contact]``)."""
+    out = dict(base)
+    for key, value in over.items():
+        old = out.get(key)
+        out[key] = (
+            _merge(old, value) if isinstance(old, dict) and isinstance(value, dict) else value
+        )
+    return out
 
 
 def _check_unique_topics(arms: dict[str, ArmConfig], domain_id: int, path: str) -> None:

@@ -223,6 +223,35 @@ class Heartbeat(Struct, frozen=True):
     stops: dict[str, StopRequest] = {}
 
 
+# ----------------------------------------------------------------------------- contact
+
+ContactStateName = Literal["free", "suspected", "confirmed", "released"]
+
+
+class ContactEvent(Struct, frozen=True):
+    """``arm/<arm>/contact``: a joint's contact state changed (the agent's detector).
+
+    ``method``: what caused it (``tracking``, ``stall``, ``status``, ``oscillation``,
+    ``model``; ``quiet`` for a release, ``not tracking`` when a joint was unloaded).
+    ``error_deg``: target minus measured; ``confidence`` 0..1: the share of methods agreeing.
+    ``commanded``: the joint was moving under a command (False: it was holding still, so the
+    contact came from outside). ``grip``: a confirmed gripper contact while closing.
+    ``force_limited``: the agent retracted the joint's target to the measured angle.
+    """
+
+    stamp_ns: int
+    joint: int
+    state: ContactStateName
+    method: str
+    error_deg: float
+    confidence: float
+    target_deg: float | None = None
+    measured_deg: float | None = None
+    commanded: bool = False
+    grip: bool = False
+    force_limited: bool = False
+
+
 # ----------------------------------------------------------------------------- coordinator
 
 
@@ -310,6 +339,7 @@ state_decoder = msgspec.json.Decoder(FleetState)
 multi_request_decoder = msgspec.json.Decoder(MultiArmRequest)
 multi_reply_decoder = msgspec.json.Decoder(MultiArmReply)
 stop_report_decoder = msgspec.json.Decoder(StopReport)
+contact_decoder = msgspec.json.Decoder(ContactEvent)
 
 PUBLIC_SCHEMA: dict[str, object] = {
     "arm/<arm>/joints": Joints,
@@ -325,4 +355,5 @@ PUBLIC_SCHEMA: dict[str, object] = {
     "coordinator/cmd (request)": MultiArmRequest,
     "coordinator/cmd (reply)": MultiArmReply,
     "estop/report": StopReport,
+    "arm/<arm>/contact": ContactEvent,
 }
