@@ -27,6 +27,9 @@ from fleet.wire import messages as m
 
 REPLAYED_CHANNELS = (keys.JOINTS, keys.STATUS, keys.CONTACT)
 APPROACH_SPEED_DEG_S = 30.0
+TEACH_MAX_SPEED_DEG_S = 120.0
+"""A recorded motion faster than this (a hand can fling an unloaded arm) is refused on replay;
+the default of hand-written scripts (90 deg/s) would refuse the arm's own mode-1 moves."""
 
 
 @dataclass(frozen=True)
@@ -96,7 +99,13 @@ def teach_script(samples: list[m.Joints], onto: str, start_pose: Pose, source: s
         pose = tuple(x + (y - x) * u for x, y in zip(a.angles_deg, b.angles_deg))
         steps.append(Move(period, "linear", {onto: pose}, f"replay {t:.1f} s"))
         t += period
-    return Script(name=f"replay of {source}", arms=(onto,), steps=tuple(steps), source=source)
+    return Script(
+        name=f"replay of {source}",
+        arms=(onto,),
+        steps=tuple(steps),
+        max_speed_deg_s=TEACH_MAX_SPEED_DEG_S,
+        source=source,
+    )
 
 
 def replay_read_only(
