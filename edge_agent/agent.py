@@ -21,6 +21,7 @@ import msgspec
 import zenoh
 
 from edge_agent.commands import InFlight, Refused, plan
+from edge_agent.contact_edge import ContactEdge
 from edge_agent.link import DdsLink
 from edge_agent.relay import JSON, IncomingQuery, ZenohRelay
 from edge_agent.safety import ArmSafety, LeaseRefused
@@ -81,6 +82,7 @@ class EdgeAgent:
             self.link.close()
             raise
         self.safety_loop = SafetyLoop(self)
+        self.contact = ContactEdge(self)  # detectors and arm/<arm>/contact publishers
         self._threads = [
             self.safety_loop.thread,
             threading.Thread(
@@ -142,8 +144,11 @@ class EdgeAgent:
                     status_changed = True
             if status_changed:
                 out.puts.append((pubs.status, encode(tracker.status(now, stamp_ns))))
+            if decoded is not None:
+                self.contact.on_message(arm, slot, decoded.message, now, stamp_ns, out)
             self._collect_finished(slot, now, out)
         self.flush(out)
+        self.contact.flush()  # force-limit writes, after the lock
 
     # ------------------------------------------------------------------ commands
 
@@ -250,6 +255,7 @@ class EdgeAgent:
                 if flight.error is not None:
                     return  # cancelled meanwhile (a stop latched before the start time)
             ok = self.link.write(arm, text)
+            self.contact.on_sent(arm, text)
             flight.written_ns = flight.written_ns or time.time_ns()
             if not ok:
                 with self.lock:

@@ -1,0 +1,147 @@
+"""Contact detection at the edge: feeds each arm's detector, publishes contact events, and
+limits force by position.
+
+The agent calls three hooks: ``on_message`` (under the agent's lock, for every decoded
+feedback message), ``flush`` (after the lock is released: the force-limit writes) and
+``on_sent`` (for every command string written to DDS; takes the lock itself). Nothing here
+blocks or does I/O under the lock: events go into the agent's outbox, DDS writes into
+``_pending`` until ``flush``.
+
+Force limiting by position (the D1 has no torque limit): when a confirmed contact's tracking
+error passes ``force_limit_deg``, the joint's target becomes its measured angle (``1/1``), so
+the motor stops pushing; commands in flight that move that joint fail with 3205.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from typing import TYPE_CHECKING
+
+import zenoh
+
+from fleet.contact.detector import ContactChange, ContactDetector
+from fleet.contact.feed import feed_command
+from fleet.d1 import protocol as p
+from fleet.d1.errors import InvalidCommand, MalformedMessage
+from fleet.d1.limits import JOINT_RANGE_DEG
+from fleet.wire import keys
+from fleet.wire import messages as m
+from fleet.wire.messages import ErrorCode, encode
+
+if TYPE_CHECKING:
+    from edge_agent.agent import EdgeAgent, _ArmSlot, _Outbox
+
+log = logging.getLogger("edge_agent.contact")
+
+
+def contact_event(change: ContactChange, stamp_ns: int, force_limited: bool) -> m.ContactEvent:
+    """The key-space payload of one detector state change."""
+    return m.ContactEvent(
+        stamp_ns=stamp_ns,
+        joint=change.joint,
+        state=change.state.value,
+        method=change.method,
+        error_deg=change.error_deg,
+        confidence=change.confidence,
+        target_deg=change.target_deg,
+        measured_deg=change.measured_deg,
+        commanded=change.commanded,
+        grip=change.grip,
+        force_limited=force_limited,
+    )
+
+
+class ContactEdge:
+    """One detector per arm of the agent (arms whose inventory disables contact get none)."""
+
+    def __init__(self, agent: EdgeAgent) -> None:
+        self.agent = agent
+        self.detectors: dict[str, ContactDetector] = {}
+        self.publishers: dict[str, zenoh.Publisher] = {}
+        for arm in agent.arm_ids:
+            config = agent.inventory.arm(arm).contact
+            if not config.enabled:
+                continue
+            self.detectors[arm] = ContactDetector(config)
+            # Events must arrive: BLOCK, like status (a contact is rare and small).
+            self.publishers[arm] = agent.relay.session.declare_publisher(
+                agent.relay.keys.arm(arm, keys.CONTACT),
+                encoding=zenoh.Encoding.APPLICATION_JSON,
+                congestion_control=zenoh.CongestionControl.BLOCK,
+                priority=zenoh.Priority.DATA_HIGH,
+            )
+        self._pending: list[tuple[str, str]] = []  # guarded by agent.lock
+        self.force_limits = 0
+
+    def on_message(
+        self,
+        arm: str,
+        slot: _ArmSlot,
+        message: p.ArmMessage,
+        now: float,
+        stamp_ns: int,
+        out: _Outbox,
+    ) -> None:
+        """Feed one decoded feedback message (caller holds the agent's lock)."""
+        detector = self.detectors.get(arm)
+        if detector is None:
+            return
+        if isinstance(message, p.ArmStatus):
+            detector.on_status(message.error, message.enabled, message.powered, now)
+            return
+        if not isinstance(message, p.JointAngles):
+            return
+        tracker = slot.tracker
+        if tracker.estopped:
+            if tracker.config.stop_action == "hold":  # the stop holds the measured pose
+                detector.on_targets(dict(enumerate(message.angles_deg)), 0, now)
+            else:
+                detector.set_tracking(False)  # unload / power off: the arm does not track
+        report = detector.on_angles(message.angles_deg, now)
+        limited = set()
+        if not tracker.estopped:
+            for joint, angle in report.force_limit.items():
+                self._limit(arm, slot, joint, angle, now)
+                limited.add(joint)
+        for change in report.changes:
+            event = contact_event(change, stamp_ns, change.joint in limited)
+            out.puts.append((self.publishers[arm], encode(event)))
+            log.info(
+                "arm %s joint %d %s (%s)", arm, change.joint, change.state.value, change.method
+            )
+
+    def _limit(self, arm: str, slot: _ArmSlot, joint: int, angle: float, now: float) -> None:
+        """Retract ``joint``'s target to ``angle`` (caller holds the lock)."""
+        lo, hi = JOINT_RANGE_DEG[joint]
+        command = p.SetJointAngle(joint, round(min(max(angle, lo), hi), 2))
+        seq = slot.seqs.allocate()
+        slot.seqs.release(seq)  # like a stop: confirmed by feedback, not by acks
+        self._pending.append((arm, p.encode_command(command, seq)))
+        self.force_limits += 1
+        why = f"contact on joint {joint}: target retracted to {angle:.1f} deg (force limit)"
+        for flight, _query in slot.in_flight.values():
+            if joint in flight.targets_deg:
+                flight.fail(ErrorCode.REJECTED, why)
+        log.warning("arm %s: %s", arm, why)
+
+    def flush(self) -> None:
+        """Write the force-limit commands collected under the lock (call without the lock)."""
+        with self.agent.lock:
+            pending, self._pending = self._pending, []
+        for arm, text in pending:
+            self.agent.link.write(arm, text)
+            self.agent.relay.publishers[arm].raw_command.put(text)
+            self.on_sent(arm, text)
+
+    def on_sent(self, arm: str, text: str) -> None:
+        """A command string was written to ``arm`` (call without the lock)."""
+        detector = self.detectors.get(arm)
+        if detector is None:
+            return
+        try:
+            _seq, command = p.decode_command(text)
+        except (InvalidCommand, MalformedMessage):
+            return  # the agent never writes one; nothing to learn from it
+        with self.agent.lock:
+            feed_command(detector, command, time.monotonic())
