@@ -114,6 +114,7 @@ class FleetClient:
         source: str | None = None,
         timeout_s: float = 3.0,
         wait_still: bool = True,
+        request: m.StopRequest | None = None,
     ) -> dict[str, m.StopAck | None]:
         """Stop one arm (or every arm) and wait for the agents' acknowledgments.
 
@@ -121,14 +122,11 @@ class FleetClient:
         acknowledged it (Zenoh's reliability is hop by hop, not end to end); agents ignore the
         repeats. With ``wait_still`` it also waits for each arm to be seen still. Returns the
         last ack per arm (None: no ack within ``timeout_s``: is that arm's agent running?).
+        ``request``: a stop already put once (its repeats and acks are handled here).
         """
         arms = [self.inventory.arm(arm).id] if arm is not None else list(self.inventory.arms)
-        request = m.StopRequest(
-            stamp_ns=time.time_ns(),
-            source=source or default_source(),
-            stop_id=uuid.uuid4().hex,
-            reason=reason,
-        )
+        if request is None:
+            request = self.stop_request(reason, source)
         acks: dict[str, m.StopAck | None] = dict.fromkeys(arms)
         lock = threading.Lock()
 
@@ -149,15 +147,13 @@ class FleetClient:
                 )
 
         subscriber = self.session.declare_subscriber(self.keys.all_arms(keys.ESTOP_ACK), on_ack)
-        key = self.keys.estop if arm is None else self.keys.arm(arm, keys.ESTOP)
-        payload = encode(request)
         deadline = time.monotonic() + timeout_s
         try:
             while True:
                 with lock:
                     unacked = any(a is None for a in acks.values())
                 if unacked:
-                    self.session.put(key, payload, encoding=JSON, **STOP_QOS)
+                    self.put_stop(request, arm)
                 if complete() or time.monotonic() >= deadline:
                     break
                 time.sleep(0.1)
@@ -165,6 +161,20 @@ class FleetClient:
             subscriber.undeclare()
         with lock:
             return dict(acks)
+
+    def stop_request(self, reason: str = "", source: str | None = None) -> m.StopRequest:
+        """A new stop with a fresh ``stop_id``."""
+        return m.StopRequest(
+            stamp_ns=time.time_ns(),
+            source=source or default_source(),
+            stop_id=uuid.uuid4().hex,
+            reason=reason,
+        )
+
+    def put_stop(self, request: m.StopRequest, arm: str | None = None) -> None:
+        """Put ``request`` once on the fleet's (or one arm's) stop key."""
+        key = self.keys.estop if arm is None else self.keys.arm(arm, keys.ESTOP)
+        self.session.put(key, encode(request), encoding=JSON, **STOP_QOS)
 
     def reset(self, arm: str | None = None, source: str | None = None) -> None:
         """Release the stop latch of one arm (or every arm). Never moves an arm."""

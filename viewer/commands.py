@@ -2,10 +2,11 @@
 
 Jogs go through ``FleetClient.command`` on the viewer's own ``viewer-jog`` thread: a slider
 callback only records the newest target per (arm, joint) and returns (latest wins: dragging a
-slider never queues up a backlog of moves). Stops are put at once, from the caller's thread (a
+slider never queues up a backlog of moves). A stop is put at once, from the caller's thread (a
 viser callback thread, never a Zenoh one), with congestion control BLOCK and priority
-REAL_TIME, and repeated twice with the same ``stop_id`` by the ``viewer-stop`` thread: Zenoh's
-reliability is hop by hop, and agents ignore a stop id they have seen.
+REAL_TIME; the ``viewer-stop`` thread then hands it to ``FleetClient.estop``, which re-puts it
+(same ``stop_id``: agents ignore repeats) until every arm acknowledged and was seen still, and
+the operator is told which arms did not confirm.
 """
 
 from __future__ import annotations
@@ -13,13 +14,11 @@ from __future__ import annotations
 import logging
 import queue
 import threading
-import time
-import uuid
 from collections.abc import Callable
 
 import zenoh
 
-from fleet.client import JSON, FleetClient
+from fleet.client import FleetClient
 from fleet.d1.limits import JOINT_RANGE_DEG
 from fleet.inventory import Inventory
 from fleet.wire import keys
@@ -27,8 +26,8 @@ from fleet.wire import messages as m
 
 log = logging.getLogger("viewer.commands")
 
-STOP_REPEAT_S = (0.1, 0.3)
-"""Delays (after the first put) of the repeats of a stop."""
+STOP_CONFIRM_S = 3.0
+"""How long the viewer waits for every arm to acknowledge a stop and be seen still."""
 
 Notify = Callable[[str, str, bool], None]
 """``notify(title, body, is_error)``: show a notification in every connected browser."""
@@ -47,23 +46,11 @@ class Commander:
         self.keys = keys.KeySpace(inventory.fleet)
         self.client = FleetClient(inventory, session=session)
         self._notify = notify
-        self._estop = session.declare_publisher(
-            self.keys.estop,
-            encoding=JSON,
-            congestion_control=zenoh.CongestionControl.BLOCK,
-            priority=zenoh.Priority.REAL_TIME,
-        )
-        self._reset = session.declare_publisher(
-            self.keys.reset,
-            encoding=JSON,
-            congestion_control=zenoh.CongestionControl.BLOCK,
-            priority=zenoh.Priority.DATA_HIGH,
-        )
         self._lock = threading.Lock()  # guards _pending only
         self._pending: dict[tuple[str, int], float] = {}
         self._wake = threading.Event()
         self._closing = threading.Event()
-        self._repeats: queue.SimpleQueue[tuple[float, bytes] | None] = queue.SimpleQueue()
+        self._stops: queue.SimpleQueue[m.StopRequest | None] = queue.SimpleQueue()
         self.stops_sent = 0
         self._threads = [
             threading.Thread(target=self._jog_loop, name="viewer-jog", daemon=True),
@@ -75,38 +62,39 @@ class Commander:
     # ------------------------------------------------------------------ stop and reset
 
     def stop_all(self, reason: str = "STOP ALL pressed in the viewer") -> m.StopRequest:
-        """Put a fleet-wide StopRequest now, and queue its repeats. Drops pending jogs."""
+        """Put a fleet-wide StopRequest now; its repeats and confirmation follow on the
+        ``viewer-stop`` thread. Drops pending jogs."""
         with self._lock:
             self._pending.clear()
-        request = m.StopRequest(
-            stamp_ns=time.time_ns(), source="viewer", stop_id=uuid.uuid4().hex, reason=reason
-        )
-        payload = m.encode(request)
-        self._estop.put(payload)
+        request = self.client.stop_request(reason, source="viewer")
+        self.client.put_stop(request)
         self.stops_sent += 1
-        now = time.monotonic()
-        for delay in STOP_REPEAT_S:
-            self._repeats.put((now + delay, payload))
+        self._stops.put(request)
         log.warning("STOP ALL sent (stop_id %s)", request.stop_id)
         return request
 
-    def reset_all(self) -> m.ResetRequest:
+    def reset_all(self) -> None:
         """Put a fleet-wide ResetRequest (the operator confirmed it)."""
-        request = m.ResetRequest(stamp_ns=time.time_ns(), source="viewer")
-        self._reset.put(m.encode(request))
+        self.client.reset(source="viewer")
         log.warning("reset sent to the whole fleet")
-        return request
 
     def _stop_loop(self) -> None:
         try:
             while True:
-                item = self._repeats.get()
-                if item is None:
+                request = self._stops.get()
+                if request is None or self._closing.is_set():
                     return
-                due, payload = item
-                if self._closing.wait(max(0.0, due - time.monotonic())):
-                    return
-                self._estop.put(payload)
+                acks = self.client.estop(request=request, timeout_s=STOP_CONFIRM_S)
+                unconfirmed = [a for a, ack in acks.items() if ack is None or ack.still_ns is None]
+                if unconfirmed:
+                    self._notify(
+                        "STOP not confirmed",
+                        f"no acknowledgment or standstill from {', '.join(unconfirmed)}: "
+                        "check those arms (their agents may be down)",
+                        True,
+                    )
+                else:
+                    self._notify("STOP ALL", "every arm acknowledged and is still", False)
         except Exception:
             log.exception("the viewer-stop thread failed")
             raise
@@ -151,11 +139,9 @@ class Commander:
             return
         self._closing.set()
         self._wake.set()
-        self._repeats.put(None)
+        self._stops.put(None)
         for thread in self._threads:
             thread.join(timeout=5.0)
-        self._estop.undeclare()
-        self._reset.undeclare()
 
     def __enter__(self) -> Commander:
         return self
