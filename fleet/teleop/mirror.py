@@ -140,7 +140,9 @@ class Mirror:
             raise _Held(f"follower {failed[0].arm!r} could not reach the leader: {failed[0].error}")
 
     def _loop(self, watch: ArmWatch, stop: threading.Event, deadline: float | None) -> None:
-        last_seq = -1
+        with self._lock:  # the sample the followers caught up to is stale now: wait for a new one
+            last_seq = self._newest.seq if self._newest is not None else -1
+        self._fresh.clear()
         while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
             self._fresh.wait(0.1)
             self._fresh.clear()
