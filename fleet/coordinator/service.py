@@ -22,6 +22,8 @@ import msgspec
 import zenoh
 
 from fleet.client import STOP_QOS, FleetClient
+from fleet.coordinator.contact_actions import perform
+from fleet.coordinator.contact_policy import Action, ContactPolicy
 from fleet.coordinator.state import FleetStateTracker
 from fleet.coordinator.stops import FLEET, StopBook
 from fleet.inventory import Inventory, InventoryError
@@ -54,6 +56,8 @@ class Coordinator:
         self.period_s = 1.0 / settings.heartbeat_hz
         self.state = FleetStateTracker(arms, settings.offline_after_s)
         self.stops = StopBook(arms)
+        self.contacts = ContactPolicy()  # fleet contact table, policies, collision memory
+        self._contact_actions: list[Action] = []  # guarded by self.lock, done off-thread
         self.lock = threading.Lock()  # guards self.state and self.stops
         self.stopping = threading.Event()
         self._events: queue.SimpleQueue[_Event] = queue.SimpleQueue()
@@ -87,6 +91,7 @@ class Coordinator:
             sub(self.keys.reset, self._queue(keys.RESET)),
             sub(self.keys.all_arms(keys.RESET), self._queue(keys.RESET)),
             sub(self.keys.all_arms(keys.ESTOP_ACK), self._queue(keys.ESTOP_ACK)),
+            sub(self.keys.all_arms(keys.CONTACT), self._queue(keys.CONTACT)),
             self.session.declare_queryable(self.keys.coordinator_cmd, self._on_query),
         ]
 
@@ -160,14 +165,18 @@ class Coordinator:
         except queue.Empty:
             return
         report: m.StopReport | None = None
+        actions: list[Action] = []
         now = time.monotonic()
         try:
             with self.lock:
                 report = self._apply(event, now)
+                actions, self._contact_actions = self._contact_actions, []
         except msgspec.DecodeError as exc:
             log.warning("ignored a malformed %s sample: %s", event.channel, exc)
         if report is not None:
             self._report_pub.put(encode(report))
+        for action in actions:  # contact policy: commands and stops, on the pool's threads
+            self._pool.submit(perform, self.client, self.id, action)
 
     def _apply(self, event: _Event, now: float) -> m.StopReport | None:
         """Apply one event (caller holds the lock)."""
@@ -183,6 +192,10 @@ class Coordinator:
             )
         elif event.channel == keys.RESET:
             self.stops.on_reset(event.arm or FLEET)
+        elif event.channel == keys.CONTACT and event.arm is not None:
+            contact = m.contact_decoder.decode(event.payload)
+            self._contact_actions += self.contacts.on_event(event.arm, contact, now)
+            self.state.on_contact(event.arm, self.contacts.in_contact(event.arm))
         elif event.channel == keys.ESTOP_ACK:
             return self.stops.on_ack(m.stop_ack_decoder.decode(event.payload))
         return None
@@ -208,6 +221,9 @@ class Coordinator:
         """Send one command to every arm of ``request.target`` as this coordinator (the owner);
         with sync, all arms get the same start time. Raises InventoryError for a bad target."""
         arms = self.inventory.resolve(request.target)
+        refused = self._avoided(arms, request)
+        if refused is not None:
+            return refused
         changes: dict[str, object] = {"owner": self.id}
         if request.sync and len(arms) > 1:
             lead = (
@@ -221,6 +237,32 @@ class Coordinator:
         written = [r.written_ns for r in replies.values() if r.ok and r.written_ns is not None]
         skew = round((max(written) - min(written)) / 1e6, 3) if len(written) > 1 else None
         return m.MultiArmReply(all(r.ok for r in replies.values()), replies, skew)
+
+    def _avoided(self, arms: list[str], request: m.MultiArmRequest) -> m.MultiArmReply | None:
+        """Declare the request's phase; refuse a target past a place the collision memory
+        avoids (repeated contacts there)."""
+        now, command = time.monotonic(), request.command
+        targets: dict[int, float] = {}
+        if isinstance(command, m.MoveJoint):
+            targets = {command.joint: command.angle_deg}
+        elif isinstance(command, m.MoveJoints):
+            targets = dict(enumerate(command.angles_deg))
+        with self.lock:
+            for arm in arms:
+                if request.phase is not None:
+                    self.contacts.set_phase(arm, request.phase, now)
+                for joint, target in targets.items():
+                    place = self.contacts.memory.avoided(arm, joint, target, now)
+                    if place is not None:
+                        why = (
+                            f"arm {arm!r} joint {joint}: target {target} deg goes past {place} "
+                            "deg, where it met an obstacle repeatedly (collision memory; it "
+                            "expires, or clear it after a workspace change)"
+                        )
+                        return m.MultiArmReply(
+                            False, {}, None, ErrorInfo(int(ErrorCode.REJECTED), why)
+                        )
+        return None
 
     # ------------------------------------------------------------------ lifecycle
 

@@ -282,12 +282,15 @@ class MultiArmRequest(Struct, frozen=True, forbid_unknown_fields=True):
     """``fleet/<fleet>/coordinator/cmd`` request: one command for an arm, a group or ``all``.
 
     With ``sync`` (default) and more than one arm, the coordinator gives every arm the same
-    ``start_at_ns``, ``lead_s`` ahead (default: the inventory's ``sync_lead_s``)."""
+    ``start_at_ns``, ``lead_s`` ahead (default: the inventory's ``sync_lead_s``). ``phase``
+    tells the contact policy what the motion is for (``lift``: a contact stops the arm)."""
 
     target: str
     command: ArmCommand
     sync: bool = True
     lead_s: float | None = None
+    phase: Literal["approach", "grasp", "lift", "move"] | None = None
+    """What the motion is for (contact policy: a contact while ``lift`` stops the arm)."""
 
 
 class MultiArmReply(Struct, frozen=True):
