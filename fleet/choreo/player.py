@@ -37,13 +37,17 @@ TARGET_LIFETIME_S = 0.3
 PATH_WINDOW = 6
 """The measured pose is compared with the targets of the last 6 ticks (feedback lags ~0.1 s)."""
 MAX_PENDING = 3
+KEYFRAME_WINDOW_S = 0.4
+"""A keyframe's tracking error is the arm's closest approach within this time after the keyframe
+(feedback is 10 Hz and ~0.1 s behind the command: the sample at the exact instant is stale)."""
 """Commands in flight per arm beyond which a tick skips the arm (and counts it)."""
 
 
 @dataclass
 class PlayResult:
-    """How a play ended. ``keyframe_error_deg``: per finished keyframe, the largest joint error
-    over the arms when its time came; ``start_skew_ms``: spread of the first DDS writes."""
+    """How a play ended. ``keyframe_error_deg``: per finished keyframe, over the arms, the
+    largest joint error of the closest sample within KEYFRAME_WINDOW_S after its time came;
+    ``start_skew_ms``: spread of the first DDS writes."""
 
     ok: bool
     reason: str
@@ -85,6 +89,8 @@ class Player:
         self.recent: dict[str, deque[Pose]] = {a: deque(maxlen=PATH_WINDOW) for a in script.arms}
         self.grip = {a: GripDetector() for a in script.arms}
         self._last_seq: dict[str, int] = {}
+        # keyframes being measured: (deadline, goal per arm, best error per arm)
+        self._keyframes: list[tuple[float, dict[str, Pose], dict[str, float]]] = []
         self.result = PlayResult(False, "not started")
 
     # ------------------------------------------------------------------ public
@@ -104,7 +110,6 @@ class Player:
             timeline = Timeline(self.script, poses)
             self._run(timeline, watch, stop)
             self.result.ok, self.result.reason = True, "completed"
-            settle(watch, self.script.arms, timeline.poses, 3.0)
         except Abort as exc:
             self.result.ok, self.result.reason = False, str(exc)
             log.warning("choreography %r aborted: %s", self.script.name, exc)
@@ -148,6 +153,8 @@ class Player:
             if frame.kind == "failed":
                 raise Abort(frame.error or "a wait failed")
             if frame.kind == "done":
+                settle(watch, self.script.arms, timeline.poses, 3.0)
+                self._book_keyframes(frame, watch, timeline, flush=True)
                 return
             self._send(frame)
             if self.on_progress and (
@@ -224,16 +231,24 @@ class Player:
             facts[arm] = ArmFacts(angles, gripped)
         return facts
 
-    def _book_keyframes(self, frame: Frame, watch: ArmWatch, timeline: Timeline) -> None:
-        """The tracking error of each keyframe whose time came during this tick."""
-        for _index in frame.finished_keyframes:
-            errors = [
-                max_error_deg(tuple(j.angles_deg), timeline.poses[arm])
-                for arm in self.script.arms
-                if (j := watch.latest(arm).joints) is not None
-            ]
-            if errors:
-                self.result.keyframe_error_deg.append(round(max(errors), 2))
+    def _book_keyframes(
+        self, frame: Frame, watch: ArmWatch, timeline: Timeline, flush: bool = False
+    ) -> None:
+        """Measure each keyframe as its arms' closest approach within KEYFRAME_WINDOW_S."""
+        now = time.monotonic()
+        for _index in [] if flush else frame.finished_keyframes:
+            goal = {a: timeline.poses[a] for a in self.script.arms}
+            self._keyframes.append((now + KEYFRAME_WINDOW_S, goal, {}))
+        for deadline, goal, best in list(self._keyframes):
+            for arm in self.script.arms:
+                joints = watch.latest(arm).joints
+                if joints is not None:
+                    error = max_error_deg(tuple(joints.angles_deg), goal[arm])
+                    best[arm] = min(best.get(arm, error), error)
+            if flush or now >= deadline:
+                self._keyframes.remove((deadline, goal, best))
+                if best:
+                    self.result.keyframe_error_deg.append(round(max(best.values()), 2))
 
     def _send(self, frame: Frame) -> None:
         stamp = time.time_ns()
