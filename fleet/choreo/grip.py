@@ -1,10 +1,11 @@
 """Grip confirmation for ``wait = "grip"``. Pure, fed samples.
 
-A contact detector that publishes ``ContactEvent`` on ``arm/<arm>/contact`` is being built in
-parallel; until it exists in ``fleet/wire/messages.py`` a grip is confirmed from the gripper's
-own angle: the gripper (wire joint 6, 0 = closed) was commanded to close further than it got
-and has stopped short of that target: it holds something. The player uses the contact key
-instead whenever the message type exists.
+The agents' contact detector publishes ``ContactEvent`` on ``arm/<arm>/contact``; a gripper
+(joint 6) event ``confirmed`` with ``grip`` confirms a grip, ``released``/``free`` ends it, and
+the player trusts that word whenever the arm's agent has published one. Until then (an agent
+without the detector, or no gripper event yet) a grip is confirmed from the gripper's own angle:
+the gripper (0 = closed) was commanded to close further than it got and has stopped short of
+that target: it holds something.
 """
 
 from __future__ import annotations

@@ -224,9 +224,9 @@ class Player:
             if latest.joints is not None and self._last_seq.get(arm) != latest.joints.seq:
                 self._last_seq[arm] = latest.joints.seq
                 self.grip[arm].add(latest.joints.angles_deg)
-            if latest.contact is not None:  # a contact detector publishes: trust it
+            if latest.contact is not None:  # the agent's contact detector spoke: trust it
                 gripped = latest.contact
-            else:
+            else:  # no detector word yet: the gripper stalled short of its target
                 gripped = self.grip[arm].gripped(timeline.poses[arm][GRIPPER_JOINT])
             facts[arm] = ArmFacts(angles, gripped)
         return facts

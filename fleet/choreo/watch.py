@@ -21,6 +21,7 @@ import msgspec
 import zenoh
 
 from fleet.client import JSON, STOP_QOS
+from fleet.d1.limits import GRIPPER_JOINT
 from fleet.wire import keys
 from fleet.wire import messages as m
 from fleet.wire.messages import encode
@@ -40,7 +41,7 @@ class Latest:
     joints_at: float = 0.0
     status: m.ArmStatus | None = None
     status_at: float = 0.0
-    contact: bool | None = None
+    contact: bool | None = None  # gripper grip per the agent's contact detector; None: no word
 
 
 class ArmWatch:
@@ -85,8 +86,9 @@ class ArmWatch:
                     self._latest[key.arm].status, self._latest[key.arm].status_at = status, now
             elif key.channel == keys.CONTACT:
                 contact = _contact_of(data)
-                with self.lock:
-                    self._latest[key.arm].contact = contact
+                if contact is not None:
+                    with self.lock:
+                        self._latest[key.arm].contact = contact
         except msgspec.DecodeError:
             return  # a foreign payload: the agent counts malformed data, not us
 
@@ -129,14 +131,14 @@ class ArmWatch:
 
 
 def _contact_of(data: bytes) -> bool | None:
-    """The ``contact`` flag of a ContactEvent-shaped payload (decoded loosely: the message type
-    is owned by the contact detector; only its boolean is read here)."""
-    raw = msgspec.json.decode(data)
-    if isinstance(raw, dict):
-        for name in ("contact", "in_contact", "gripped"):
-            if isinstance(raw.get(name), bool):
-                return bool(raw[name])
-    return None
+    """A gripper ``ContactEvent``: True for a confirmed grip, False when released or free,
+    None for anything else (another joint, a suspicion: the last word stands)."""
+    event = m.contact_decoder.decode(data)
+    if event.joint != GRIPPER_JOINT:
+        return None
+    if event.state == "confirmed":
+        return event.grip
+    return False if event.state in ("released", "free") else None
 
 
 class Liveness:
