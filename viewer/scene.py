@@ -16,6 +16,7 @@ import numpy as np
 import numpy.typing as npt
 import viser
 
+from fleet.d1.limits import GRIPPER_JOINT
 from fleet.inventory import Inventory
 from viewer.kinematics import (
     ArmModel,
@@ -38,6 +39,8 @@ NORMAL, STALE, OFFLINE, STOPPED = 0, 1, 2, 3
 STALE_RGB = np.array([170, 170, 170], dtype=float)
 OFFLINE_RGB = np.array([85, 85, 90], dtype=float)
 STOP_RGB = np.array([230, 30, 30], dtype=float)
+CONTACT_RGB = np.array([255, 170, 0], dtype=float)
+"""A link whose joint is in confirmed contact is drawn in this amber, whatever the arm's look."""
 
 
 def looks(snapshot: Snapshot) -> npt.NDArray[np.int8]:
@@ -86,10 +89,16 @@ class FleetScene:
         self.base = base_transforms(xyz, [c.base_rpy_deg for c in configs])
         self.meshes = meshes
         self._link_index = [model.links.index(mesh.link) for mesh in meshes]
+        # Wire joint that moves each drawn link (q columns 6 and 7 are the gripper's fingers).
+        self._link_joint = [
+            min(model.q_index[i], GRIPPER_JOINT) if model.q_index[i] >= 0 else -1
+            for i in self._link_index
+        ]
         n = len(self.arms)
         self._drawn_deg = np.zeros((n, 7))
         self._drawn_code = np.full(n, -1, dtype=np.int8)
         self._drawn_error = np.zeros(n, dtype=bool)
+        self._drawn_contact = np.zeros((n, 7), dtype=bool)
         self.ticks_sent = 0
 
         scene = server.scene
@@ -147,7 +156,8 @@ class FleetScene:
         moved = np.any(np.abs(snapshot.angles_deg - self._drawn_deg) > DEADBAND_DEG, axis=1)
         code = looks(snapshot)
         error = snapshot.error
-        recolour = code != self._drawn_code
+        contact = snapshot.contact_rows()
+        recolour = (code != self._drawn_code) | np.any(contact != self._drawn_contact, axis=1)
         relabel = recolour | (error != self._drawn_error)
         if not (moved.any() or relabel.any()):
             return False
@@ -162,14 +172,19 @@ class FleetScene:
                     handle.batched_wxyzs = wxyz[k]
                     handle.batched_positions = pos[k]
             if recolour.any():
-                for mesh, handle in zip(self.meshes, self._links, strict=True):
-                    handle.batched_colors = tinted(mesh.rgb, code)
+                for k, (mesh, handle) in enumerate(zip(self.meshes, self._links, strict=True)):
+                    colors = tinted(mesh.rgb, code)
+                    joint = self._link_joint[k]
+                    if joint >= 0:
+                        colors[contact[:, joint]] = CONTACT_RGB.astype(np.uint8)
+                    handle.batched_colors = colors
             if relabel.any():
                 self._error_marks.batched_scales = error.astype(float)
                 for i in np.flatnonzero(relabel):
                     self._labels[i].text = label_text(self.arms[i], int(code[i]), bool(error[i]))
         self._drawn_code = code
         self._drawn_error = error
+        self._drawn_contact = contact
         self.ticks_sent += 1
         return True
 

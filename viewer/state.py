@@ -40,6 +40,13 @@ class Snapshot:
     status: tuple[m.ArmStatus | None, ...]
     online: npt.NDArray[np.bool_]  # (N,), the agent's liveliness token is present
     joints_received: int  # joints samples received so far (all arms)
+    contact: npt.NDArray[np.bool_] | None = None  # (N, 7), joint in confirmed contact
+
+    def contact_rows(self) -> npt.NDArray[np.bool_]:
+        """(N, 7) joints in confirmed contact (all False before any contact event)."""
+        if self.contact is None:
+            return np.zeros((len(self.arms), JOINT_COUNT), dtype=bool)
+        return self.contact
 
     @property
     def stale(self) -> npt.NDArray[np.bool_]:
@@ -79,6 +86,7 @@ class FleetState:
         self._joints_at = np.full(n, -math.inf)
         self._status: list[m.ArmStatus | None] = [None] * n
         self._online = np.zeros(n, dtype=bool)
+        self._contact = np.zeros((n, JOINT_COUNT), dtype=bool)
         self._received = 0
         self.malformed = 0  # payloads we could not decode (counted, dropped)
         self._last_warning = -math.inf
@@ -92,6 +100,7 @@ class FleetState:
             self._session.liveliness().declare_subscriber(
                 self.keys.all_arms(keys.AGENT), self._on_token, history=True
             ),
+            self._session.declare_subscriber(self.keys.all_arms(keys.CONTACT), self._on_contact),
         ]
 
     # ------------------------------------------------------------------ zenoh callbacks
@@ -142,6 +151,21 @@ class FleetState:
         with self._lock:
             self._status[i] = status
 
+    def _on_contact(self, sample: zenoh.Sample) -> None:
+        i = self._arm_index(sample)
+        if i is None:
+            return
+        try:
+            event = m.contact_decoder.decode(sample.payload.to_bytes())
+        except msgspec.DecodeError as exc:
+            self._bad("contact", exc)
+            return
+        if not 0 <= event.joint < JOINT_COUNT:
+            self._bad("contact", ValueError(f"joint {event.joint}"))
+            return
+        with self._lock:
+            self._contact[i, event.joint] = event.state == "confirmed"
+
     def _on_token(self, sample: zenoh.Sample) -> None:
         i = self._arm_index(sample)
         if i is None:
@@ -159,6 +183,7 @@ class FleetState:
             joints_at = self._joints_at.copy()
             status = tuple(self._status)
             online = self._online.copy()
+            contact = self._contact.copy()
             received = self._received
         return Snapshot(
             arms=self.arms,
@@ -167,6 +192,7 @@ class FleetState:
             status=status,
             online=online,
             joints_received=received,
+            contact=contact,
         )
 
     def close(self) -> None:
