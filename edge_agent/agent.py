@@ -120,7 +120,7 @@ class EdgeAgent:
     def _on_feedback(self, arm: str, text: str, now: float) -> None:
         stamp_ns = time.time_ns()
         pubs = self.relay.publishers[arm]
-        out = _Outbox(puts=[(pubs.raw_feedback, text)])
+        out = _Outbox()
         with self.lock:
             slot = self.slots[arm]
             tracker = slot.tracker
@@ -131,7 +131,7 @@ class EdgeAgent:
                 if isinstance(message, p.JointAngles):
                     slot.joints_seq += 1
                     joints = m.Joints(stamp_ns, list(message.angles_deg), slot.joints_seq)
-                    out.puts.append((pubs.joints, encode(joints)))
+                    out.puts.append((pubs.joints, encode(joints)))  # before the raw string
                     for flight, _query in slot.in_flight.values():
                         flight.on_angles(message.angles_deg)
                     if slot.safety.on_angles(message.angles_deg, stamp_ns):
@@ -142,6 +142,7 @@ class EdgeAgent:
                         entry[0].on_ack(message)
                 else:
                     status_changed = True
+            out.puts.append((pubs.raw_feedback, text))
             if status_changed:
                 out.puts.append((pubs.status, encode(tracker.status(now, stamp_ns))))
             if decoded is not None:

@@ -1,38 +1,33 @@
 """The agent's DDS side: one participant for its (domain, interface), one long-lived command
 writer and one feedback reader per arm, and the thread that takes feedback.
 
-The reader thread waits on a WaitSet (feedback on any arm, or the shutdown guard) and hands
-every string to ``on_feedback``; it never creates or deletes entities. Writers are created once:
+Each reader's DDS listener only puts the arm's index on a queue (it runs on a DDS thread and
+must not block); the ``dds-feedback`` thread takes from exactly the readers that have data and
+hands every string to ``on_feedback``. Taking from all readers on every wake-up cost 350 us of
+CPU per message at 100 arms; a sweep of every reader once a second guards against a missed
+notification. Entities are never created or deleted after start-up. Writers are created once:
 Unitree's SDK waits for discovery when a writer is created, which a stop cannot afford.
 """
 
 from __future__ import annotations
 
 import logging
+import queue
 import threading
 import time
 from collections.abc import Callable
 
-from cyclonedds.core import (
-    DDSException,
-    GuardCondition,
-    InstanceState,
-    ReadCondition,
-    SampleState,
-    ViewState,
-    WaitSet,
-)
+from cyclonedds.core import DDSException, Listener
 from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
-from cyclonedds.util import duration
 
 from fleet.d1 import dds
 
 log = logging.getLogger("edge_agent.link")
 
-_ANY = SampleState.Any | ViewState.Any | InstanceState.Any
 TAKE_BATCH = 64
+SWEEP_PERIOD_S = 1.0
 
 FeedbackHandler = Callable[[str, str, float], None]
 """(arm id, feedback text, monotonic receive time)."""
@@ -52,17 +47,16 @@ class DdsLink:
         self._channel = dds.DdsChannel(domain_id, interface, peers)
         participant = self._channel.participant
         self._on_feedback = on_feedback
-        self._guard = GuardCondition(participant)
-        self._waitset = WaitSet(participant)
-        self._waitset.attach(self._guard)
+        self._ready: queue.SimpleQueue[int | None] = queue.SimpleQueue()
         self._readers: list[tuple[str, DataReader]] = []
         self._writers: dict[str, DataWriter] = {}
         self.write_failures = 0
         for arm, suffix in suffixes.items():
             fb = Topic(participant, dds.feedback_topic(suffix), dds.ArmString_)
             cmd = Topic(participant, dds.command_topic(suffix), dds.ArmString_)
-            reader = DataReader(participant, fb, qos=dds.FEEDBACK_READER_QOS)
-            self._waitset.attach(ReadCondition(reader, _ANY))
+            index = len(self._readers)
+            listener = Listener(on_data_available=lambda _reader, i=index: self._ready.put(i))
+            reader = DataReader(participant, fb, qos=dds.FEEDBACK_READER_QOS, listener=listener)
             self._readers.append((arm, reader))
             self._writers[arm] = DataWriter(participant, cmd, qos=dds.COMMAND_WRITER_QOS)
         self._stop = threading.Event()
@@ -84,25 +78,43 @@ class DdsLink:
 
     def _run(self) -> None:
         try:
+            next_sweep = time.monotonic() + SWEEP_PERIOD_S
             while not self._stop.is_set():
-                self._waitset.wait(duration(milliseconds=200))
-                for arm, reader in self._readers:
-                    samples = reader.take(N=TAKE_BATCH)
-                    if not samples:
-                        continue
-                    now = time.monotonic()
-                    for sample in samples:
-                        text = getattr(sample, "data_", None)
-                        if text is not None:  # InvalidSample: a writer went away
-                            self._on_feedback(arm, text, now)
+                try:
+                    first = self._ready.get(timeout=0.2)
+                except queue.Empty:
+                    first = None
+                ready = set() if first is None else {first}
+                while True:  # every notification already queued: one take per reader
+                    try:
+                        index = self._ready.get_nowait()
+                    except queue.Empty:
+                        break
+                    if index is not None:
+                        ready.add(index)
+                if time.monotonic() >= next_sweep:
+                    next_sweep = time.monotonic() + SWEEP_PERIOD_S
+                    ready = set(range(len(self._readers)))
+                for index in ready:
+                    self._take(*self._readers[index])
         except BaseException:
             log.exception("DDS feedback thread failed")
             raise
 
+    def _take(self, arm: str, reader: DataReader) -> None:
+        samples = reader.take(N=TAKE_BATCH)
+        if not samples:
+            return
+        now = time.monotonic()
+        for sample in samples:
+            text = getattr(sample, "data_", None)
+            if text is not None:  # InvalidSample: a writer went away
+                self._on_feedback(arm, text, now)
+
     def close(self) -> None:
         """Stop the thread, then delete the participant (idempotent)."""
         self._stop.set()
-        self._guard.set(True)
+        self._ready.put(None)
         if self._thread.is_alive():
             self._thread.join(timeout=2.0)
         self._channel.close()

@@ -85,7 +85,6 @@ class Coordinator:
                 self.keys.all_arms(keys.AGENT), self._on_token, history=True
             ),
             sub(self.keys.all_arms(keys.STATUS), self._on_status),
-            sub(self.keys.all_arms(keys.JOINTS), self._on_joints),
             sub(self.keys.estop, self._queue(keys.ESTOP)),
             sub(self.keys.all_arms(keys.ESTOP), self._queue(keys.ESTOP)),
             sub(self.keys.reset, self._queue(keys.RESET)),
@@ -111,12 +110,6 @@ class Coordinator:
         self._events.put(
             _Event(keys.STATUS, self._arm_of(sample), sample.payload.to_bytes(), sample.kind)
         )
-
-    def _on_joints(self, sample: zenoh.Sample) -> None:
-        arm = self._arm_of(sample)
-        if arm is not None:
-            with self.lock:  # a dict store: no I/O, nothing blocks here
-                self.state.on_heard(arm, time.monotonic())
 
     def _queue(self, channel: str):  # type: ignore[no-untyped-def]
         def handler(sample: zenoh.Sample) -> None:

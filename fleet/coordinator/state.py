@@ -1,7 +1,7 @@
 """Fleet state from what the agents publish: pure, fed samples with an injected clock.
 
 An arm is online when its agent's liveliness token is present AND the agent was heard from
-(status at 4 Hz, joints at 10 Hz) within ``offline_after_s``. The token goes away at once when
+(its status, 4 Hz per arm) within ``offline_after_s``. The token goes away at once when
 an agent's process dies (its TCP session closes); silence catches a partition, where the
 token would only go after the Zenoh lease.
 """
