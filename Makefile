@@ -18,8 +18,8 @@ demo: $(STAMP)
 	$(BIN)/fleet demo --inventory inventory.toml
 
 lint: $(STAMP)
-	$(BIN)/ruff check fleet edge_agent viewer tests
-	$(BIN)/ruff format --check fleet edge_agent viewer tests
+	$(BIN)/ruff check fleet edge_agent viewer tests bench
+	$(BIN)/ruff format --check fleet edge_agent viewer tests bench
 	$(BIN)/mypy fleet/wire fleet/d1
 
 test: $(STAMP) lint

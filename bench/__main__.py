@@ -13,7 +13,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from bench import fleet_runs, raw, relay, report, viewer_cpu
+from bench import contact, fleet_runs, raw, relay, report, viewer_cpu
 from bench.proc import REPO
 
 
@@ -63,6 +63,8 @@ def run(quick: bool, viewer: bool) -> dict[str, Any]:
     if viewer:
         step("viewer CPU at 10, 50, 200 arms")
         viewer_results = viewer_cpu.run(quick)
+    step("contact detection: labelled episodes (pure simulator + detector)")
+    contact_results = contact.bench_contact()
     step("raw DDS and Zenoh hops again")
     second = raw.hops(quick)
     for key in ("dds_hop", "zenoh_hop"):
@@ -75,6 +77,7 @@ def run(quick: bool, viewer: bool) -> dict[str, Any]:
         "relay": relay_results,
         "fleet": fleet_results,
         "viewer": viewer_results,
+        "contact": contact_results,
     }
     results = _strip_samples(results)
     results["goals"] = report.goals(results)

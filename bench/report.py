@@ -62,6 +62,11 @@ def goals(r: dict[str, Any]) -> list[dict[str, Any]]:
     )
     viewer50 = r.get("viewer", {}).get("50", math.nan)
     add("viewer CPU, 50 arms at 10 Hz (% of a core)", viewer50, 15.0, "%")
+    contact = r.get("contact", {}).get("default")
+    if contact:
+        add("contact: stalls missed (recall >= 99 %)", 100.0 - contact["stall_recall"], 1.0, "%")
+        add("contact: false alarms in free motion", contact["false_alarms"], 0.0, "")
+        add("contact: detection delay p95 <= 300 ms", contact["p95_ms"], 300.0, "ms")
     return out
 
 
