@@ -12,7 +12,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import msgspec
 
-from fleet.client import FleetClient
+from fleet.client import FleetClient, default_source
 from fleet.runtime import inventory_from_args
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode
@@ -34,6 +34,9 @@ def register(
             "--timeout", type=float, default=10.0, help="seconds to wait for --wait"
         )
         parser.add_argument("--json", action="store_true", help="print the replies as JSON")
+        parser.add_argument(
+            "--takeover", action="store_true", help="take the arms from their current owner"
+        )
         parser.add_argument(
             "--sync",
             action="store_true",
@@ -72,7 +75,10 @@ def register(
 
 
 def _opts(args: argparse.Namespace) -> dict[str, object]:
-    return {"wait_reached": args.wait, "timeout_s": args.timeout}
+    options: dict[str, object] = {"wait_reached": args.wait, "timeout_s": args.timeout}
+    if args.takeover:
+        options |= {"owner": default_source(), "takeover": True}
+    return options
 
 
 def run_move(args: argparse.Namespace) -> int:
