@@ -25,7 +25,7 @@ from edge_agent.contact_edge import ContactEdge
 from edge_agent.link import DdsLink
 from edge_agent.relay import JSON, IncomingQuery, ZenohRelay
 from edge_agent.safety import ArmSafety, LeaseRefused
-from edge_agent.stops import SafetyLoop
+from edge_agent.stops import SafetyLoop, stop_command
 from edge_agent.tracker import ArmTracker
 from fleet.d1 import protocol as p
 from fleet.d1.seq import SeqAllocator
@@ -347,16 +347,33 @@ class EdgeAgent:
     # ------------------------------------------------------------------ shutdown
 
     def close(self) -> None:
-        """Shutdown order: stop taking commands -> stop loops -> join -> undeclare Zenoh
-        (tokens first, so the fleet sees the agent leave) -> delete DDS entities. Idempotent."""
+        """Shutdown order: stop taking commands -> hold every arm still moving (nobody will
+        command it any more) -> stop the loops and join -> stop DDS -> undeclare Zenoh (tokens
+        first, so the fleet sees the agent leave) and close the session. Idempotent."""
         if self.stopping.is_set():
             return
         self.stopping.set()
+        self._hold_moving_arms()
         for thread in self._threads:
             if thread.is_alive():
                 thread.join(timeout=2.0)
         self.link.close()
         self.relay.close()
+
+    def _hold_moving_arms(self) -> None:
+        texts: list[tuple[str, str]] = []
+        with self.lock:
+            for arm, slot in self.slots.items():
+                tracker = slot.tracker
+                if tracker.link != "ok" or slot.safety.standstill.still:
+                    continue
+                command = stop_command("hold", tracker.angles_deg)
+                if command is not None and tracker.powered is not False:
+                    seq = slot.seqs.allocate()
+                    texts.append((arm, p.encode_command(command, seq)))
+        for arm, text in texts:
+            self.link.write(arm, text)
+            log.info("arm %s was moving: held it before shutting down", arm)
 
     def __enter__(self) -> EdgeAgent:
         return self

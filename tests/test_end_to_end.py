@@ -289,3 +289,15 @@ def test_a_streamed_target_past_its_lifetime_is_never_executed(fleet_harness: Fl
     assert reply.error.code == m.ErrorCode.TIMEOUT and "lifetime" in reply.error.message
     fresh = m.MoveJoint(joint=0, angle_deg=30.0, stamp_ns=time.time_ns(), lifetime_s=0.2)
     assert client.command("a1", fresh).ok
+
+
+def test_an_agent_stopped_mid_move_holds_its_arm(fleet_harness: FleetHarness) -> None:
+    client = fleet_harness.start_fleet()
+    target = [0.0, -80.0, 80.0, 0.0, 60.0, 0.0, 0.0]
+    assert client.command("a1", m.MoveJoints(angles_deg=target, mode=1)).ok
+    wait_until(lambda: (j := client.snapshot(["a1"])["a1"][1]) and j.angles_deg[1] < -20.0, 5.0)
+    fleet_harness.stop("agent")  # SIGTERM while the arm is still on its way
+    observer = fleet_harness.start_agent(name="observer")
+    assert observer.poll() is None
+    first = wait_until(lambda: client.snapshot(["a1"])["a1"][1], 15.0)
+    assert abs(first.angles_deg[1] - target[1]) > 10.0, "the arm kept going to its old target"
