@@ -190,8 +190,10 @@ def test_the_fleet_panel_shows_a_killed_agent_as_offline(browser: Browser, tmp_p
     try:
         url = start_viewer(harness)
         open_viewer(browser, url, ["a1", "a2"])
+        stopped = time.monotonic()
         harness.stop("agent-a2")
         wait_until(lambda: browser.arm_online("a2") == "no", 20.0)
+        print(f"a2 shown offline {time.monotonic() - stopped:.2f} s after SIGTERM to its agent")
         assert browser.arm_online("a1") == "yes"
         row = browser.page.locator("tr[data-arm='a2']").inner_text()
         assert "OFFLINE" in row
