@@ -3,35 +3,34 @@
 Threads (all ours, all named):
 - ``dds-feedback`` (DdsLink): decodes feedback, updates the trackers, publishes joints/status
   and completes commands whose acks or targets arrived;
-- ``commands``: takes queries off the relay's queue, checks them, assigns seqs, writes DDS;
+- ``commands`` (CommandService, serving.py): checks queries, assigns seqs, writes DDS;
+- ``safety`` (SafetyLoop, stops.py): stops, resets, heartbeats, the watchdog;
 - ``housekeeping`` (20 Hz): link state, command deadlines, periodic status and diag.
-``_lock`` guards the trackers and the in-flight table; it is never held across a DDS write, a
+``lock`` guards the trackers and the in-flight table; it is never held across a DDS write, a
 Zenoh put or a reply: state is copied under the lock and the I/O happens after.
 """
 
 from __future__ import annotations
 
 import logging
-import queue
 import threading
 import time
-from dataclasses import dataclass, field
 
-import msgspec
 import zenoh
 
-from edge_agent.commands import InFlight, Refused, plan
+from edge_agent.commands import InFlight
 from edge_agent.contact_edge import ContactEdge
 from edge_agent.link import DdsLink
-from edge_agent.relay import JSON, IncomingQuery, ZenohRelay
-from edge_agent.safety import ArmSafety, LeaseRefused
+from edge_agent.relay import JSON, ZenohRelay
+from edge_agent.safety import ArmSafety
+from edge_agent.serving import CommandService
+from edge_agent.slots import ArmSlot, Outbox
 from edge_agent.stops import SafetyLoop, stop_command
 from edge_agent.tracker import ArmTracker
 from fleet.d1 import protocol as p
-from fleet.d1.seq import SeqAllocator
 from fleet.inventory import Inventory
 from fleet.wire import messages as m
-from fleet.wire.messages import ErrorCode, ErrorInfo, encode
+from fleet.wire.messages import ErrorCode, encode
 
 log = logging.getLogger("edge_agent")
 
@@ -40,27 +39,6 @@ STATUS_PERIOD_S = 0.25
 """Status is re-published 4 times a second: late joiners learn it, and it is the agent's
 heartbeat (the coordinator calls an agent offline after 1 s of silence)."""
 DIAG_PERIOD_S = 1.0
-
-
-MAX_START_DELAY_S = 5.0
-"""A synchronized start further ahead than this is refused (a clock problem, not a plan)."""
-
-
-@dataclass
-class _ArmSlot:
-    tracker: ArmTracker
-    safety: ArmSafety
-    seqs: SeqAllocator = field(default_factory=SeqAllocator)
-    in_flight: dict[int, tuple[InFlight, zenoh.Query]] = field(default_factory=dict)
-    joints_seq: int = 0
-
-
-@dataclass
-class _Outbox:
-    """I/O collected under the lock, performed after it is released."""
-
-    puts: list[tuple[zenoh.Publisher, bytes | str]] = field(default_factory=list)
-    replies: list[tuple[zenoh.Query, m.CommandReply]] = field(default_factory=list)
 
 
 class EdgeAgent:
@@ -83,11 +61,10 @@ class EdgeAgent:
             raise
         self.safety_loop = SafetyLoop(self)
         self.contact = ContactEdge(self)  # detectors and arm/<arm>/contact publishers
+        self.commands = CommandService(self)
         self._threads = [
             self.safety_loop.thread,
-            threading.Thread(
-                target=self._guarded(self._command_loop), name="commands", daemon=True
-            ),
+            threading.Thread(target=self._guarded(self.commands.run), name="commands", daemon=True),
             threading.Thread(
                 target=self._guarded(self._housekeeping_loop), name="housekeeping", daemon=True
             ),
@@ -101,9 +78,9 @@ class EdgeAgent:
         return self
 
     @staticmethod
-    def _slot(inventory: Inventory, arm: str) -> _ArmSlot:
+    def _slot(inventory: Inventory, arm: str) -> ArmSlot:
         config = inventory.arm(arm)
-        return _ArmSlot(ArmTracker(config), ArmSafety(config.lease_s, config.watchdog_s))
+        return ArmSlot(ArmTracker(config), ArmSafety(config.lease_s, config.watchdog_s))
 
     def _guarded(self, loop):  # type: ignore[no-untyped-def]
         def run() -> None:
@@ -120,7 +97,7 @@ class EdgeAgent:
     def _on_feedback(self, arm: str, text: str, now: float) -> None:
         stamp_ns = time.time_ns()
         pubs = self.relay.publishers[arm]
-        out = _Outbox()
+        out = Outbox()
         with self.lock:
             slot = self.slots[arm]
             tracker = slot.tracker
@@ -151,142 +128,11 @@ class EdgeAgent:
         self.flush(out)
         self.contact.flush()  # force-limit writes, after the lock
 
-    # ------------------------------------------------------------------ commands
-
-    def _command_loop(self) -> None:
-        while not self.stopping.is_set():
-            try:
-                item = self.relay.commands.get(timeout=0.2)
-            except queue.Empty:
-                continue
-            self._handle(item)
-
-    def _handle(self, item: IncomingQuery) -> None:
-        now = time.monotonic()
-        slot = self.slots[item.arm]
-        try:
-            command = m.command_decoder.decode(item.payload)
-        except msgspec.DecodeError as exc:
-            with self.lock:
-                slot.tracker.rejected += 1
-                slot.tracker.last_error = f"bad command payload: {exc}"
-            self._refuse(item, ErrorCode.PARAMETER, f"bad command payload: {exc}", now)
-            return
-        with self.lock:
-            slot.tracker.commands += 1
-            try:
-                texts, flight, delay_s = self._accept(slot, item, command, now)
-            except Refused as exc:
-                slot.tracker.rejected += 1
-                slot.tracker.last_error = str(exc)
-                refused: Refused | None = exc
-            else:
-                refused = None
-        if refused is not None:
-            self._refuse(item, refused.code, str(refused), now)
-            return
-        if flight is None:  # a lease release: nothing goes to the arm
-            self._reply_now(item, now)
-        elif delay_s > 0:
-            timer = threading.Timer(delay_s, self._write_all, (item.arm, texts, flight))
-            timer.name = f"start-{item.arm}"
-            timer.daemon = True
-            timer.start()
-        else:
-            self._write_all(item.arm, texts, flight)
-
-    def _accept(
-        self, slot: _ArmSlot, item: IncomingQuery, command: m.ArmCommand, now: float
-    ) -> tuple[list[str], InFlight | None, float]:
-        """Check, plan and register one command (caller holds the lock); raises Refused."""
-        safety = slot.safety
-        if isinstance(command, m.Release):
-            if command.owner is None or not safety.release(command.owner):
-                holder = safety.lease.owner if safety.lease else "nobody"
-                raise Refused(ErrorCode.LEASE_INVALID, f"arm {item.arm!r} is held by {holder}")
-            return [], None, 0.0
-        if command.lifetime_s is not None and command.stamp_ns is not None:
-            age_s = (time.time_ns() - command.stamp_ns) / 1e9
-            if age_s > command.lifetime_s:
-                raise Refused(
-                    ErrorCode.TIMEOUT,
-                    f"target for arm {item.arm!r} arrived {age_s * 1000:.0f} ms after it was sent, "
-                    f"past its lifetime of {command.lifetime_s * 1000:.0f} ms: not executed",
-                )
-        planned = plan(command, slot.tracker)
-        if not isinstance(command, m.Hold):
-            try:
-                safety.check_owner(command.owner, command.takeover, now)
-            except LeaseRefused as exc:
-                raise Refused(ErrorCode.LEASE_EXISTS, f"arm {item.arm!r} is {exc}") from None
-        delay_s = 0.0
-        if command.start_at_ns is not None:
-            delay_s = (command.start_at_ns - time.time_ns()) / 1e9
-            if delay_s > MAX_START_DELAY_S:
-                raise Refused(
-                    ErrorCode.PARAMETER,
-                    f"start_at_ns is {delay_s:.1f} s ahead (max {MAX_START_DELAY_S:g} s); "
-                    "are the hosts' clocks synchronized?",
-                )
-        if isinstance(command, m.MOTION_OPS) and command.owner in self.safety_loop.last_heartbeat_s:
-            safety.watch(command.owner, planned.targets_deg)
-        seqs = tuple(slot.seqs.allocate() for _ in planned.commands)
-        texts = [p.encode_command(c, s) for c, s in zip(planned.commands, seqs)]
-        config = slot.tracker.config
-        start = now + max(0.0, delay_s)
-        flight = InFlight(
-            arm=item.arm,
-            seqs=seqs,
-            started_s=now,
-            recv_deadline_s=start + config.recv_ack_timeout_s,
-            exec_deadline_s=start + config.exec_ack_timeout_s,
-            reach_deadline_s=start + command.timeout_s if command.wait_reached else None,
-            targets_deg=planned.targets_deg,
-            tolerance_deg=command.tolerance_deg,
-        )
-        for seq in seqs:
-            slot.in_flight[seq] = (flight, item.query)
-        return texts, flight, delay_s
-
-    def _write_all(self, arm: str, texts: list[str], flight: InFlight) -> None:
-        """Write a command's DDS strings (now, or from a synchronized-start timer)."""
-        pubs = self.relay.publishers[arm]
-        for text in texts:
-            with self.lock:
-                if flight.error is not None:
-                    return  # cancelled meanwhile (a stop latched before the start time)
-            ok = self.link.write(arm, text)
-            self.contact.on_sent(arm, text)
-            flight.written_ns = flight.written_ns or time.time_ns()
-            if not ok:
-                with self.lock:
-                    flight.fail(ErrorCode.SEND_FAILED, "the DDS write failed (maybe sent)")
-            pubs.raw_command.put(text)
-
-    def _reply_now(
-        self, item: IncomingQuery, started: float, error: ErrorInfo | None = None
-    ) -> None:
-        """Reply to a command that sent nothing to the arm (a refusal, a lease release)."""
-        reply = m.CommandReply(
-            ok=error is None,
-            arm=item.arm,
-            seq=None,
-            received=False,
-            executed=None,
-            reached=None,
-            latency_ms=round((time.monotonic() - started) * 1000.0, 3),
-            error=error,
-        )
-        self.flush(_Outbox(replies=[(item.query, reply)]))
-
-    def cancel_in_flight(self, slot: _ArmSlot, now: float, why: str, out: _Outbox) -> None:
+    def cancel_in_flight(self, slot: ArmSlot, now: float, why: str, out: Outbox) -> None:
         """Fail every command in flight on ``slot`` (caller holds the lock)."""
         for flight, _query in slot.in_flight.values():
             flight.fail(ErrorCode.REJECTED, why)
         self._collect_finished(slot, now, out)
-
-    def _refuse(self, item: IncomingQuery, code: ErrorCode, message: str, started: float) -> None:
-        self._reply_now(item, started, ErrorInfo(int(code), message))
 
     # ------------------------------------------------------------------ housekeeping
 
@@ -301,7 +147,7 @@ class EdgeAgent:
             diag = now >= next_diag
             if diag:
                 next_diag = now + DIAG_PERIOD_S
-            out = _Outbox()
+            out = Outbox()
             with self.lock:
                 for arm, slot in self.slots.items():
                     tracker = slot.tracker
@@ -315,7 +161,7 @@ class EdgeAgent:
                     self._collect_finished(slot, now, out)
             self.flush(out)
 
-    def _collect_finished(self, slot: _ArmSlot, now: float, out: _Outbox) -> None:
+    def _collect_finished(self, slot: ArmSlot, now: float, out: Outbox) -> None:
         """Move finished commands from the in-flight table to ``out`` (caller holds the lock)."""
         finished: dict[int, tuple[InFlight, zenoh.Query]] = {}
         for seq, (flight, query) in list(slot.in_flight.items()):
@@ -331,7 +177,7 @@ class EdgeAgent:
                     slot.tracker.ack_timeouts += 1
             out.replies.append((query, reply))
 
-    def flush(self, out: _Outbox) -> None:
+    def flush(self, out: Outbox) -> None:
         for publisher, payload in out.puts:
             publisher.put(payload)
         for query, reply in out.replies:

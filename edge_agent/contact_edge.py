@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING
 
 import zenoh
 
+from edge_agent.slots import ArmSlot, Outbox
 from fleet.contact.detector import ContactChange, ContactDetector
 from fleet.contact.feed import feed_command
 from fleet.d1 import protocol as p
@@ -30,7 +31,7 @@ from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, encode
 
 if TYPE_CHECKING:
-    from edge_agent.agent import EdgeAgent, _ArmSlot, _Outbox
+    from edge_agent.agent import EdgeAgent
 
 log = logging.getLogger("edge_agent.contact")
 
@@ -77,11 +78,11 @@ class ContactEdge:
     def on_message(
         self,
         arm: str,
-        slot: _ArmSlot,
+        slot: ArmSlot,
         message: p.ArmMessage,
         now: float,
         stamp_ns: int,
-        out: _Outbox,
+        out: Outbox,
     ) -> None:
         """Feed one decoded feedback message (caller holds the agent's lock)."""
         detector = self.detectors.get(arm)
@@ -111,7 +112,7 @@ class ContactEdge:
                 "arm %s joint %d %s (%s)", arm, change.joint, change.state.value, change.method
             )
 
-    def _limit(self, arm: str, slot: _ArmSlot, joint: int, angle: float, now: float) -> None:
+    def _limit(self, arm: str, slot: ArmSlot, joint: int, angle: float, now: float) -> None:
         """Retract ``joint``'s target to ``angle`` (caller holds the lock)."""
         lo, hi = JOINT_RANGE_DEG[joint]
         command = p.SetJointAngle(joint, round(min(max(angle, lo), hi), 2))

@@ -20,13 +20,14 @@ import msgspec
 
 from edge_agent.commands import clamp_to_limits
 from edge_agent.relay import SafetyEvent
+from edge_agent.slots import ArmSlot, Outbox
 from fleet.d1 import protocol as p
 from fleet.wire import keys
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, encode
 
 if TYPE_CHECKING:
-    from edge_agent.agent import EdgeAgent, _ArmSlot, _Outbox
+    from edge_agent.agent import EdgeAgent
 
 log = logging.getLogger("edge_agent.stops")
 
@@ -105,11 +106,9 @@ class SafetyLoop:
         """Latch every arm of ``arms`` and write all their stop commands to DDS first, then
         publish acks, status and replies: the last arm's DDS write does not wait for the
         first arm's Zenoh traffic (1 ms per arm when done arm by arm)."""
-        from edge_agent.agent import _Outbox
-
         now, now_ns = time.monotonic(), time.time_ns()
-        out = _Outbox()
-        latched: list[tuple[str, _ArmSlot, str | None]] = []
+        out = Outbox()
+        latched: list[tuple[str, ArmSlot, str | None]] = []
         with self.agent.lock:
             for arm in arms:
                 slot = self.agent.slots[arm]
@@ -123,7 +122,7 @@ class SafetyLoop:
         if not latched:
             return
         written = [self._write_dds(arm, text) for arm, _slot, text in latched]
-        acks = _Outbox()
+        acks = Outbox()
         with self.agent.lock:
             for (arm, slot, text), written_ns in zip(latched, written):
                 stop = slot.safety.stop
@@ -146,7 +145,7 @@ class SafetyLoop:
             "/".join(sorted(action)),
         )
 
-    def _stop_text(self, slot: _ArmSlot, now: float) -> str | None:
+    def _stop_text(self, slot: ArmSlot, now: float) -> str | None:
         """Encode the stop action with a fresh seq (caller holds the lock)."""
         command = stop_command(slot.tracker.config.stop_action, slot.tracker.angles_deg)
         stop = slot.safety.stop
@@ -171,7 +170,7 @@ class SafetyLoop:
             self.agent.relay.publishers[arm].raw_command.put(text)
         return written_ns
 
-    def _ack(self, arm: str, slot: _ArmSlot) -> m.StopAck | None:
+    def _ack(self, arm: str, slot: ArmSlot) -> m.StopAck | None:
         stop = slot.safety.stop
         if stop is None:
             return None
@@ -186,8 +185,6 @@ class SafetyLoop:
 
     def reset(self, arm: str, source: str) -> None:
         """Release the latch; the measured pose becomes the target, so nothing moves."""
-        from edge_agent.agent import _Outbox
-
         now, now_ns = time.monotonic(), time.time_ns()
         with self.agent.lock:
             slot = self.agent.slots[arm]
@@ -199,10 +196,10 @@ class SafetyLoop:
             text = self._stop_text_for_hold(slot)
             status = encode(slot.tracker.status(now, now_ns))
         self._write(arm, text)
-        self.agent.flush(_Outbox(puts=[(self.agent.relay.publishers[arm].status, status)]))
+        self.agent.flush(Outbox(puts=[(self.agent.relay.publishers[arm].status, status)]))
         log.warning("arm %s reset by %s", arm, source)
 
-    def _stop_text_for_hold(self, slot: _ArmSlot) -> str | None:
+    def _stop_text_for_hold(self, slot: ArmSlot) -> str | None:
         command = stop_command("hold", slot.tracker.angles_deg)
         if command is None or slot.tracker.powered is False:
             return None
@@ -240,7 +237,7 @@ class SafetyLoop:
             elif resend is not None:
                 self._write(arm, resend)
 
-    def on_still(self, arm: str, slot: _ArmSlot, out: _Outbox) -> None:
+    def on_still(self, arm: str, slot: ArmSlot, out: Outbox) -> None:
         """Feedback showed a stopped arm still: acknowledge it (caller holds the lock)."""
         ack = self._ack(arm, slot)
         if ack is not None:

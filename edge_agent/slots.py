@@ -1,0 +1,36 @@
+"""Per-arm state of the agent and the I/O batch its threads collect under the lock.
+
+``ArmSlot`` groups what the agent knows and promises about one arm; ``Outbox`` holds the Zenoh
+puts and query replies computed under the agent's lock, performed after it is released.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import zenoh
+
+from edge_agent.commands import InFlight
+from edge_agent.safety import ArmSafety
+from edge_agent.tracker import ArmTracker
+from fleet.d1.seq import SeqAllocator
+from fleet.wire import messages as m
+
+
+@dataclass
+class ArmSlot:
+    """One arm: tracker, safety state, seqs and the commands in flight."""
+
+    tracker: ArmTracker
+    safety: ArmSafety
+    seqs: SeqAllocator = field(default_factory=SeqAllocator)
+    in_flight: dict[int, tuple[InFlight, zenoh.Query]] = field(default_factory=dict)
+    joints_seq: int = 0
+
+
+@dataclass
+class Outbox:
+    """I/O collected under the lock, performed after it is released."""
+
+    puts: list[tuple[zenoh.Publisher, bytes | str]] = field(default_factory=list)
+    replies: list[tuple[zenoh.Query, m.CommandReply]] = field(default_factory=list)
