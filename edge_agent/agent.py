@@ -64,9 +64,9 @@ class EdgeAgent:
         self.commands = CommandService(self)
         self._threads = [
             self.safety_loop.thread,
-            threading.Thread(target=self._guarded(self.commands.run), name="commands", daemon=True),
+            threading.Thread(target=self.guarded(self.commands.run), name="commands", daemon=True),
             threading.Thread(
-                target=self._guarded(self._housekeeping_loop), name="housekeeping", daemon=True
+                target=self.guarded(self._housekeeping_loop), name="housekeeping", daemon=True
             ),
         ]
 
@@ -82,7 +82,7 @@ class EdgeAgent:
         config = inventory.arm(arm)
         return ArmSlot(ArmTracker(config), ArmSafety(config.lease_s, config.watchdog_s))
 
-    def _guarded(self, loop):  # type: ignore[no-untyped-def]
+    def guarded(self, loop):  # type: ignore[no-untyped-def]
         def run() -> None:
             try:
                 loop()
@@ -124,7 +124,7 @@ class EdgeAgent:
                 out.puts.append((pubs.status, encode(tracker.status(now, stamp_ns))))
             if decoded is not None:
                 self.contact.on_message(arm, slot, decoded.message, now, stamp_ns, out)
-            self._collect_finished(slot, now, out)
+            self.collect_finished(slot, now, out)
         self.flush(out)
         self.contact.flush()  # force-limit writes, after the lock
 
@@ -132,7 +132,7 @@ class EdgeAgent:
         """Fail every command in flight on ``slot`` (caller holds the lock)."""
         for flight, _query in slot.in_flight.values():
             flight.fail(ErrorCode.REJECTED, why)
-        self._collect_finished(slot, now, out)
+        self.collect_finished(slot, now, out)
 
     # ------------------------------------------------------------------ housekeeping
 
@@ -158,10 +158,10 @@ class EdgeAgent:
                         out.puts.append((pubs.diag, encode(tracker.diag(now, stamp_ns))))
                     for flight, _query in list(slot.in_flight.values()):
                         flight.on_time(now, tracker.angles_deg)
-                    self._collect_finished(slot, now, out)
+                    self.collect_finished(slot, now, out)
             self.flush(out)
 
-    def _collect_finished(self, slot: ArmSlot, now: float, out: Outbox) -> None:
+    def collect_finished(self, slot: ArmSlot, now: float, out: Outbox) -> None:
         """Move finished commands from the in-flight table to ``out`` (caller holds the lock)."""
         finished: dict[int, tuple[InFlight, zenoh.Query]] = {}
         for seq, (flight, query) in list(slot.in_flight.items()):
@@ -199,6 +199,7 @@ class EdgeAgent:
         if self.stopping.is_set():
             return
         self.stopping.set()
+        self.commands.cancel_pending_starts()
         self._hold_moving_arms()
         for thread in self._threads:
             if thread.is_alive():

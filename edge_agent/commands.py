@@ -161,8 +161,9 @@ class InFlight:
             self.executed.add(ack.seq)
 
     def on_angles(self, angles_deg: tuple[float, ...]) -> None:
-        """Check the measured angles against the targets (only when the caller asked)."""
-        if self.reach_deadline_s is None or self.reached:
+        """Check the measured angles against the targets (only when the caller asked, and only
+        once the command was written: a delayed start is not "reached" before it is sent)."""
+        if self.reach_deadline_s is None or self.reached or self.written_ns is None:
             return
         if all(abs(angles_deg[j] - t) <= self.tolerance_deg for j, t in self.targets_deg.items()):
             self.reached = True

@@ -38,6 +38,12 @@ class CommandService:
 
     def __init__(self, agent: EdgeAgent) -> None:
         self.agent = agent
+        self._timers: list[threading.Timer] = []  # synchronized starts not yet written
+
+    def cancel_pending_starts(self) -> None:
+        """Shutdown: no delayed start may fire once the agent stops (it writes nothing anyway)."""
+        for timer in self._timers:
+            timer.cancel()
 
     def run(self) -> None:
         """The ``commands`` thread: serve queries until the agent stops."""
@@ -72,15 +78,18 @@ class CommandService:
         if refused is not None:
             self._refuse(item, refused.code, str(refused), now)
             return
+        moves = isinstance(command, m.MOTION_OPS) or (isinstance(command, m.Torque) and command.on)
         if flight is None:  # a lease release: nothing goes to the arm
             self._reply_now(item, now)
         elif delay_s > 0:
-            timer = threading.Timer(delay_s, self._write_all, (item.arm, texts, flight))
+            write = self.agent.guarded(lambda: self._write_all(item.arm, texts, flight, moves))
+            timer = threading.Timer(delay_s, write)
             timer.name = f"start-{item.arm}"
             timer.daemon = True
+            self._timers = [t for t in self._timers if t.is_alive()] + [timer]
             timer.start()
         else:
-            self._write_all(item.arm, texts, flight)
+            self._write_all(item.arm, texts, flight, moves)
 
     def _accept(
         self, slot: ArmSlot, item: IncomingQuery, command: m.ArmCommand, now: float
@@ -138,16 +147,36 @@ class CommandService:
             slot.in_flight[seq] = (flight, item.query)
         return texts, flight, delay_s
 
-    def _write_all(self, arm: str, texts: list[str], flight: InFlight) -> None:
-        """Write a command's DDS strings (now, or from a synchronized-start timer)."""
+    def _write_all(self, arm: str, texts: list[str], flight: InFlight, moves: bool) -> None:
+        """Write a command's DDS strings (now, or from a synchronized-start timer).
+
+        A stop may latch at any moment, on the safety thread: motion is not written once the
+        arm is latched, and if a stop latched while it was being written, the stop's action is
+        written again after it, so the last word the arm hears is the stop's.
+        """
         pubs = self.agent.relay.publishers[arm]
+        slot = self.agent.slots[arm]
         for text in texts:
             with self.agent.lock:
                 if flight.error is not None:
-                    return  # cancelled meanwhile (a stop latched before the start time)
+                    return  # cancelled meanwhile
+                if moves and (slot.safety.latched or self.agent.stopping.is_set()):
+                    flight.fail(ErrorCode.REJECTED, "stopped before its start time: not written")
+                    out = Outbox()
+                    self.agent.collect_finished(slot, time.monotonic(), out)
+                    latched = None
+                else:
+                    out, latched = None, slot.safety.stop
+            if out is not None:
+                self.agent.flush(out)
+                return
             ok = self.agent.link.write(arm, text)
+            with self.agent.lock:
+                flight.written_ns = flight.written_ns or time.time_ns()
+                stopped_meanwhile = moves and slot.safety.stop is not latched
+            if stopped_meanwhile:
+                self.agent.safety_loop.rewrite_stop(arm)
             self.agent.contact.on_sent(arm, text)
-            flight.written_ns = flight.written_ns or time.time_ns()
             if not ok:
                 with self.agent.lock:
                     flight.fail(ErrorCode.SEND_FAILED, "the DDS write failed (maybe sent)")

@@ -145,6 +145,13 @@ class SafetyLoop:
             "/".join(sorted(action)),
         )
 
+    def rewrite_stop(self, arm: str) -> None:
+        """Write the latched stop's action again (motion was written while it latched)."""
+        with self.agent.lock:
+            slot = self.agent.slots[arm]
+            text = self._stop_text(slot, time.monotonic()) if slot.safety.latched else None
+        self._write(arm, text)
+
     def _stop_text(self, slot: ArmSlot, now: float) -> str | None:
         """Encode the stop action with a fresh seq (caller holds the lock)."""
         command = stop_command(slot.tracker.config.stop_action, slot.tracker.angles_deg)

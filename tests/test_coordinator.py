@@ -6,6 +6,7 @@ coordinator watchdog, offline detection, synchronized starts and ownership lease
 
 from __future__ import annotations
 
+import threading
 import time
 
 import msgspec
@@ -195,3 +196,25 @@ def test_agent_that_missed_a_stop_learns_it_from_the_heartbeat(
     assert acks["a3"] is None and acks["a1"] is not None
     fleet3_harness.start_agent("a3", name="agent-a3-again")
     wait_until(lambda: (s := client.snapshot(["a3"])["a3"][0]) is not None and s.estopped, 15.0)
+
+
+def test_a_stop_cancels_a_synchronized_start_not_yet_written(fleet3_harness: FleetHarness) -> None:
+    client = start_three(fleet3_harness, coordinator=False)
+    start_at = time.time_ns() + 2_000_000_000
+    target = [40.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+    early = m.MoveJoints(
+        angles_deg=target, start_at_ns=start_at, wait_reached=True, tolerance_deg=60.0
+    )
+    replies: list[m.CommandReply] = []
+    sender = threading.Thread(target=lambda: replies.append(client.command("a1", early)))
+    sender.start()
+    time.sleep(0.5)
+    acks = client.estop("a1")
+    assert acks["a1"] is not None
+    sender.join(timeout=10.0)
+    assert replies and not replies[0].ok, "a delayed move counted as reached before it was sent"
+    assert replies[0].written_ns is None
+    time.sleep(2.5)  # past the start time
+    snap = client.snapshot(["a1"])["a1"]
+    assert snap[0] is not None and snap[0].estopped
+    assert snap[1] is not None and abs(snap[1].angles_deg[0]) < 1.0, "the arm moved while stopped"
