@@ -13,7 +13,6 @@ from fleet.runtime import (
     inventory_from_args,
     setup_logging,
     shutdown_event,
-    wait_for,
 )
 from fleet.wire.session import RouterUnreachable
 
@@ -46,7 +45,11 @@ def main(argv: list[str] | None = None) -> int:
     with agent:
         agent.start()
         log.info("serving arms %s of fleet %r", ", ".join(arms), inventory.fleet)
-        wait_for(stop)
+        while not stop.wait(0.5) and not agent.failed.is_set():
+            pass
+    if agent.failed.is_set():
+        log.error("a thread of the agent failed: shut down (moving arms were held); restart it")
+        return 1
     log.info("stopped")
     return 0
 

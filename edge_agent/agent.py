@@ -51,6 +51,7 @@ class EdgeAgent:
         self.arm_ids = list(arm_ids)
         self.slots = {a: self._slot(inventory, a) for a in arm_ids}
         self.stopping = threading.Event()
+        self.failed = threading.Event()
         suffixes = {a: inventory.arm(a).suffix for a in arm_ids}
         # DDS first: if the interface is wrong we fail before announcing anything on Zenoh.
         self.link = DdsLink(domain_id, interface, peers, suffixes, self._on_feedback)
@@ -83,11 +84,15 @@ class EdgeAgent:
         return ArmSlot(ArmTracker(config), ArmSafety(config.lease_s, config.watchdog_s))
 
     def guarded(self, loop):  # type: ignore[no-untyped-def]
+        """Wrap a thread's body: a failure is logged and sets ``failed`` (the process then
+        shuts down, holding moving arms, rather than stay half alive)."""
+
         def run() -> None:
             try:
                 loop()
             except BaseException:
                 log.exception("thread %s failed", threading.current_thread().name)
+                self.failed.set()
                 raise
 
         return run

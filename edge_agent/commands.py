@@ -39,8 +39,15 @@ def clamp_to_limits(angles: tuple[float, ...]) -> tuple[float, ...]:
 
 
 def _measured(tracker: ArmTracker, why: str) -> tuple[float, ...]:
+    """The measured pose, only while it is fresh: a stale pose as a target would move the arm
+    back to where it was (e.g. an unloaded arm that fell while its feed was frozen)."""
+    arm = tracker.config.id
     if tracker.angles_deg is None:
-        raise Refused(ErrorCode.REJECTED, f"arm {tracker.config.id!r} sent no angles yet; {why}")
+        raise Refused(ErrorCode.REJECTED, f"arm {arm!r} sent no angles yet; {why}")
+    if tracker.link != "ok":
+        raise Refused(
+            ErrorCode.REJECTED, f"arm {arm!r} has no fresh feedback (link {tracker.link}); {why}"
+        )
     return clamp_to_limits(tracker.angles_deg)
 
 

@@ -22,6 +22,8 @@ STILL_TOLERANCE_DEG = 0.3
 """... within 0.3 deg of each other on every joint mean the arm is still."""
 WATCH_TOLERANCE_DEG = 1.0
 """A watched move is over when the arm is still within 1 deg of its targets."""
+RESET_IDS_KEPT = 256
+"""Stop ids an operator reset, remembered so their repeats (heartbeat) do not re-latch."""
 STOP_REPEAT_S = 0.2
 """Until the arm is seen still, the stop command is re-sent every 0.2 s (two control cycles):
 a stop is not trusted to one DDS sample or to an ack the arm may not send."""
@@ -94,7 +96,8 @@ class ArmSafety:
     lease_s: float
     watchdog_s: float
     stop: ActiveStop | None = None
-    reset_stop_ids: set[str] = field(default_factory=set)
+    reset_stop_ids: dict[str, None] = field(default_factory=dict)  # insertion-ordered set
+    superseded_ids: list[str] = field(default_factory=list)
     standstill: Standstill = field(default_factory=Standstill)
     lease: Lease | None = None
     watched_by: str | None = None
@@ -108,6 +111,10 @@ class ArmSafety:
         """True while a stop is latched."""
         return self.stop is not None
 
+    def is_current(self, stop_id: str) -> bool:
+        """True when ``stop_id`` is the stop latched now (its repeat deserves a fresh ack)."""
+        return self.stop is not None and self.stop.stop_id == stop_id
+
     def latch(self, stop_id: str, source: str, reason: str, now_s: float, now_ns: int) -> bool:
         """Latch a stop; False if this stop is already latched or was reset (a repeat)."""
         if stop_id in self.reset_stop_ids or (
@@ -116,6 +123,8 @@ class ArmSafety:
             return False
         if self.stop is None:
             self.standstill.clear()
+        else:
+            self.superseded_ids.append(self.stop.stop_id)  # reset releases it too
         self.stop = ActiveStop(stop_id, source, reason, now_ns, now_s)
         self.last_reason = f"stopped by {source}" + (f": {reason}" if reason else "")
         self.watched_by = None
@@ -144,7 +153,11 @@ class ArmSafety:
         """Release the latch (operator action); returns the stop that was released."""
         stop, self.stop = self.stop, None
         if stop is not None:
-            self.reset_stop_ids.add(stop.stop_id)
+            for stop_id in (*self.superseded_ids, stop.stop_id):
+                self.reset_stop_ids[stop_id] = None
+            self.superseded_ids.clear()
+            while len(self.reset_stop_ids) > RESET_IDS_KEPT:
+                del self.reset_stop_ids[next(iter(self.reset_stop_ids))]
         return stop
 
     # ------------------------------------------------------------------ lease

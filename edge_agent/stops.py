@@ -94,7 +94,8 @@ class SafetyLoop:
                 slot.safety.renew(beat.coordinator, now)
         for target, request in beat.stops.items():
             arms = self.agent.arm_ids if target == "*" else [target]
-            self.stop_arms([a for a in arms if a in self.agent.slots], request)
+            # Heartbeats repeat stops 10 times a second: no fresh ack for each repeat.
+            self.stop_arms([a for a in arms if a in self.agent.slots], request, reack=False)
 
     # ------------------------------------------------------------------ stop and reset
 
@@ -102,23 +103,32 @@ class SafetyLoop:
         """Latch ``arm`` and act on the stop (a repeat of a latched or reset stop is ignored)."""
         self.stop_arms([arm], request)
 
-    def stop_arms(self, arms: list[str], request: m.StopRequest) -> None:
+    def stop_arms(self, arms: list[str], request: m.StopRequest, reack: bool = True) -> None:
         """Latch every arm of ``arms`` and write all their stop commands to DDS first, then
         publish acks, status and replies: the last arm's DDS write does not wait for the
         first arm's Zenoh traffic (1 ms per arm when done arm by arm)."""
         now, now_ns = time.monotonic(), time.time_ns()
         out = Outbox()
         latched: list[tuple[str, ArmSlot, str | None]] = []
+        repeats = Outbox()
         with self.agent.lock:
             for arm in arms:
                 slot = self.agent.slots[arm]
                 safety = slot.safety
+                if reack and safety.is_current(request.stop_id):
+                    # A repeat: acknowledge again, the first ack may have been lost.
+                    ack = self._ack(arm, slot)
+                    if ack is not None:
+                        pubs = self.agent.relay.publishers[arm]
+                        repeats.puts.append((pubs.stop_ack, encode(ack)))
+                    continue
                 if not safety.latch(request.stop_id, request.source, request.reason, now, now_ns):
                     continue
                 slot.tracker.estopped = True
                 slot.tracker.stop_reason = safety.last_reason
                 self.agent.cancel_in_flight(slot, now, "a protective stop was latched", out)
                 latched.append((arm, slot, self._stop_text(slot, now)))
+        self.agent.flush(repeats)
         if not latched:
             return
         written = [self._write_dds(arm, text) for arm, _slot, text in latched]
@@ -208,7 +218,8 @@ class SafetyLoop:
 
     def _stop_text_for_hold(self, slot: ArmSlot) -> str | None:
         command = stop_command("hold", slot.tracker.angles_deg)
-        if command is None or slot.tracker.powered is False:
+        if command is None or slot.tracker.powered is False or slot.tracker.link != "ok":
+            # No fresh pose: release the latch but write nothing (a stale pose would move it).
             return None
         seq = slot.seqs.allocate()
         slot.seqs.release(seq)

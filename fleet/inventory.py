@@ -7,6 +7,7 @@ set in ``[arms.<id>]`` overrides it. The README's "inventory.toml reference" doc
 
 from __future__ import annotations
 
+import math
 import re
 from pathlib import Path
 from typing import Any, Literal
@@ -152,8 +153,21 @@ def _convert(raw: Any, kind: type[Any], path: str, where: str) -> Any:
         raise _fail(path, where, exc) from None
 
 
+def _check_finite(section: Struct, path: str, where: str) -> None:
+    """TOML allows nan and inf, and every comparison with nan is False: refuse them."""
+    for name in section.__struct_fields__:
+        value = getattr(section, name)
+        if isinstance(value, Struct):
+            _check_finite(value, path, f"{where}.{name}")
+            continue
+        values = value if isinstance(value, (tuple, list)) else (value,)
+        if any(isinstance(v, float) and not math.isfinite(v) for v in values):
+            raise _fail(path, where, f"{name} = {value!r} is not a finite number")
+
+
 def _check_arm(arm: ArmConfig, path: str) -> None:
     where = f"arms.{arm.id}"
+    _check_finite(arm, path, where)
     if not _SUFFIX.match(arm.suffix):
         raise _fail(path, where, f"suffix {arm.suffix!r} must be empty or like '_1'")
     if len(arm.joint_sign) != JOINT_COUNT or any(s not in (1, -1) for s in arm.joint_sign):
@@ -191,8 +205,13 @@ def parse_inventory(text: str, path: str = DEFAULT_INVENTORY) -> Inventory:
     zenoh = _convert(raw.get("zenoh", {}), ZenohSection, path, "zenoh")
     dds = _convert(raw.get("dds", {}), DdsSection, path, "dds")
     coordinator = _convert(raw.get("coordinator", {}), CoordinatorSection, path, "coordinator")
-    if coordinator.heartbeat_hz <= 0 or coordinator.sync_lead_s < 0:
-        raise InventoryError(f"{path}: coordinator: heartbeat_hz must be > 0, sync_lead_s >= 0")
+    _check_finite(coordinator, path, "coordinator")
+    if not (0 < coordinator.heartbeat_hz <= 1000 and 0 <= coordinator.sync_lead_s <= 5):
+        raise InventoryError(
+            f"{path}: coordinator: need 0 < heartbeat_hz <= 1000 and 0 <= sync_lead_s <= 5"
+        )
+    if coordinator.offline_after_s <= 0:
+        raise InventoryError(f"{path}: coordinator: offline_after_s must be positive")
     defaults = raw.get("defaults", {})
     if not isinstance(defaults, dict):
         raise InventoryError(f"{path}: defaults: expected a table ([defaults])")

@@ -221,6 +221,7 @@ def _flight(seqs: tuple[int, ...] = (5,), wait_reached: bool = False, **kw: obje
         "reach_deadline_s": 110.0 if wait_reached else None,
         "targets_deg": {0: 30.0, 1: -20.0},
         "tolerance_deg": 2.0,
+        "written_ns": 1,  # written to DDS (a delayed start is not, until its time)
     }
     args.update(kw)
     return InFlight(**args)  # type: ignore[arg-type]
@@ -315,6 +316,12 @@ def test_reached_completes_a_wait_reached_command() -> None:
     assert flight.done
     reply = flight.reply(106.0)
     assert reply.ok and reply.reached is True
+
+
+def test_a_command_not_yet_written_is_never_reached() -> None:
+    flight = _flight(wait_reached=True, written_ns=None)
+    flight.on_angles((30.0, -20.0, 0, 0, 0, 0, 0))  # already at the target before it is sent
+    assert not flight.done and flight.reached is None
 
 
 def test_reached_without_acks_still_completes() -> None:

@@ -301,3 +301,15 @@ def test_an_agent_stopped_mid_move_holds_its_arm(fleet_harness: FleetHarness) ->
     assert observer.poll() is None
     first = wait_until(lambda: client.snapshot(["a1"])["a1"][1], 15.0)
     assert abs(first.angles_deg[1] - target[1]) > 10.0, "the arm kept going to its old target"
+
+
+def test_absurd_numbers_in_a_command_are_refused_and_the_agent_keeps_serving(
+    fleet_harness: FleetHarness,
+) -> None:
+    client = fleet_harness.start_fleet()
+    huge = b'{"op":"hold","stamp_ns":-' + b"9" * 400 + b',"lifetime_s":1}'
+    replies = list(client.session.get(client.keys.arm("a1", "cmd"), payload=huge, timeout=5.0))
+    reply = m.reply_decoder.decode(replies[0].ok.payload.to_bytes())
+    assert not reply.ok and reply.error is not None and reply.error.code == m.ErrorCode.PARAMETER
+    assert "stamp_ns" in reply.error.message
+    assert client.command("a1", m.Hold()).ok  # the command thread is still alive

@@ -230,3 +230,19 @@ def test_errors_name_the_file_and_the_path(text: str, fragments: list[str]) -> N
     message = _error(text)
     for fragment in fragments:
         assert fragment in message, message
+
+
+@pytest.mark.parametrize(
+    "arm_line",
+    ["watchdog_s = nan", "lease_s = inf", "link_stale_s = -inf", "base_xyz = [0.0, nan, 0.0]"],
+)
+def test_non_finite_numbers_are_refused_with_their_path(arm_line: str) -> None:
+    text = f'[fleet]\nname = "x"\n[arms.a1]\n{arm_line}\n'
+    with pytest.raises(InventoryError, match=r"inventory.toml: arms\.a1: .*not a finite number"):
+        parse_inventory(text)
+
+
+def test_non_finite_coordinator_rate_is_refused() -> None:
+    text = '[fleet]\nname = "x"\n[coordinator]\nheartbeat_hz = inf\n[arms.a1]\n'
+    with pytest.raises(InventoryError, match="coordinator: heartbeat_hz"):
+        parse_inventory(text)

@@ -58,6 +58,14 @@ class PlayResult:
     elapsed_s: float = 0.0
 
 
+def path_error_deg(measured: Pose, target: Pose) -> float:
+    """How far an arm is off its path: the largest joint error, where a gripper that stopped
+    above (more open than) its target counts as on its path: it closed on an object, which is
+    what a grip is (the agent's contact detector limits the squeeze)."""
+    arm = max_error_deg(measured[:GRIPPER_JOINT], target[:GRIPPER_JOINT])
+    return max(arm, target[GRIPPER_JOINT] - measured[GRIPPER_JOINT])
+
+
 def player_id() -> str:
     """A unique owner id for one player."""
     return f"player@{socket.gethostname()}:{os.getpid()}:{uuid.uuid4().hex[:6]}"
@@ -208,7 +216,7 @@ class Player:
             if joints is None or not self.recent[arm]:
                 continue
             measured = tuple(joints.angles_deg)
-            error = min(max_error_deg(measured, t) for t in self.recent[arm])
+            error = min(path_error_deg(measured, t) for t in self.recent[arm])
             self.result.max_path_error_deg = max(self.result.max_path_error_deg, round(error, 2))
             if error > self.script.tolerance_deg:
                 raise Abort(

@@ -22,12 +22,16 @@ class StopBook:
     def __init__(self, arms: list[str], keep: int = 32) -> None:
         self._arms = arms
         self._latched: dict[str, m.StopRequest] = {}
+        self._reset_since_fleet_stop: set[str] = set()
         self._fanouts: dict[str, _Fanout] = {}
         self._keep = keep
 
     def on_stop(self, target: str, request: m.StopRequest) -> None:
-        """A stop was put on the fleet key (``target`` = ``*``) or on one arm's key."""
-        self._latched.setdefault(target, request)
+        """A stop was put on the fleet key (``target`` = ``*``) or on one arm's key.
+        The newest stop per target is the one the heartbeat repeats."""
+        self._latched[target] = request
+        if target == FLEET:
+            self._reset_since_fleet_stop.clear()
         if request.stop_id not in self._fanouts:
             self._fanouts[request.stop_id] = _Fanout(request)
             while len(self._fanouts) > self._keep:
@@ -37,8 +41,11 @@ class StopBook:
         """A reset of the fleet (``*``: clears everything) or of one arm."""
         if target == FLEET:
             self._latched.clear()
-        else:
-            self._latched.pop(target, None)
+            return
+        self._latched.pop(target, None)
+        self._reset_since_fleet_stop.add(target)
+        if self._reset_since_fleet_stop.issuperset(self._arms):
+            self._latched.pop(FLEET, None)  # every arm was reset one by one
 
     def latched(self) -> dict[str, m.StopRequest]:
         """The stops the heartbeat repeats."""

@@ -8,12 +8,22 @@ Units are in the names: ``angles_deg`` (the public key space is in degrees, like
 from __future__ import annotations
 
 import enum
-from typing import Literal
+from typing import Annotated, Literal
 
 import msgspec
-from msgspec import Struct
+from msgspec import Meta, Struct
 
 LinkState = Literal["ok", "stale", "lost"]
+
+# Bounded numbers: a peer's absurd value (a 400-digit stamp, a lead of 1e300 s) is refused at
+# decode time with a path, instead of overflowing later in arithmetic on a worker thread.
+StampNs = Annotated[int, Meta(ge=0, le=2**63 - 1)]
+"""Wall-clock nanoseconds since the epoch."""
+Tolerance = Annotated[float, Meta(gt=0, le=180)]
+CommandTimeout = Annotated[float, Meta(gt=0, le=600)]
+Lifetime = Annotated[float, Meta(gt=0, le=60)]
+Lead = Annotated[float, Meta(ge=0, le=5)]
+Period = Annotated[float, Meta(gt=0, le=60)]
 
 
 class ErrorCode(enum.IntEnum):
@@ -44,7 +54,7 @@ class Joints(Struct, frozen=True):
     """``arm/<arm>/joints``: measured angles (degrees, wire ids 0..6). ``seq`` counts the
     samples the agent relayed for this arm (the arm's own seq is always 10)."""
 
-    stamp_ns: int
+    stamp_ns: StampNs
     angles_deg: list[float]
     seq: int
 
@@ -52,7 +62,7 @@ class Joints(Struct, frozen=True):
 class ArmStatus(Struct, frozen=True):
     """``arm/<arm>/status``: the arm's state as its agent sees it. ``None`` = not reported yet."""
 
-    stamp_ns: int
+    stamp_ns: StampNs
     link: LinkState
     enabled: bool | None = None
     powered: bool | None = None
@@ -66,7 +76,7 @@ class ArmStatus(Struct, frozen=True):
 class Diag(Struct, frozen=True):
     """``arm/<arm>/diag``: the agent's counters for this arm (monotonic since agent start)."""
 
-    stamp_ns: int
+    stamp_ns: StampNs
     link: LinkState
     relayed: int
     malformed: int
@@ -96,13 +106,13 @@ class _CommandBase(Struct, tag_field="op", kw_only=True, forbid_unknown_fields=T
     """
 
     wait_reached: bool = False
-    tolerance_deg: float = 2.0
-    timeout_s: float = 10.0
+    tolerance_deg: Tolerance = 2.0
+    timeout_s: CommandTimeout = 10.0
     owner: str | None = None
     takeover: bool = False
-    start_at_ns: int | None = None
-    stamp_ns: int | None = None
-    lifetime_s: float | None = None
+    start_at_ns: StampNs | None = None
+    stamp_ns: StampNs | None = None
+    lifetime_s: Lifetime | None = None
 
 
 class MoveJoint(_CommandBase, tag="move_joint", kw_only=True):
@@ -165,7 +175,7 @@ class CommandReply(Struct, frozen=True):
     reached: bool | None
     latency_ms: float
     error: ErrorInfo | None = None
-    written_ns: int | None = None
+    written_ns: StampNs | None = None
 
 
 # ----------------------------------------------------------------------------- protective stop
@@ -178,7 +188,7 @@ class StopRequest(Struct, frozen=True):
     ``source`` says who pressed it (``cli@host``, ``viewer``, ``coordinator``, ...).
     """
 
-    stamp_ns: int
+    stamp_ns: StampNs
     source: str
     stop_id: str
     reason: str = ""
@@ -190,7 +200,7 @@ class ResetRequest(Struct, frozen=True):
     A reset never moves an arm: the agent makes the measured pose the target.
     """
 
-    stamp_ns: int
+    stamp_ns: StampNs
     source: str
 
 
@@ -204,9 +214,9 @@ class StopAck(Struct, frozen=True):
     arm: str
     stop_id: str
     action: str
-    received_ns: int
-    dds_written_ns: int | None
-    still_ns: int | None = None
+    received_ns: StampNs
+    dds_written_ns: StampNs | None
+    still_ns: StampNs | None = None
 
 
 class Heartbeat(Struct, frozen=True):
@@ -216,10 +226,10 @@ class Heartbeat(Struct, frozen=True):
     agent that missed a stop, joined late or reconnected learns it within one period.
     """
 
-    stamp_ns: int
+    stamp_ns: StampNs
     coordinator: str
     seq: int
-    period_s: float
+    period_s: Period
     stops: dict[str, StopRequest] = {}
 
 
@@ -239,7 +249,7 @@ class ContactEvent(Struct, frozen=True):
     ``force_limited``: the agent retracted the joint's target to the measured angle.
     """
 
-    stamp_ns: int
+    stamp_ns: StampNs
     joint: int
     state: ContactStateName
     method: str
@@ -273,7 +283,7 @@ class ArmSummary(Struct, frozen=True):
 class FleetState(Struct, frozen=True):
     """``fleet/<fleet>/state``: the coordinator's summary of every arm of the inventory."""
 
-    stamp_ns: int
+    stamp_ns: StampNs
     coordinator: str
     arms: dict[str, ArmSummary]
 
@@ -288,7 +298,7 @@ class MultiArmRequest(Struct, frozen=True, forbid_unknown_fields=True):
     target: str
     command: ArmCommand
     sync: bool = True
-    lead_s: float | None = None
+    lead_s: Lead | None = None
     phase: Literal["approach", "grasp", "lift", "move"] | None = None
     """What the motion is for (contact policy: a contact while ``lift`` stops the arm)."""
 
@@ -315,7 +325,7 @@ class StopReport(Struct, frozen=True):
 
     stop_id: str
     source: str
-    stamp_ns: int
+    stamp_ns: StampNs
     arms: dict[str, StopTiming]
 
 
