@@ -116,7 +116,7 @@ class EdgeAgent:
                     out.puts.append((pubs.joints, encode(joints)))  # before the raw string
                     for flight, _query in slot.in_flight.values():
                         flight.on_angles(message.angles_deg)
-                    if slot.safety.on_angles(message.angles_deg, stamp_ns):
+                    if slot.safety.on_angles(message.angles_deg, stamp_ns, now):
                         self.safety_loop.on_still(arm, slot, out)
                 elif isinstance(message, (p.ReceiveAck, p.ExecuteAck)):
                     entry = slot.in_flight.get(message.seq)

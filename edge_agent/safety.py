@@ -20,8 +20,6 @@ STILL_SAMPLES = 3
 """Three consecutive angle reports (about 0.3 s) ..."""
 STILL_TOLERANCE_DEG = 0.3
 """... within 0.3 deg of each other on every joint mean the arm is still."""
-WATCH_TOLERANCE_DEG = 1.0
-"""A watched move is over when the arm is still within 1 deg of its targets."""
 RESET_IDS_KEPT = 256
 """Stop ids an operator reset, remembered so their repeats (heartbeat) do not re-latch."""
 STOP_REPEAT_S = 0.2
@@ -101,7 +99,6 @@ class ArmSafety:
     standstill: Standstill = field(default_factory=Standstill)
     lease: Lease | None = None
     watched_by: str | None = None
-    watched_targets: dict[int, float] = field(default_factory=dict)
     last_reason: str | None = None
 
     # ------------------------------------------------------------------ stop latch
@@ -138,11 +135,11 @@ class ArmSafety:
             stop is not None and stop.still_ns is None and now_s - stop.last_sent_s >= STOP_REPEAT_S
         )
 
-    def on_angles(self, angles_deg: tuple[float, ...], now_ns: int) -> bool:
+    def on_angles(self, angles_deg: tuple[float, ...], now_ns: int, now_s: float) -> bool:
         """Feed one angle report; True when a latched stop has just been confirmed still."""
         self.standstill.add(angles_deg)
-        if self.watched_by is not None and self.standstill.still and self._at_targets(angles_deg):
-            self.watched_by = None  # the move under fleet command is over
+        if self.watched_by is not None and self.standstill.still and self._owner_quiet(now_s):
+            self.watched_by = None  # the owner's command is over: it stopped commanding
         stop = self.stop
         if stop is not None and stop.still_ns is None and self.standstill.still:
             stop.still_ns = now_ns
@@ -169,19 +166,17 @@ class ArmSafety:
             lease = self.lease = None
         if lease is not None and lease.owner != owner and not takeover:
             raise LeaseRefused(lease.owner, lease.expires_s - now_s)
+        if self.watched_by is not None and owner != self.watched_by:
+            self.watched_by = None  # someone else commands the arm now
         if owner is not None:
             self.lease = Lease(owner, now_s + self.lease_s)
         elif takeover:
             self.lease = None
 
-    def renew(self, owner: str, now_s: float) -> None:
-        """A heartbeat from ``owner`` renews its lease while the arm moves under its command;
-        otherwise the lease runs out ``lease_s`` after the owner's last command."""
-        if self.lease is not None and self.lease.owner == owner and self.watched_by == owner:
-            self.lease.expires_s = now_s + self.lease_s
-
     def release(self, owner: str) -> bool:
-        """``owner`` gives the arm up; False if it did not hold it."""
+        """``owner`` gives the arm up (and ends its watch); False if it did not hold it."""
+        if self.watched_by == owner:
+            self.watched_by = None
         if self.lease is not None and self.lease.owner == owner:
             self.lease = None
             return True
@@ -189,18 +184,18 @@ class ArmSafety:
 
     # ------------------------------------------------------------------ watchdog
 
-    def watch(self, coordinator: str, targets_deg: dict[int, float]) -> None:
-        """The arm is sent towards ``targets_deg`` under ``coordinator``'s command: arm the
-        watchdog until the arm is seen still at its targets (a move that cannot finish, an
-        arm against an obstacle, stays watched: losing the coordinator then holds it)."""
+    def watch(self, coordinator: str) -> None:
+        """The arm moves under ``coordinator``'s command: arm the watchdog. The watch lasts
+        while the owner keeps commanding the arm (its lease is fresh) or the arm still moves,
+        and ends when the owner releases the arm, another owner takes it, or a stop latches.
+        So a streaming player that dies mid-script gets its arms held and latched, while an
+        owner that finished (released, or silent for ``lease_s`` with the arm still) does not."""
         self.watched_by = coordinator
-        self.watched_targets = dict(targets_deg)
         self.standstill.clear()
 
-    def _at_targets(self, angles_deg: tuple[float, ...]) -> bool:
-        return all(
-            abs(angles_deg[j] - t) <= WATCH_TOLERANCE_DEG for j, t in self.watched_targets.items()
-        )
+    def _owner_quiet(self, now_s: float) -> bool:
+        lease = self.lease
+        return lease is None or lease.owner != self.watched_by or lease.expires_s <= now_s
 
     def watchdog_expired(self, last_heartbeat_s: float | None, now_s: float) -> bool:
         """True when the arm moves under a coordinator whose heartbeat is older than allowed."""

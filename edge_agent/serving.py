@@ -128,7 +128,7 @@ class CommandService:
             isinstance(command, m.MOTION_OPS)
             and command.owner in self.agent.safety_loop.last_heartbeat_s
         ):
-            safety.watch(command.owner, planned.targets_deg)
+            safety.watch(command.owner)
         seqs = tuple(slot.seqs.allocate() for _ in planned.commands)
         texts = [p.encode_command(c, s) for c, s in zip(planned.commands, seqs)]
         config = slot.tracker.config

@@ -89,9 +89,6 @@ class SafetyLoop:
     def _on_heartbeat(self, beat: m.Heartbeat) -> None:
         now = time.monotonic()
         self.last_heartbeat_s[beat.coordinator] = now
-        with self.agent.lock:
-            for slot in self.agent.slots.values():
-                slot.safety.renew(beat.coordinator, now)
         for target, request in beat.stops.items():
             arms = self.agent.arm_ids if target == "*" else [target]
             # Heartbeats repeat stops 10 times a second: no fresh ack for each repeat.

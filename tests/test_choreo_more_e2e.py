@@ -161,11 +161,8 @@ def test_killed_player_stops_every_arm_short_of_the_keyframe(
             at, status = stop
             assert at - killed < watchdog_s + 0.3, f"{arm} held {at - killed:.2f} s after the kill"
             assert "watchdog" in (status.stop_reason or ""), status
-    if not all(latched.values()):
-        free = sorted(a for a, stop in latched.items() if stop is None)
-        # edge_agent: the watch of a streamed target ends once the arm is still at that target
-        # (0.1 s ahead of it), before the watchdog period: the arm stops but is not latched.
-        pytest.xfail(f"agent bug: {free} stopped at the last streamed target, not latched")
+    free = sorted(a for a, stop in latched.items() if stop is None)
+    assert not free, f"{free} stopped at the last streamed target but were not latched"
     refused = client.command("a1", m.MoveJoints(angles_deg=[0.0] * 7))
     assert not refused.ok and refused.error is not None
     assert refused.error.code == m.ErrorCode.REJECTED  # latched until an operator resets
@@ -239,10 +236,7 @@ def test_grip_wait_times_out_on_air_and_continues_on_an_object(
     with contextlib.suppress(AssertionError):
         stop = wait_until(lambda: statuses.first_stop("a1", started), 1.0)
     statuses.close()
-    if stop is not None:
-        # edge_agent: the watch of the last move ends only when every joint, the gripper
-        # included, is within 1 deg of its target; a gripper holding an object never is.
-        pytest.xfail(f"agent bug: a completed grip script latched the arm: {stop[1].stop_reason}")
+    assert stop is None, f"a completed grip script latched the arm: {stop and stop[1].stop_reason}"
     assert abs(_angles(client)["a1"][6] - pose[6]) < 1.0, "the grip was let go"
 
 
