@@ -16,7 +16,7 @@ import queue
 import socket
 import threading
 import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 
 import msgspec
 import zenoh
@@ -42,6 +42,12 @@ class _Event:
     arm: str | None
     payload: bytes
     kind: zenoh.SampleKind
+
+
+def _log_failure(future: Future[None]) -> None:
+    """A pool task's exception is logged, never lost."""
+    if not future.cancelled() and future.exception() is not None:
+        log.error("a multi-arm request failed", exc_info=future.exception())
 
 
 class Coordinator:
@@ -72,6 +78,10 @@ class Coordinator:
         self._state_pub = self.session.declare_publisher(self.keys.state, encoding=JSON)
         self._report_pub = self.session.declare_publisher(self.keys.stop_report, encoding=JSON)
         self._pool = ThreadPoolExecutor(max_workers=16, thread_name_prefix="fan-out")
+        # Multi-arm requests are served side by side: one that waits for its arms to reach
+        # their targets must not hold up the next. A pool of its own: a request fans out on
+        # _pool, and sharing one pool could starve it of workers.
+        self._requests = ThreadPoolExecutor(max_workers=4, thread_name_prefix="multi-arm")
         self._threads = [
             threading.Thread(target=self._loop(self._beat), name="heartbeat", daemon=True),
             threading.Thread(target=self._loop(self._drain_events), name="events", daemon=True),
@@ -200,6 +210,9 @@ class Coordinator:
             query = self._queries.get(timeout=0.2)
         except queue.Empty:
             return
+        self._requests.submit(self._answer, query).add_done_callback(_log_failure)
+
+    def _answer(self, query: zenoh.Query) -> None:
         payload = query.payload.to_bytes() if query.payload is not None else b""
         try:
             reply = self.command(m.multi_request_decoder.decode(payload))
@@ -275,6 +288,7 @@ class Coordinator:
         for thread in self._threads:
             if thread.is_alive():
                 thread.join(timeout=2.0)
+        self._requests.shutdown(wait=False, cancel_futures=True)
         self._pool.shutdown(wait=False, cancel_futures=True)
         for entity in self._declared:
             entity.undeclare()
