@@ -10,8 +10,7 @@ import zenoh
 
 from bench import workerlib
 from bench.w_feed import marker_of
-from fleet.wire import keys
-from fleet.wire import messages as m
+from fleet.wire import keys, payloads
 from fleet.wire.session import open_client
 
 
@@ -38,7 +37,7 @@ def run(args_inventory: str, max_s: float) -> dict:
     with lock:
         for key, payload, now in raw:
             arm = space.parse_arm_key(key).arm
-            joints = m.joints_decoder.decode(payload)
+            joints = payloads.JOINTS.decode(payload)
             received.append([index[arm], marker_of(joints.angles_deg), now])
     return {"received": received}
 

@@ -12,7 +12,7 @@ import zenoh
 
 from bench import workerlib
 from fleet.client import STOP_QOS, FleetClient
-from fleet.wire import keys
+from fleet.wire import keys, payloads
 from fleet.wire import messages as m
 
 SETTLE_S = 0.6
@@ -34,7 +34,7 @@ def run(args_inventory: str, stops: int, timeout_s: float) -> dict:
             seen.add(space.parse_arm_key(str(sample.key_expr)).arm)
 
     def on_ack(sample: zenoh.Sample) -> None:
-        ack = m.stop_ack_decoder.decode(sample.payload.to_bytes())
+        ack = payloads.STOP_ACK.decode(sample.payload.to_bytes())
         with lock:
             if ack.stop_id == current[0] and ack.arm not in acks and ack.dds_written_ns:
                 acks[ack.arm] = ack

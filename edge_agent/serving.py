@@ -22,6 +22,7 @@ from edge_agent.safety import LeaseRefused
 from edge_agent.slots import ArmSlot, Outbox
 from fleet.d1 import protocol as p
 from fleet.wire import messages as m
+from fleet.wire import payloads
 from fleet.wire.messages import ErrorCode, ErrorInfo
 
 if TYPE_CHECKING:
@@ -58,7 +59,7 @@ class CommandService:
         now = time.monotonic()
         slot = self.agent.slots[item.arm]
         try:
-            command = m.command_decoder.decode(item.payload)
+            command = payloads.COMMAND.decode(item.payload)
         except msgspec.DecodeError as exc:
             with self.agent.lock:
                 slot.tracker.rejected += 1

@@ -22,7 +22,7 @@ from edge_agent.commands import clamp_to_limits
 from edge_agent.relay import SafetyEvent
 from edge_agent.slots import ArmSlot, Outbox
 from fleet.d1 import protocol as p
-from fleet.wire import keys
+from fleet.wire import keys, payloads
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, encode
 
@@ -75,13 +75,13 @@ class SafetyLoop:
         arms = [event.arm] if event.arm is not None else list(self.agent.arm_ids)
         try:
             if event.channel == keys.ESTOP:
-                self.stop_arms(arms, m.stop_decoder.decode(event.payload))
+                self.stop_arms(arms, payloads.STOP.decode(event.payload))
             elif event.channel == keys.RESET:
-                request_reset = m.reset_decoder.decode(event.payload)
+                request_reset = payloads.RESET.decode(event.payload)
                 for arm in arms:
                     self.reset(arm, request_reset.source)
             elif event.channel == keys.HEARTBEAT:
-                self._on_heartbeat(m.heartbeat_decoder.decode(event.payload))
+                self._on_heartbeat(payloads.HEARTBEAT.decode(event.payload))
         except msgspec.DecodeError as exc:
             self.bad_events += 1
             log.warning("ignored a malformed %s message: %s", event.channel, exc)

@@ -12,11 +12,10 @@ import time
 import uuid
 from collections.abc import Iterable
 
-import msgspec
 import zenoh
 
 from fleet.inventory import Inventory
-from fleet.wire import keys
+from fleet.wire import keys, payloads
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, ErrorInfo, encode
 from fleet.wire.session import open_client
@@ -73,8 +72,8 @@ class FleetClient:
             if reply.ok is None:
                 continue
             try:
-                return m.reply_decoder.decode(reply.ok.payload.to_bytes())
-            except msgspec.DecodeError as exc:
+                return payloads.REPLY.decode(reply.ok.payload.to_bytes())
+            except payloads.PayloadError as exc:
                 return _no_reply(arm, f"arm {arm!r}: unreadable reply from its agent: {exc}")
         return _no_reply(
             arm,
@@ -95,8 +94,8 @@ class FleetClient:
         ):
             if reply.ok is not None:
                 try:
-                    return m.multi_reply_decoder.decode(reply.ok.payload.to_bytes())
-                except msgspec.DecodeError as exc:
+                    return payloads.MULTI_REPLY.decode(reply.ok.payload.to_bytes())
+                except payloads.PayloadError as exc:
                     why = f"unreadable reply from the coordinator: {exc}"
                     return m.MultiArmReply(False, {}, None, ErrorInfo(int(ErrorCode.UNKNOWN), why))
         why = (
@@ -132,8 +131,8 @@ class FleetClient:
 
         def on_ack(sample: zenoh.Sample) -> None:
             try:
-                ack = m.stop_ack_decoder.decode(sample.payload.to_bytes())
-            except msgspec.DecodeError:
+                ack = payloads.STOP_ACK.decode(sample.payload.to_bytes())
+            except payloads.PayloadError:
                 return
             if ack.stop_id == request.stop_id and ack.arm in acks:
                 with lock:
@@ -210,12 +209,12 @@ class FleetClient:
                 data = sample.payload.to_bytes()
                 with lock:
                     if key.channel == keys.STATUS:
-                        statuses[key.arm] = m.status_decoder.decode(data)
+                        statuses[key.arm] = payloads.STATUS.decode(data)
                     elif key.channel == keys.JOINTS:
-                        joints[key.arm] = m.joints_decoder.decode(data)
+                        joints[key.arm] = payloads.JOINTS.decode(data)
                     if all(a in statuses and a in joints for a in wanted):
                         done.set()
-            except (keys.KeyError_, msgspec.DecodeError):
+            except (keys.KeyError_, payloads.PayloadError):
                 return  # someone else's key or a foreign payload: not ours to report
 
         subs = [

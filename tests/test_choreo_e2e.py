@@ -20,6 +20,7 @@ from fleet.record.replay import read_recording, recorded_joints, teach_script
 from fleet.teleop.mapping import parse_mappings
 from fleet.teleop.mirror import Mirror
 from fleet.wire import messages as m
+from fleet.wire import payloads
 from tests.harness import FleetHarness, wait_until
 
 ARMS = ("a1", "a2", "a3")
@@ -167,7 +168,7 @@ def test_recording_replays_the_same_trajectory(
     seen: list[m.Joints] = []
     sub = client.session.declare_subscriber(
         client.keys.arm("a2", "joints"),
-        lambda s: seen.append(m.joints_decoder.decode(s.payload.to_bytes())),
+        lambda s: seen.append(payloads.JOINTS.decode(s.payload.to_bytes())),
     )
     result = Player(client, script).play()
     sub.undeclare()

@@ -23,7 +23,7 @@ from mcap.reader import make_reader
 
 from fleet.choreo.player import path_error_deg
 from fleet.client import FleetClient
-from fleet.wire import keys
+from fleet.wire import keys, payloads
 from fleet.wire import messages as m
 from tests.harness import FleetHarness, wait_until
 
@@ -95,7 +95,7 @@ class StatusLog:
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         arm = self._space.parse_arm_key(str(sample.key_expr)).arm
-        status = m.status_decoder.decode(sample.payload.to_bytes())
+        status = payloads.STATUS.decode(sample.payload.to_bytes())
         with self.lock:
             self.samples.append((time.monotonic(), arm, status))
 
@@ -275,8 +275,8 @@ def test_record_and_replay_cli(fleet_harness: FleetHarness, tmp_path: Path) -> N
         assert summary.schemas[channels[status_key].schema_id].name == "ArmStatus"
         for _schema, channel, message in reader.iter_messages(log_time_order=True):
             recorded.setdefault(channel.topic, []).append(message.data)
-    joints = [m.joints_decoder.decode(d) for d in recorded[joints_key]]
-    statuses = [m.status_decoder.decode(d) for d in recorded[status_key]]
+    joints = [payloads.JOINTS.decode(d) for d in recorded[joints_key]]
+    statuses = [payloads.STATUS.decode(d) for d in recorded[status_key]]
     assert len(joints) > 15 and statuses, {k: len(v) for k, v in recorded.items()}
     assert max(j.angles_deg[0] for j in joints) > 25.0, "the move is not in the recording"
 

@@ -9,7 +9,7 @@ import time
 import msgspec
 import zenoh
 
-from fleet.wire import keys
+from fleet.wire import keys, payloads
 from fleet.wire import messages as m
 from fleet.wire.messages import encode
 from tests.harness import FleetHarness, wait_until
@@ -36,7 +36,7 @@ def test_obstacle_contact_reaches_key_space_and_coordinator_stops_arm(
     events: list[m.ContactEvent] = []
     sub = client.session.declare_subscriber(
         client.keys.arm("a1", keys.CONTACT),
-        lambda s: events.append(m.contact_decoder.decode(s.payload.to_bytes())),
+        lambda s: events.append(payloads.CONTACT.decode(s.payload.to_bytes())),
     )
     fault = b'{"op": "obstacle", "joint": 1, "angle_deg": 15.0, "compliance": 0.05}'
     assert b'"ok":true' in _query(client.session, client.keys.arm("a1", keys.SIM_FAULT), fault)

@@ -14,6 +14,7 @@ import zenoh
 
 from fleet.client import FleetClient
 from fleet.wire import messages as m
+from fleet.wire import payloads
 from tests.harness import FleetHarness, wait_until
 
 POSE_A = [0.0, -50.0, 50.0, 0.0, 30.0, 0.0, 0.0]
@@ -45,7 +46,7 @@ def _latest(client: FleetClient, key: str, decoder: msgspec.json.Decoder, wait_s
 
 
 def _state(client: FleetClient) -> m.FleetState | None:
-    return _latest(client, client.keys.state, m.state_decoder)  # type: ignore[no-any-return]
+    return _latest(client, client.keys.state, payloads.STATE)  # type: ignore[no-any-return]
 
 
 def _angles(client: FleetClient) -> dict[str, list[float]]:
@@ -58,7 +59,7 @@ def test_fleet_stop_latches_every_arm_and_reset_never_moves(fleet3_harness: Flee
     reports: list[m.StopReport] = []
     sub = client.session.declare_subscriber(
         client.keys.stop_report,
-        lambda s: reports.append(m.stop_report_decoder.decode(s.payload.to_bytes())),
+        lambda s: reports.append(payloads.STOP_REPORT.decode(s.payload.to_bytes())),
     )
     reply = client.multi("all", m.MoveJoints(angles_deg=POSE_A, mode=1))
     assert reply.ok, reply

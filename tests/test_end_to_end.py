@@ -22,7 +22,7 @@ from cyclonedds.topic import Topic
 from fleet.d1 import dds
 from fleet.d1 import protocol as p
 from fleet.sim.faults import FaultReply
-from fleet.wire import keys
+from fleet.wire import keys, payloads
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode
 from tests.harness import FleetHarness, wait_until
@@ -104,7 +104,7 @@ def test_move_joints_is_acknowledged_and_reached(fleet_harness: FleetHarness) ->
 
 def test_joints_arrive_at_about_10_hz(fleet_harness: FleetHarness) -> None:
     client = fleet_harness.start_fleet()
-    joints = Collector(client.session, _key(fleet_harness, keys.JOINTS), m.joints_decoder.decode)
+    joints = Collector(client.session, _key(fleet_harness, keys.JOINTS), payloads.JOINTS.decode)
     wait_until(lambda: len(joints) >= 1, 5.0)
     time.sleep(2.0)  # the measurement window
     timed = joints.timed
@@ -122,7 +122,7 @@ def test_joints_arrive_at_about_10_hz(fleet_harness: FleetHarness) -> None:
 def test_out_of_range_is_refused_without_reaching_dds(fleet_harness: FleetHarness) -> None:
     client = fleet_harness.start_fleet()
     raw = Collector(client.session, _key(fleet_harness, keys.RAW_COMMAND), bytes.decode)
-    joints = Collector(client.session, _key(fleet_harness, keys.JOINTS), m.joints_decoder.decode)
+    joints = Collector(client.session, _key(fleet_harness, keys.JOINTS), payloads.JOINTS.decode)
     with _dds_channel(fleet_harness) as channel:
         topic = Topic(channel.participant, dds.command_topic("_1"), dds.ArmString_)
         reader = DataReader(channel.participant, topic, qos=dds.COMMAND_READER_QOS)
@@ -173,8 +173,8 @@ def test_malformed_feedback_is_counted_and_joints_keep_arriving(
     fleet_harness: FleetHarness,
 ) -> None:
     client = fleet_harness.start_fleet()
-    diag = Collector(client.session, _key(fleet_harness, keys.DIAG), m.diag_decoder.decode)
-    joints = Collector(client.session, _key(fleet_harness, keys.JOINTS), m.joints_decoder.decode)
+    diag = Collector(client.session, _key(fleet_harness, keys.DIAG), payloads.DIAG.decode)
+    joints = Collector(client.session, _key(fleet_harness, keys.JOINTS), payloads.JOINTS.decode)
     first = wait_until(diag.latest, 5.0)
     assert first.malformed == 0 and first.unknown_messages == 0
     with _dds_channel(fleet_harness) as channel:
@@ -209,7 +209,7 @@ def test_malformed_feedback_is_counted_and_joints_keep_arriving(
 
 def test_killed_arm_turns_the_link_stale_then_lost(fleet_harness: FleetHarness) -> None:
     client = fleet_harness.start_fleet()
-    status = Collector(client.session, _key(fleet_harness, keys.STATUS), m.status_decoder.decode)
+    status = Collector(client.session, _key(fleet_harness, keys.STATUS), payloads.STATUS.decode)
     wait_until(lambda: (s := status.latest()) is not None and s.link == "ok", 5.0)
     killed_at = time.monotonic()
     fleet_harness.stop("sim", sig=signal.SIGKILL)
@@ -309,7 +309,7 @@ def test_absurd_numbers_in_a_command_are_refused_and_the_agent_keeps_serving(
     client = fleet_harness.start_fleet()
     huge = b'{"op":"hold","stamp_ns":-' + b"9" * 400 + b',"lifetime_s":1}'
     replies = list(client.session.get(client.keys.arm("a1", "cmd"), payload=huge, timeout=5.0))
-    reply = m.reply_decoder.decode(replies[0].ok.payload.to_bytes())
+    reply = payloads.REPLY.decode(replies[0].ok.payload.to_bytes())
     assert not reply.ok and reply.error is not None and reply.error.code == m.ErrorCode.PARAMETER
     assert "stamp_ns" in reply.error.message
     assert client.command("a1", m.Hold()).ok  # the command thread is still alive

@@ -19,7 +19,7 @@ import zenoh
 from PIL import Image
 from playwright.sync_api import Page, sync_playwright
 
-from fleet.wire import keys
+from fleet.wire import keys, payloads
 from fleet.wire import messages as m
 from fleet.wire.session import open_client
 from tests.harness import FleetHarness, free_port, wait_until
@@ -137,7 +137,7 @@ def test_canvas_draws_the_fleet_moving_and_stop_all_reaches_the_key_space(
 
     def on_stop(sample: zenoh.Sample) -> None:
         with lock:  # a zenoh thread: decode, store, return
-            stops.append(m.stop_decoder.decode(sample.payload.to_bytes()))
+            stops.append(payloads.STOP.decode(sample.payload.to_bytes()))
 
     space = keys.KeySpace(harness.inventory.fleet)
     with open_client(harness.inventory.endpoints) as session:

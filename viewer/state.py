@@ -14,14 +14,13 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
-import msgspec
 import numpy as np
 import numpy.typing as npt
 import zenoh
 
 from fleet.d1.limits import JOINT_COUNT
 from fleet.inventory import Inventory
-from fleet.wire import keys
+from fleet.wire import keys, payloads
 from fleet.wire import messages as m
 
 log = logging.getLogger("viewer.state")
@@ -125,8 +124,8 @@ class FleetState:
         if i is None:
             return
         try:
-            joints = m.joints_decoder.decode(sample.payload.to_bytes())
-        except msgspec.DecodeError as exc:
+            joints = payloads.JOINTS.decode(sample.payload.to_bytes())
+        except payloads.PayloadError as exc:
             self._bad("joints", exc)
             return
         row = np.asarray(joints.angles_deg, dtype=float)
@@ -144,8 +143,8 @@ class FleetState:
         if i is None:
             return
         try:
-            status = m.status_decoder.decode(sample.payload.to_bytes())
-        except msgspec.DecodeError as exc:
+            status = payloads.STATUS.decode(sample.payload.to_bytes())
+        except payloads.PayloadError as exc:
             self._bad("status", exc)
             return
         with self._lock:
@@ -156,8 +155,8 @@ class FleetState:
         if i is None:
             return
         try:
-            event = m.contact_decoder.decode(sample.payload.to_bytes())
-        except msgspec.DecodeError as exc:
+            event = payloads.CONTACT.decode(sample.payload.to_bytes())
+        except payloads.PayloadError as exc:
             self._bad("contact", exc)
             return
         if not 0 <= event.joint < JOINT_COUNT:

@@ -17,12 +17,11 @@ from collections import deque
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
-import msgspec
 import zenoh
 
 from fleet.client import JSON, STOP_QOS
 from fleet.d1.limits import GRIPPER_JOINT
-from fleet.wire import keys
+from fleet.wire import keys, payloads
 from fleet.wire import messages as m
 from fleet.wire.messages import encode
 
@@ -75,13 +74,13 @@ class ArmWatch:
         data, now = sample.payload.to_bytes(), time.monotonic()
         try:
             if key.channel == keys.JOINTS:
-                joints = m.joints_decoder.decode(data)
+                joints = payloads.JOINTS.decode(data)
                 with self.lock:
                     self._latest[key.arm].joints, self._latest[key.arm].joints_at = joints, now
                 if self._on_joints is not None:
                     self._on_joints(key.arm, joints)
             elif key.channel == keys.STATUS:
-                status = m.status_decoder.decode(data)
+                status = payloads.STATUS.decode(data)
                 with self.lock:
                     self._latest[key.arm].status, self._latest[key.arm].status_at = status, now
             elif key.channel == keys.CONTACT:
@@ -89,7 +88,7 @@ class ArmWatch:
                 if contact is not None:
                     with self.lock:
                         self._latest[key.arm].contact = contact
-        except msgspec.DecodeError:
+        except payloads.PayloadError:
             return  # a foreign payload: the agent counts malformed data, not us
 
     def latest(self, arm: str) -> Latest:
@@ -133,7 +132,7 @@ class ArmWatch:
 def _contact_of(data: bytes) -> bool | None:
     """A gripper ``ContactEvent``: True for a confirmed grip, False when released or free,
     None for anything else (another joint, a suspicion: the last word stands)."""
-    event = m.contact_decoder.decode(data)
+    event = payloads.CONTACT.decode(data)
     if event.joint != GRIPPER_JOINT:
         return None
     if event.state == "confirmed":

@@ -15,6 +15,7 @@ import msgspec
 from fleet.client import FleetClient, default_source
 from fleet.runtime import inventory_from_args
 from fleet.wire import messages as m
+from fleet.wire import payloads
 from fleet.wire.messages import ErrorCode
 
 
@@ -98,8 +99,8 @@ def run_move(args: argparse.Namespace) -> int:
 def run_raw(args: argparse.Namespace) -> int:
     """``fleet cmd``."""
     try:
-        command = m.command_decoder.decode(args.json_command)
-    except msgspec.DecodeError as exc:
+        command = payloads.COMMAND.decode(args.json_command)
+    except payloads.PayloadError as exc:
         print(f"fleet cmd: {exc}", file=sys.stderr)
         return 2
     return _send(args, command)

@@ -13,6 +13,7 @@ from fleet.client import FleetClient
 from fleet.inventory import Inventory
 from fleet.runtime import inventory_from_args, shutdown_event
 from fleet.wire import messages as m
+from fleet.wire import payloads
 
 Snapshot = dict[str, tuple[m.ArmStatus | None, m.Joints | None]]
 
@@ -101,8 +102,8 @@ def run_status(args: argparse.Namespace) -> int:
 
 def run_schema(_args: argparse.Namespace) -> int:
     """JSON Schema of every payload, keyed by the key it travels on."""
-    types = list(m.PUBLIC_SCHEMA.values())
+    types = list([k.struct for k in payloads.PUBLIC.values()])
     schemas, components = msgspec.json.schema_components(types, ref_template="#/$defs/{name}")
-    out = {"keys": dict(zip(m.PUBLIC_SCHEMA, schemas, strict=False)), "$defs": components}
+    out = {"keys": dict(zip(payloads.PUBLIC, schemas, strict=False)), "$defs": components}
     print(json.dumps(out, indent=2))
     return 0

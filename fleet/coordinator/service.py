@@ -27,7 +27,7 @@ from fleet.coordinator.contact_policy import Action, ContactPolicy
 from fleet.coordinator.state import FleetStateTracker
 from fleet.coordinator.stops import FLEET, StopBook
 from fleet.inventory import Inventory, InventoryError
-from fleet.wire import keys
+from fleet.wire import keys, payloads
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, ErrorInfo, encode
 from fleet.wire.session import open_client
@@ -186,9 +186,9 @@ class Coordinator:
         if event.channel == keys.AGENT and event.arm is not None:
             self.state.on_token(event.arm, event.kind == zenoh.SampleKind.PUT, now)
         elif event.channel == keys.STATUS and event.arm is not None:
-            self.state.on_status(event.arm, m.status_decoder.decode(event.payload), now)
+            self.state.on_status(event.arm, payloads.STATUS.decode(event.payload), now)
         elif event.channel == keys.ESTOP:
-            request = m.stop_decoder.decode(event.payload)
+            request = payloads.STOP.decode(event.payload)
             self.stops.on_stop(event.arm or FLEET, request)
             log.warning(
                 "stop %s by %s on %s", request.stop_id[:8], request.source, event.arm or "all"
@@ -196,11 +196,11 @@ class Coordinator:
         elif event.channel == keys.RESET:
             self.stops.on_reset(event.arm or FLEET)
         elif event.channel == keys.CONTACT and event.arm is not None:
-            contact = m.contact_decoder.decode(event.payload)
+            contact = payloads.CONTACT.decode(event.payload)
             self._contact_actions += self.contacts.on_event(event.arm, contact, now)
             self.state.on_contact(event.arm, self.contacts.in_contact(event.arm))
         elif event.channel == keys.ESTOP_ACK:
-            return self.stops.on_ack(m.stop_ack_decoder.decode(event.payload))
+            return self.stops.on_ack(payloads.STOP_ACK.decode(event.payload))
         return None
 
     # ------------------------------------------------------------------ multi-arm commands
@@ -215,7 +215,7 @@ class Coordinator:
     def _answer(self, query: zenoh.Query) -> None:
         payload = query.payload.to_bytes() if query.payload is not None else b""
         try:
-            reply = self.command(m.multi_request_decoder.decode(payload))
+            reply = self.command(payloads.MULTI_REQUEST.decode(payload))
         except msgspec.DecodeError as exc:
             reply = m.MultiArmReply(False, {}, None, ErrorInfo(int(ErrorCode.PARAMETER), str(exc)))
         except InventoryError as exc:

@@ -22,6 +22,10 @@ import msgspec
 from fleet.d1.errors import InvalidCommand, InvalidJoint, MalformedMessage, UnknownMessage
 from fleet.d1.limits import JOINT_COUNT, JOINT_RANGE_DEG, TORQUE_MODE_MAX
 
+MAX_MESSAGE_BYTES = 4096
+"""The longest D1 string accepted either way: the spec's longest is about 170 bytes; a DDS string
+has no bound of its own, and a peer's megabyte must not be parsed on the feedback thread."""
+
 ARM_REPORT_SEQ = 10
 """The seq the arm hard-codes on its own reports; callers must never use it."""
 
@@ -306,11 +310,17 @@ def encode_message(message: ArmMessage, seq: int = ARM_REPORT_SEQ) -> str:
 
 
 def _parse_envelope(text: str | bytes) -> tuple[int, int, int, dict[str, Any], list[str]]:
+    if len(text) > MAX_MESSAGE_BYTES:
+        raise MalformedMessage(f"{len(text)} bytes is over the {MAX_MESSAGE_BYTES} byte limit")
     try:
         raw = _decoder.decode(text)
     except msgspec.DecodeError as exc:
         # msgspec refuses NaN/Infinity literals and numbers that overflow to infinity.
         raise MalformedMessage(f"not valid JSON: {exc}") from None
+    except Exception as exc:  # noqa: BLE001 - msgspec raises RecursionError (JSON nested ~1000
+        # deep) and UnicodeDecodeError (invalid UTF-8) too: whoever writes on the arm's topics
+        # must not be able to kill the thread that reads them.
+        raise MalformedMessage(f"not valid JSON: {type(exc).__name__}: {exc}") from None
     unknown = sorted(k for k in raw if k not in _ENVELOPE_KEYS)
     ints = []
     for key in ("seq", "address", "funcode"):

@@ -22,7 +22,7 @@ from mcap.reader import make_reader
 
 from fleet.choreo.script import Move, Pose, Script
 from fleet.d1.limits import CONTROL_RATE_HZ
-from fleet.wire import keys
+from fleet.wire import keys, payloads
 from fleet.wire import messages as m
 
 REPLAYED_CHANNELS = (keys.JOINTS, keys.STATUS, keys.CONTACT)
@@ -67,7 +67,7 @@ def recorded_joints(messages: list[Recorded], arm: str | None = None) -> tuple[s
     for message in messages:
         split = _split(message.key)
         if split is not None and split[2] == keys.JOINTS:
-            arms.setdefault(split[1], []).append(m.joints_decoder.decode(message.data))
+            arms.setdefault(split[1], []).append(payloads.JOINTS.decode(message.data))
     if arm is None:
         if len(arms) != 1:
             raise ValueError(f"the recording has joints of {sorted(arms)}: pass --arm")

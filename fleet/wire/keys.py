@@ -111,6 +111,11 @@ class KeySpace:
         return f"{self.prefix}/coordinator/cmd"
 
     @property
+    def coordinator_diag(self) -> str:
+        """The coordinator's counters."""
+        return f"{self.prefix}/coordinator/diag"
+
+    @property
     def stop_report(self) -> str:
         """The coordinator's per-arm timing of each stop."""
         return f"{self.prefix}/estop/report"

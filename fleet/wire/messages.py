@@ -24,6 +24,25 @@ CommandTimeout = Annotated[float, Meta(gt=0, le=600)]
 Lifetime = Annotated[float, Meta(gt=0, le=60)]
 Lead = Annotated[float, Meta(ge=0, le=5)]
 Period = Annotated[float, Meta(gt=0, le=60)]
+Count = Annotated[int, Meta(ge=0, le=2**63 - 1)]
+JointId = Annotated[int, Meta(ge=0, le=6)]
+Confidence = Annotated[float, Meta(ge=0, le=1)]
+
+# Bounded text and collections: a peer's 1 MB stop id would otherwise be stored, repeated in
+# every heartbeat and acknowledged at 10 Hz. Limits are generous for people and small for memory.
+Name = Annotated[str, Meta(max_length=128)]
+"""Ids and names: ``stop_id``, ``source``, ``owner``, ``coordinator``, arm names."""
+Text = Annotated[str, Meta(max_length=1024)]
+"""Human text: a stop's reason, an error message, a stop reason."""
+Word = Annotated[str, Meta(max_length=32)]
+"""A word from a small vocabulary (a stop action, a contact method)."""
+Angles = Annotated[list[float], Meta(max_length=7)]
+"""One value per D1 joint (wire ids 0..6)."""
+Flags = Annotated[list[bool], Meta(max_length=7)]
+MAX_STOPS_REPEATED = 4096
+"""A heartbeat repeats at most this many latched stops (one per arm, plus the fleet's)."""
+MAX_ARMS_REPORTED = 4096
+"""The fleet state and a multi-arm reply name at most this many arms."""
 
 
 class ErrorCode(enum.IntEnum):
@@ -46,8 +65,8 @@ class ErrorCode(enum.IntEnum):
 class ErrorInfo(Struct, frozen=True):
     """Why a command failed: ``code`` from ErrorCode, ``message`` for humans."""
 
-    code: int
-    message: str
+    code: Annotated[int, Meta(ge=0, le=99999)]
+    message: Text
 
 
 class Joints(Struct, frozen=True):
@@ -55,8 +74,8 @@ class Joints(Struct, frozen=True):
     samples the agent relayed for this arm (the arm's own seq is always 10)."""
 
     stamp_ns: StampNs
-    angles_deg: list[float]
-    seq: int
+    angles_deg: Angles
+    seq: Count
 
 
 class ArmStatus(Struct, frozen=True):
@@ -67,10 +86,10 @@ class ArmStatus(Struct, frozen=True):
     enabled: bool | None = None
     powered: bool | None = None
     error: bool | None = None
-    motors_ok: list[bool] | None = None
+    motors_ok: Flags | None = None
     estopped: bool = False
     feedback_age_s: float | None = None
-    stop_reason: str | None = None
+    stop_reason: Text | None = None
 
 
 class Diag(Struct, frozen=True):
@@ -78,16 +97,29 @@ class Diag(Struct, frozen=True):
 
     stamp_ns: StampNs
     link: LinkState
-    relayed: int
-    malformed: int
-    unknown_messages: int
-    unknown_fields: int
-    rejected: int
-    commands: int
-    ack_timeouts: int
+    relayed: Count
+    malformed: Count
+    unknown_messages: Count
+    unknown_fields: Count
+    rejected: Count
+    commands: Count
+    ack_timeouts: Count
     feedback_rate_hz: float
     last_feedback_age_s: float | None
-    last_error: str | None = None
+    last_error: Text | None = None
+    # The agent's own counters (the same in the diag of every arm it serves):
+    bad_payloads: Count = 0
+    """Stop, reset, heartbeat and command payloads that did not decode (too large, malformed)."""
+    undecodable_stops: Count = 0
+    """Of those, stops: each still stopped the arms (anyone may stop)."""
+    busy: Count = 0
+    """Commands answered 3205 "busy": a queue or the in-flight limit was full."""
+    dropped_queries: Count = 0
+    """Commands dropped unanswered because even the busy-reply queue was full."""
+    dropped_events: Count = 0
+    """Resets and heartbeat sources dropped at a full queue (a flood); stops are never dropped."""
+    write_failures: Count = 0
+    """DDS writes that failed (maybe sent)."""
 
 
 # ----------------------------------------------------------------------------- commands
@@ -108,7 +140,7 @@ class _CommandBase(Struct, tag_field="op", kw_only=True, forbid_unknown_fields=T
     wait_reached: bool = False
     tolerance_deg: Tolerance = 2.0
     timeout_s: CommandTimeout = 10.0
-    owner: str | None = None
+    owner: Name | None = None
     takeover: bool = False
     start_at_ns: StampNs | None = None
     stamp_ns: StampNs | None = None
@@ -118,14 +150,14 @@ class _CommandBase(Struct, tag_field="op", kw_only=True, forbid_unknown_fields=T
 class MoveJoint(_CommandBase, tag="move_joint", kw_only=True):
     """Move one joint (wire id 0..6) to ``angle_deg``."""
 
-    joint: int
+    joint: JointId
     angle_deg: float
 
 
 class MoveJoints(_CommandBase, tag="move_joints", kw_only=True):
     """Move all seven joints; ``mode`` 0 = small smoothing (streaming), 1 = large smoothing."""
 
-    angles_deg: list[float]
+    angles_deg: Angles
     mode: Literal[0, 1] = 1
 
 
@@ -134,8 +166,8 @@ class Torque(_CommandBase, tag="torque", kw_only=True):
     ``strength`` (all joints only) is the spec's 0..80000 holding strength."""
 
     on: bool
-    joint: int | None = None
-    strength: int | None = None
+    joint: JointId | None = None
+    strength: Annotated[int, Meta(ge=0, le=80000)] | None = None
 
 
 class Power(_CommandBase, tag="power", kw_only=True):
@@ -168,8 +200,8 @@ class CommandReply(Struct, frozen=True):
     """
 
     ok: bool
-    arm: str
-    seq: int | None
+    arm: Name
+    seq: Annotated[int, Meta(ge=0, le=65535)] | None
     received: bool
     executed: bool | None
     reached: bool | None
@@ -189,9 +221,9 @@ class StopRequest(Struct, frozen=True):
     """
 
     stamp_ns: StampNs
-    source: str
-    stop_id: str
-    reason: str = ""
+    source: Name
+    stop_id: Name
+    reason: Text = ""
 
 
 class ResetRequest(Struct, frozen=True):
@@ -201,7 +233,7 @@ class ResetRequest(Struct, frozen=True):
     """
 
     stamp_ns: StampNs
-    source: str
+    source: Name
 
 
 class StopAck(Struct, frozen=True):
@@ -211,12 +243,13 @@ class StopAck(Struct, frozen=True):
     still (``still_ns``), so the fan-out is measurable per arm.
     """
 
-    arm: str
-    stop_id: str
-    action: str
+    arm: Name
+    stop_id: Name
+    action: Word
     received_ns: StampNs
     dds_written_ns: StampNs | None
     still_ns: StampNs | None = None
+    detail: Text | None = None
 
 
 class Heartbeat(Struct, frozen=True):
@@ -227,10 +260,10 @@ class Heartbeat(Struct, frozen=True):
     """
 
     stamp_ns: StampNs
-    coordinator: str
-    seq: int
+    coordinator: Name
+    seq: Count
     period_s: Period
-    stops: dict[str, StopRequest] = {}
+    stops: Annotated[dict[Name, StopRequest], Meta(max_length=MAX_STOPS_REPEATED)] = {}
 
 
 # ----------------------------------------------------------------------------- contact
@@ -250,11 +283,11 @@ class ContactEvent(Struct, frozen=True):
     """
 
     stamp_ns: StampNs
-    joint: int
+    joint: JointId
     state: ContactStateName
-    method: str
+    method: Word
     error_deg: float
-    confidence: float
+    confidence: Confidence
     target_deg: float | None = None
     measured_deg: float | None = None
     commanded: bool = False
@@ -284,8 +317,27 @@ class FleetState(Struct, frozen=True):
     """``fleet/<fleet>/state``: the coordinator's summary of every arm of the inventory."""
 
     stamp_ns: StampNs
-    coordinator: str
-    arms: dict[str, ArmSummary]
+    coordinator: Name
+    arms: Annotated[dict[Name, ArmSummary], Meta(max_length=MAX_ARMS_REPORTED)]
+
+
+class CoordinatorDiag(Struct, frozen=True):
+    """``fleet/<fleet>/coordinator/diag``: the coordinator's counters (1 Hz, since it started)."""
+
+    stamp_ns: StampNs
+    coordinator: Name
+    bad_events: Count
+    """Samples (status, stop, reset, ack, contact) whose payload did not decode."""
+    unknown_arms: Count
+    """Samples on the key of an arm that is not in the inventory (ignored)."""
+    dropped_events: Count
+    """Events dropped at a full queue (a flood); stops are never dropped."""
+    busy: Count
+    """Multi-arm requests answered 3205 "busy" (every worker occupied)."""
+    dropped_queries: Count
+    """Multi-arm requests dropped unanswered (even the busy-reply queue was full)."""
+    requests_active: Count
+    """Multi-arm requests being served now."""
 
 
 class MultiArmRequest(Struct, frozen=True, forbid_unknown_fields=True):
@@ -295,7 +347,7 @@ class MultiArmRequest(Struct, frozen=True, forbid_unknown_fields=True):
     ``start_at_ns``, ``lead_s`` ahead (default: the inventory's ``sync_lead_s``). ``phase``
     tells the contact policy what the motion is for (``lift``: a contact stops the arm)."""
 
-    target: str
+    target: Name
     command: ArmCommand
     sync: bool = True
     lead_s: Lead | None = None
@@ -307,7 +359,7 @@ class MultiArmReply(Struct, frozen=True):
     """Per arm, what happened; ``start_skew_ms`` is the spread of the arms' DDS write times."""
 
     ok: bool
-    replies: dict[str, CommandReply]
+    replies: Annotated[dict[Name, CommandReply], Meta(max_length=MAX_ARMS_REPORTED)]
     start_skew_ms: float | None = None
     error: ErrorInfo | None = None
 
@@ -323,10 +375,10 @@ class StopTiming(Struct, frozen=True):
 class StopReport(Struct, frozen=True):
     """``fleet/<fleet>/estop/report``: the coordinator's view of one stop's fan-out."""
 
-    stop_id: str
-    source: str
+    stop_id: Name
+    source: Name
     stamp_ns: StampNs
-    arms: dict[str, StopTiming]
+    arms: Annotated[dict[Name, StopTiming], Meta(max_length=MAX_ARMS_REPORTED)]
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -337,36 +389,3 @@ _encoder = msgspec.json.Encoder()
 def encode(message: Struct) -> bytes:
     """JSON bytes of a key-space payload."""
     return _encoder.encode(message)
-
-
-command_decoder: msgspec.json.Decoder[ArmCommand] = msgspec.json.Decoder(ArmCommand)
-reply_decoder = msgspec.json.Decoder(CommandReply)
-joints_decoder = msgspec.json.Decoder(Joints)
-status_decoder = msgspec.json.Decoder(ArmStatus)
-diag_decoder = msgspec.json.Decoder(Diag)
-stop_decoder = msgspec.json.Decoder(StopRequest)
-reset_decoder = msgspec.json.Decoder(ResetRequest)
-stop_ack_decoder = msgspec.json.Decoder(StopAck)
-heartbeat_decoder = msgspec.json.Decoder(Heartbeat)
-state_decoder = msgspec.json.Decoder(FleetState)
-multi_request_decoder = msgspec.json.Decoder(MultiArmRequest)
-multi_reply_decoder = msgspec.json.Decoder(MultiArmReply)
-stop_report_decoder = msgspec.json.Decoder(StopReport)
-contact_decoder = msgspec.json.Decoder(ContactEvent)
-
-PUBLIC_SCHEMA: dict[str, object] = {
-    "arm/<arm>/joints": Joints,
-    "arm/<arm>/status": ArmStatus,
-    "arm/<arm>/diag": Diag,
-    "arm/<arm>/cmd (request)": ArmCommand,
-    "arm/<arm>/cmd (reply)": CommandReply,
-    "estop, arm/<arm>/estop": StopRequest,
-    "reset, arm/<arm>/reset": ResetRequest,
-    "arm/<arm>/estop/ack": StopAck,
-    "heartbeat": Heartbeat,
-    "state": FleetState,
-    "coordinator/cmd (request)": MultiArmRequest,
-    "coordinator/cmd (reply)": MultiArmReply,
-    "estop/report": StopReport,
-    "arm/<arm>/contact": ContactEvent,
-}
