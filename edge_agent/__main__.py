@@ -7,6 +7,7 @@ import logging
 import sys
 
 from edge_agent.agent import EdgeAgent
+from fleet.guard import EXIT_THREAD_FAILED
 from fleet.inventory import InventoryError
 from fleet.runtime import (
     add_inventory_options,
@@ -45,11 +46,14 @@ def main(argv: list[str] | None = None) -> int:
     with agent:
         agent.start()
         log.info("serving arms %s of fleet %r", ", ".join(arms), inventory.fleet)
-        while not stop.wait(0.5) and not agent.failed.is_set():
+        while not stop.wait(0.1) and not agent.failed.is_set():
             pass
     if agent.failed.is_set():
-        log.error("a thread of the agent failed: shut down (moving arms were held); restart it")
-        return 1
+        log.error(
+            "%s; every arm was stopped and latched before shutting down: restart the agent",
+            agent.guard.failure,
+        )
+        return EXIT_THREAD_FAILED
     log.info("stopped")
     return 0
 

@@ -1,13 +1,18 @@
 """The edge agent: relays one network's D1 arms into the key space and serves their commands.
 
-Threads (all ours, all named):
+Threads (all ours, all named, all under one ``ThreadGuard``):
 - ``dds-feedback`` (DdsLink): decodes feedback, updates the trackers, publishes joints/status
   and completes commands whose acks or targets arrived;
 - ``commands`` (CommandService, serving.py): checks queries, assigns seqs, writes DDS;
-- ``safety`` (SafetyLoop, stops.py): stops, resets, heartbeats, the watchdog;
+- ``starts`` (StartScheduler): writes synchronized starts at their time;
+- ``safety`` (SafetyLoop, stops.py): stops and resets first, then heartbeats, the watchdog;
 - ``housekeeping`` (20 Hz): link state, command deadlines, periodic status and diag.
-``lock`` guards the trackers and the in-flight table; it is never held across a DDS write, a
-Zenoh put or a reply: state is copied under the lock and the I/O happens after.
+If any of them (or a Zenoh callback) fails, the guard latches and stops every arm, and the
+process exits 1 (``__main__``): a supervisor restarts it; it never runs on half alive.
+
+``lock`` guards the trackers, the safety state and the in-flight table; it is never held
+across a DDS write, a Zenoh put or a reply: state is copied under the lock and the I/O happens
+after. Every D1 command goes through ``writer`` (writer.py), one arm at a time.
 """
 
 from __future__ import annotations
@@ -16,18 +21,24 @@ import logging
 import threading
 import time
 
+import msgspec
 import zenoh
 
 from edge_agent.commands import InFlight
 from edge_agent.contact_edge import ContactEdge
+from edge_agent.holds import hold_command
+from edge_agent.inbox import CommandInbox, InboxCounters, SafetyInbox
 from edge_agent.link import DdsLink
 from edge_agent.relay import JSON, ZenohRelay
 from edge_agent.safety import ArmSafety
+from edge_agent.scheduler import StartScheduler
 from edge_agent.serving import CommandService
 from edge_agent.slots import ArmSlot, Outbox
-from edge_agent.stops import SafetyLoop, stop_command
+from edge_agent.stops import SafetyLoop
 from edge_agent.tracker import ArmTracker
+from edge_agent.writer import ArmWriter, transient_seq
 from fleet.d1 import protocol as p
+from fleet.guard import ThreadGuard
 from fleet.inventory import Inventory
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, encode
@@ -51,24 +62,54 @@ class EdgeAgent:
         self.arm_ids = list(arm_ids)
         self.slots = {a: self._slot(inventory, a) for a in arm_ids}
         self.stopping = threading.Event()
-        self.failed = threading.Event()
+        self.guard = ThreadGuard("edge-agent", self._on_thread_failure)
+        self.failed = self.guard.failed
+        self.counters = InboxCounters()
+        self.safety_inbox = SafetyInbox(self.counters)
+        self.command_inbox = CommandInbox(self.counters)
         suffixes = {a: inventory.arm(a).suffix for a in arm_ids}
         # DDS first: if the interface is wrong we fail before announcing anything on Zenoh.
-        self.link = DdsLink(domain_id, interface, peers, suffixes, self._on_feedback)
+        self.link = DdsLink(domain_id, interface, peers, suffixes, self._on_feedback, self.guard)
         try:
-            self.relay = ZenohRelay(inventory.fleet, arm_ids, inventory.endpoints)
+            self.relay = ZenohRelay(
+                inventory.fleet,
+                arm_ids,
+                inventory.endpoints,
+                (self.safety_inbox, self.command_inbox),
+                self.guard,
+            )
         except BaseException:
             self.link.close()
             raise
-        self.safety_loop = SafetyLoop(self)
-        self.contact = ContactEdge(self)  # detectors and arm/<arm>/contact publishers
-        self.commands = CommandService(self)
+        self.writer = ArmWriter(self.lock, self.slots, self.link, self.relay.mirror_command)
+        self.safety_loop = SafetyLoop(
+            self.lock,
+            self.slots,
+            self.relay,
+            self.writer,
+            self.safety_inbox,
+            (self.cancel_in_flight, self.flush),
+            self.stopping,
+            self.guard,
+        )
+        configs = {a: inventory.arm(a) for a in arm_ids}
+        self.contact = ContactEdge(configs, self.relay, self.lock, self.writer)
+        self.scheduler = StartScheduler(self.guard, self.stopping)
+        self.commands = CommandService(
+            self.lock,
+            self.slots,
+            self.writer,
+            self.command_inbox,
+            self.scheduler,
+            (self.collect_finished, self.flush),
+            self.safety_loop.last_heartbeat_s,
+            self.stopping,
+        )
         self._threads = [
             self.safety_loop.thread,
-            threading.Thread(target=self.guarded(self.commands.run), name="commands", daemon=True),
-            threading.Thread(
-                target=self.guarded(self._housekeeping_loop), name="housekeeping", daemon=True
-            ),
+            self.guard.thread(self.commands.run, "commands"),
+            self.scheduler.thread,
+            self.guard.thread(self._housekeeping_loop, "housekeeping"),
         ]
 
     def start(self) -> EdgeAgent:
@@ -83,19 +124,10 @@ class EdgeAgent:
         config = inventory.arm(arm)
         return ArmSlot(ArmTracker(config), ArmSafety(config.lease_s, config.watchdog_s))
 
-    def guarded(self, loop):  # type: ignore[no-untyped-def]
-        """Wrap a thread's body: a failure is logged and sets ``failed`` (the process then
-        shuts down, holding moving arms, rather than stay half alive)."""
-
-        def run() -> None:
-            try:
-                loop()
-            except BaseException:
-                log.exception("thread %s failed", threading.current_thread().name)
-                self.failed.set()
-                raise
-
-        return run
+    def _on_thread_failure(self, what: str) -> None:
+        """The guard's failure path (on the failing thread): latch and stop every arm now;
+        ``__main__`` then shuts down and exits 1."""
+        self.safety_loop.latch_all(f"agent thread failed ({what}); restart the agent")
 
     # ------------------------------------------------------------------ feedback (DDS thread)
 
@@ -124,7 +156,8 @@ class EdgeAgent:
                         entry[0].on_ack(message)
                 else:
                     status_changed = True
-            out.puts.append((pubs.raw_feedback, text))
+            if len(text) <= p.MAX_MESSAGE_BYTES:  # the raw mirror is for debugging, not floods
+                out.puts.append((pubs.raw_feedback, text))
             if status_changed:
                 out.puts.append((pubs.status, encode(tracker.status(now, stamp_ns))))
             if decoded is not None:
@@ -160,11 +193,24 @@ class EdgeAgent:
                     if tracker.update_link(now) or periodic:
                         out.puts.append((pubs.status, encode(tracker.status(now, stamp_ns))))
                     if diag:
-                        out.puts.append((pubs.diag, encode(tracker.diag(now, stamp_ns))))
+                        out.puts.append((pubs.diag, encode(self._diag(tracker, now, stamp_ns))))
                     for flight, _query in list(slot.in_flight.values()):
                         flight.on_time(now, tracker.angles_deg)
                     self.collect_finished(slot, now, out)
             self.flush(out)
+
+    def _diag(self, tracker: ArmTracker, now: float, stamp_ns: int) -> m.Diag:
+        """One arm's counters and the agent's own (caller holds the lock)."""
+        counters = self.counters
+        return msgspec.structs.replace(
+            tracker.diag(now, stamp_ns),
+            bad_payloads=counters.bad_payloads,
+            undecodable_stops=counters.undecodable_stops,
+            busy=counters.busy,
+            dropped_queries=counters.dropped_queries,
+            dropped_events=counters.dropped_events,
+            write_failures=self.link.write_failures,
+        )
 
     def collect_finished(self, slot: ArmSlot, now: float, out: Outbox) -> None:
         """Move finished commands from the in-flight table to ``out`` (caller holds the lock)."""
@@ -183,6 +229,7 @@ class EdgeAgent:
             out.replies.append((query, reply))
 
     def flush(self, out: Outbox) -> None:
+        """Perform the puts and replies collected under the lock (call without it)."""
         for publisher, payload in out.puts:
             publisher.put(payload)
         for query, reply in out.replies:
@@ -198,34 +245,33 @@ class EdgeAgent:
     # ------------------------------------------------------------------ shutdown
 
     def close(self) -> None:
-        """Shutdown order: stop taking commands -> hold every arm still moving (nobody will
-        command it any more) -> stop the loops and join -> stop DDS -> undeclare Zenoh (tokens
-        first, so the fleet sees the agent leave) and close the session. Idempotent."""
+        """Shutdown order: stop taking commands (and drop pending synchronized starts) -> hold
+        every arm still moving (nobody will command it any more) -> stop the loops and join ->
+        stop DDS -> undeclare Zenoh (tokens first, so the fleet sees the agent leave) and close
+        the session. Idempotent."""
         if self.stopping.is_set():
             return
         self.stopping.set()
-        self.commands.cancel_pending_starts()
+        self.scheduler.cancel_all()
+        self.scheduler.wake()
         self._hold_moving_arms()
         for thread in self._threads:
-            if thread.is_alive():
+            if thread.is_alive() and thread is not threading.current_thread():
                 thread.join(timeout=2.0)
         self.link.close()
         self.relay.close()
 
     def _hold_moving_arms(self) -> None:
-        texts: list[tuple[str, str]] = []
-        with self.lock:
-            for arm, slot in self.slots.items():
-                tracker = slot.tracker
-                if tracker.link != "ok" or slot.safety.standstill.still:
-                    continue
-                command = stop_command("hold", tracker.angles_deg)
-                if command is not None and tracker.powered is not False:
-                    seq = slot.seqs.allocate()
-                    texts.append((arm, p.encode_command(command, seq)))
-        for arm, text in texts:
-            self.link.write(arm, text)
-            log.info("arm %s was moving: held it before shutting down", arm)
+        def hold_if_moving(slot: ArmSlot, now: float) -> tuple[p.Command, int] | None:
+            tracker = slot.tracker
+            if slot.safety.standstill.still or slot.safety.latched or tracker.powered is False:
+                return None  # still, or already held by its stop
+            command = hold_command(tracker, now)  # None without a fresh pose
+            return None if command is None else (command, transient_seq(slot))
+
+        for arm in self.arm_ids:
+            if self.writer.write(arm, hold_if_moving) is not None:
+                log.info("arm %s was moving: held it before shutting down", arm)
 
     def __enter__(self) -> EdgeAgent:
         return self

@@ -9,10 +9,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from edge_agent.holds import allowed_while_latched, fresh_pose
 from edge_agent.tracker import ArmTracker
 from fleet.d1 import protocol as p
 from fleet.d1.errors import InvalidCommand
-from fleet.d1.limits import JOINT_COUNT, JOINT_RANGE_DEG
+from fleet.d1.limits import JOINT_COUNT
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, ErrorInfo
 
@@ -27,37 +28,51 @@ class Refused(Exception):
 
 @dataclass(frozen=True)
 class Plan:
-    """The D1 commands to send, in order, and the joint targets that mean "reached"."""
+    """The D1 commands to send, in order, and the joint targets that mean "reached".
+
+    ``holds``: indices of commands that hold the measured pose; the writer recomputes them from
+    the pose fresh at the moment of writing (a pose taken earlier may be stale by then)."""
 
     commands: tuple[p.Command, ...]
     targets_deg: dict[int, float]
+    holds: tuple[int, ...] = ()
 
 
-def clamp_to_limits(angles: tuple[float, ...]) -> tuple[float, ...]:
-    """Measured angles can sit a hair outside the documented range; a hold must not be refused."""
-    return tuple(min(max(a, lo), hi) for a, (lo, hi) in zip(angles, JOINT_RANGE_DEG, strict=False))
-
-
-def _measured(tracker: ArmTracker, why: str) -> tuple[float, ...]:
-    """The measured pose, only while it is fresh: a stale pose as a target would move the arm
-    back to where it was (e.g. an unloaded arm that fell while its feed was frozen)."""
+def _measured(tracker: ArmTracker, now: float, why: str) -> tuple[float, ...]:
+    """The measured pose, only while it is fresh (``holds.fresh_pose``)."""
     arm = tracker.config.id
     if tracker.angles_deg is None:
         raise Refused(ErrorCode.REJECTED, f"arm {arm!r} sent no angles yet; {why}")
-    if tracker.link != "ok":
+    here = fresh_pose(tracker, now)
+    if here is None:
         raise Refused(
             ErrorCode.REJECTED, f"arm {arm!r} has no fresh feedback (link {tracker.link}); {why}"
         )
-    return clamp_to_limits(tracker.angles_deg)
+    return here
 
 
-def _check_can_move(tracker: ArmTracker) -> None:
-    arm = tracker.config.id
-    if tracker.estopped:
+def _check_latch(command: m.ArmCommand, tracker: ArmTracker) -> None:
+    """Refuse what a latched stop does not allow (``holds.allowed_while_latched``)."""
+    arm, action = tracker.config.id, tracker.config.stop_action
+    if not tracker.estopped or allowed_while_latched(command, action):
+        return
+    if isinstance(command, (m.Torque, m.Power)) and not command.on:
+        what = "torque off" if isinstance(command, m.Torque) else "power off"
+        raise Refused(
+            ErrorCode.REJECTED,
+            f"arm {arm!r} is held by a protective stop: {what} would let it fall; "
+            f"`fleet reset {arm}` first (the arm then holds its pose) and send it as its owner",
+        )
+    if isinstance(command, m.MOTION_OPS):
         raise Refused(
             ErrorCode.REJECTED,
             f"arm {arm!r} is stopped (protective stop latched); `fleet reset {arm}` releases it",
         )
+    raise Refused(ErrorCode.REJECTED, f"arm {arm!r} is stopped; reset it first")
+
+
+def _check_can_move(tracker: ArmTracker) -> None:
+    arm = tracker.config.id
     if tracker.link != "ok":
         raise Refused(
             ErrorCode.REJECTED,
@@ -69,10 +84,11 @@ def _check_can_move(tracker: ArmTracker) -> None:
         )
 
 
-def plan(command: m.ArmCommand, tracker: ArmTracker) -> Plan:
-    """Check ``command`` against the limits and the arm's state; raises Refused."""
+def plan(command: m.ArmCommand, tracker: ArmTracker, now: float) -> Plan:
+    """Check ``command`` against the limits and the arm's state at ``now`` (monotonic s);
+    raises Refused."""
     try:
-        result = _plan(command, tracker)
+        result = _plan(command, tracker, now)
         for d1_command in result.commands:
             p.validate_command(d1_command)
     except InvalidCommand as exc:
@@ -80,9 +96,10 @@ def plan(command: m.ArmCommand, tracker: ArmTracker) -> Plan:
     return result
 
 
-def _plan(command: m.ArmCommand, tracker: ArmTracker) -> Plan:
+def _plan(command: m.ArmCommand, tracker: ArmTracker, now: float) -> Plan:
     if isinstance(command, m.MoveJoint):
         p.check_angle(command.joint, command.angle_deg)
+        _check_latch(command, tracker)
         _check_can_move(tracker)
         return Plan(
             (p.SetJointAngle(command.joint, command.angle_deg),), {command.joint: command.angle_deg}
@@ -90,27 +107,32 @@ def _plan(command: m.ArmCommand, tracker: ArmTracker) -> Plan:
     if isinstance(command, m.MoveJoints):
         angles = tuple(command.angles_deg)
         p.validate_command(p.SetAllAngles(angles, command.mode))
+        _check_latch(command, tracker)
         _check_can_move(tracker)
         return Plan((p.SetAllAngles(angles, command.mode),), dict(enumerate(angles)))
     if isinstance(command, m.Zero):
+        _check_latch(command, tracker)
         _check_can_move(tracker)
         return Plan((p.ReturnToZero(),), dict.fromkeys(range(JOINT_COUNT), 0.0))
     if isinstance(command, m.Hold):
-        # Hold is allowed while stopped: it is what a stop does.
-        here = _measured(tracker, "cannot hold an unknown pose")
-        return Plan((p.SetAllAngles(here, 0),), dict(enumerate(here)))
-    if isinstance(command, m.Torque):
-        return _plan_torque(command, tracker)
-    if isinstance(command, m.Power):
-        if command.on and tracker.estopped:
+        # Hold is allowed while stopped: it is what a stop does. It is written at once, with
+        # the pose of that moment: a hold scheduled for later would drag the arm back to now.
+        if command.start_at_ns is not None:
             raise Refused(
-                ErrorCode.REJECTED, f"arm {tracker.config.id!r} is stopped; reset it first"
+                ErrorCode.PARAMETER,
+                "hold takes the pose of the moment it is written: start_at_ns is refused",
             )
+        here = _measured(tracker, now, "cannot hold an unknown pose")
+        return Plan((p.SetAllAngles(here, 0),), dict(enumerate(here)), holds=(0,))
+    _check_latch(command, tracker)
+    if isinstance(command, m.Torque):
+        return _plan_torque(command, tracker, now)
+    if isinstance(command, m.Power):
         return Plan((p.SetPower(command.on),), {})
     raise Refused(ErrorCode.NOT_IMPLEMENTED, f"unknown command {type(command).__name__}")
 
 
-def _plan_torque(command: m.Torque, tracker: ArmTracker) -> Plan:
+def _plan_torque(command: m.Torque, tracker: ArmTracker, now: float) -> Plan:
     if command.joint is not None:
         p.check_joint(command.joint)
     if command.strength is not None and command.joint is not None:
@@ -120,17 +142,15 @@ def _plan_torque(command: m.Torque, tracker: ArmTracker) -> Plan:
             p.SetAllTorque(0) if command.joint is None else p.SetJointTorque(command.joint, False)
         )
         return Plan((off,), {})
-    if tracker.estopped:
-        raise Refused(ErrorCode.REJECTED, f"arm {tracker.config.id!r} is stopped; reset it first")
     # Field report: a re-enabled D1 chases its old cached target. Make the measured pose the
     # target first, so enabling never moves the arm.
-    here = _measured(tracker, "cannot set the target to the measured pose before enabling")
+    here = _measured(tracker, now, "cannot set the target to the measured pose before enabling")
     on: p.Command = (
         p.SetAllTorque(command.strength if command.strength is not None else 1)
         if command.joint is None
         else p.SetJointTorque(command.joint, True)
     )
-    return Plan((p.SetAllAngles(here, 0), on), {})
+    return Plan((p.SetAllAngles(here, 0), on), {}, holds=(0,))
 
 
 @dataclass
@@ -199,7 +219,7 @@ class InFlight:
 
     def fail(self, code: ErrorCode, message: str) -> None:
         if self.error is None:
-            self.error = ErrorInfo(int(code), f"arm {self.arm!r}: {message}")
+            self.error = ErrorInfo(int(code), f"arm {self.arm!r}: {message}"[:1000])
 
     @property
     def done(self) -> bool:

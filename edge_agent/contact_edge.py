@@ -1,9 +1,9 @@
 """Contact detection at the edge: feeds each arm's detector, publishes contact events, and
 limits force by position.
 
-The agent calls three hooks: ``on_message`` (under the agent's lock, for every decoded
-feedback message), ``flush`` (after the lock is released: the force-limit writes) and
-``on_sent`` (for every command string written to DDS; takes the lock itself). Nothing here
+The agent calls two hooks: ``on_message`` (under the agent's lock, for every decoded feedback
+message) and ``flush`` (after the lock is released: the force-limit writes); the arm writer
+tells ``on_sent`` every command it wrote (it takes the lock itself). Nothing here
 blocks or does I/O under the lock: events go into the agent's outbox, DDS writes into
 ``_pending`` until ``flush``.
 
@@ -15,23 +15,21 @@ the motor stops pushing; commands in flight that move that joint fail with 3205.
 from __future__ import annotations
 
 import logging
-import time
-from typing import TYPE_CHECKING
+import threading
 
 import zenoh
 
+from edge_agent.relay import ZenohRelay
 from edge_agent.slots import ArmSlot, Outbox
+from edge_agent.writer import ArmWriter, transient_seq
 from fleet.contact.detector import ContactChange, ContactDetector
 from fleet.contact.feed import feed_command
 from fleet.d1 import protocol as p
-from fleet.d1.errors import InvalidCommand, MalformedMessage
 from fleet.d1.limits import JOINT_RANGE_DEG
+from fleet.inventory import ArmConfig
 from fleet.wire import keys
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, encode
-
-if TYPE_CHECKING:
-    from edge_agent.agent import EdgeAgent
 
 log = logging.getLogger("edge_agent.contact")
 
@@ -56,24 +54,32 @@ def contact_event(change: ContactChange, stamp_ns: int, force_limited: bool) -> 
 class ContactEdge:
     """One detector per arm of the agent (arms whose inventory disables contact get none)."""
 
-    def __init__(self, agent: EdgeAgent) -> None:
-        self.agent = agent
+    def __init__(
+        self,
+        configs: dict[str, ArmConfig],
+        relay: ZenohRelay,
+        lock: threading.Lock,
+        writer: ArmWriter,
+    ) -> None:
+        self._lock = lock
+        self._writer = writer
         self.detectors: dict[str, ContactDetector] = {}
         self.publishers: dict[str, zenoh.Publisher] = {}
-        for arm in agent.arm_ids:
-            config = agent.inventory.arm(arm).contact
+        for arm, arm_config in configs.items():
+            config = arm_config.contact
             if not config.enabled:
                 continue
             self.detectors[arm] = ContactDetector(config)
             # Events must arrive: BLOCK, like status (a contact is rare and small).
-            self.publishers[arm] = agent.relay.session.declare_publisher(
-                agent.relay.keys.arm(arm, keys.CONTACT),
+            self.publishers[arm] = relay.session.declare_publisher(
+                relay.keys.arm(arm, keys.CONTACT),
                 encoding=zenoh.Encoding.APPLICATION_JSON,
                 congestion_control=zenoh.CongestionControl.BLOCK,
                 priority=zenoh.Priority.DATA_HIGH,
             )
-        self._pending: list[tuple[str, str]] = []  # guarded by agent.lock
+        self._pending: list[tuple[str, p.SetJointAngle]] = []  # guarded by lock
         self.force_limits = 0
+        writer.observers.append(self.on_sent)
 
     def on_message(
         self,
@@ -103,7 +109,7 @@ class ContactEdge:
         limited = set()
         if not tracker.estopped:
             for joint, angle in report.force_limit.items():
-                self._limit(arm, slot, joint, angle, now)
+                self._limit(arm, slot, joint, angle)
                 limited.add(joint)
         for change in report.changes:
             event = contact_event(change, stamp_ns, change.joint in limited)
@@ -112,13 +118,10 @@ class ContactEdge:
                 "arm %s joint %d %s (%s)", arm, change.joint, change.state.value, change.method
             )
 
-    def _limit(self, arm: str, slot: ArmSlot, joint: int, angle: float, now: float) -> None:
+    def _limit(self, arm: str, slot: ArmSlot, joint: int, angle: float) -> None:
         """Retract ``joint``'s target to ``angle`` (caller holds the lock)."""
         lo, hi = JOINT_RANGE_DEG[joint]
-        command = p.SetJointAngle(joint, round(min(max(angle, lo), hi), 2))
-        seq = slot.seqs.allocate()
-        slot.seqs.release(seq)  # like a stop: confirmed by feedback, not by acks
-        self._pending.append((arm, p.encode_command(command, seq)))
+        self._pending.append((arm, p.SetJointAngle(joint, round(min(max(angle, lo), hi), 2))))
         self.force_limits += 1
         why = f"contact on joint {joint}: target retracted to {angle:.1f} deg (force limit)"
         for flight, _query in slot.in_flight.values():
@@ -127,22 +130,24 @@ class ContactEdge:
         log.warning("arm %s: %s", arm, why)
 
     def flush(self) -> None:
-        """Write the force-limit commands collected under the lock (call without the lock)."""
-        with self.agent.lock:
+        """Write the force-limit commands collected under the lock (call without the lock);
+        like a stop, each is confirmed by feedback, not by acks, and none is written once a
+        stop latched (the stop's own command holds the arm)."""
+        with self._lock:
             pending, self._pending = self._pending, []
-        for arm, text in pending:
-            self.agent.link.write(arm, text)
-            self.agent.relay.publishers[arm].raw_command.put(text)
-            self.on_sent(arm, text)
+        for arm, command in pending:
 
-    def on_sent(self, arm: str, text: str) -> None:
-        """A command string was written to ``arm`` (call without the lock)."""
+            def compose(
+                slot: ArmSlot, _now: float, command: p.SetJointAngle = command
+            ) -> tuple[p.Command, int] | None:
+                return None if slot.safety.latched else (command, transient_seq(slot))
+
+            self._writer.write(arm, compose)
+
+    def on_sent(self, arm: str, command: p.Command, now: float) -> None:
+        """The writer wrote ``command`` to ``arm`` (called without the lock)."""
         detector = self.detectors.get(arm)
         if detector is None:
             return
-        try:
-            _seq, command = p.decode_command(text)
-        except (InvalidCommand, MalformedMessage):
-            return  # the agent never writes one; nothing to learn from it
-        with self.agent.lock:
-            feed_command(detector, command, time.monotonic())
+        with self._lock:
+            feed_command(detector, command, now)

@@ -6,22 +6,22 @@ Publisher QoS, and why:
 - ``status`` and ``diag``: BLOCK, DATA_HIGH: rare and small, and a missed link change matters.
 - ``estop/ack``: BLOCK, REAL_TIME: a stop's acknowledgment must arrive, and first.
 - command replies go back on the query itself.
-Queryable callbacks run on Zenoh threads: they only put the query on a queue (never block there).
+Callbacks run on Zenoh threads, under the agent's guard: they only decode and hand off to the
+bounded inboxes (``inbox.py``); they never block.
 """
 
 from __future__ import annotations
 
-import queue
 from dataclasses import dataclass
 
 import zenoh
 
+from edge_agent.inbox import CommandInbox, SafetyInbox
+from fleet.guard import ThreadGuard
 from fleet.wire import keys
 from fleet.wire.session import open_client
 
 JSON = zenoh.Encoding.APPLICATION_JSON
-
-COMMAND_QUEUE_DEPTH = 256
 
 
 @dataclass
@@ -47,57 +47,50 @@ class ArmPublishers:
         )
 
 
-@dataclass(frozen=True)
-class SafetyEvent:
-    """A stop, reset or heartbeat sample, handed from a Zenoh thread to the safety thread.
-    ``arm`` is None for fleet-wide keys."""
-
-    channel: str
-    arm: str | None
-    payload: bytes
-
-
-@dataclass(frozen=True)
-class IncomingQuery:
-    """A command query handed from a Zenoh thread to the agent's command thread."""
-
-    arm: str
-    query: zenoh.Query
-    payload: bytes
-
-
 class ZenohRelay:
     """Declares everything an agent needs on the key space, for the arms it serves."""
 
-    def __init__(self, fleet: str, arm_ids: list[str], endpoints: list[str]) -> None:
+    def __init__(
+        self,
+        fleet: str,
+        arm_ids: list[str],
+        endpoints: list[str],
+        inboxes: tuple[SafetyInbox, CommandInbox],
+        guard: ThreadGuard,
+    ) -> None:
         self.keys = keys.KeySpace(fleet)
         self.session = open_client(endpoints)
-        self.commands: queue.Queue[IncomingQuery] = queue.Queue(maxsize=COMMAND_QUEUE_DEPTH)
-        self.dropped_queries = 0
-        # Stops must never be dropped: an unbounded queue, drained by a thread that does
-        # nothing else. Heartbeats share it (10 Hz, tiny) so a stop they repeat is in order.
-        self.safety: queue.SimpleQueue[SafetyEvent] = queue.SimpleQueue()
-        self.publishers: dict[str, ArmPublishers] = {}
-        self._tokens: list[zenoh.LivelinessToken] = []
-        self._queryables: list[zenoh.Queryable[None]] = []
+        safety, commands = inboxes
+        wrap = guard.wrap
+
+        def on_stop(arm: str | None):  # type: ignore[no-untyped-def]
+            return wrap(lambda sample: safety.on_stop(arm, sample.payload.to_bytes()), "estop")
+
+        def on_reset(arm: str | None):  # type: ignore[no-untyped-def]
+            return wrap(lambda sample: safety.on_reset(arm, sample.payload.to_bytes()), "reset")
+
+        def on_query(arm: str):  # type: ignore[no-untyped-def]
+            return wrap(lambda query: commands.on_query(arm, query), "cmd")
+
+        sub = self.session.declare_subscriber
         self._subscribers: list[zenoh.Subscriber[None]] = [
-            self.session.declare_subscriber(self.keys.estop, self._on_safety(keys.ESTOP, None)),
-            self.session.declare_subscriber(self.keys.reset, self._on_safety(keys.RESET, None)),
-            self.session.declare_subscriber(
-                self.keys.heartbeat, self._on_safety(keys.HEARTBEAT, None)
+            sub(self.keys.estop, on_stop(None)),
+            sub(self.keys.reset, on_reset(None)),
+            sub(
+                self.keys.heartbeat,
+                wrap(lambda sample: safety.on_heartbeat(sample.payload.to_bytes()), "heartbeat"),
             ),
         ]
         for arm in arm_ids:
-            for channel in (keys.ESTOP, keys.RESET):
-                self._subscribers.append(
-                    self.session.declare_subscriber(
-                        self.keys.arm(arm, channel), self._on_safety(channel, arm)
-                    )
-                )
+            self._subscribers.append(sub(self.keys.arm(arm, keys.ESTOP), on_stop(arm)))
+            self._subscribers.append(sub(self.keys.arm(arm, keys.RESET), on_reset(arm)))
+        self.publishers: dict[str, ArmPublishers] = {}
+        self._tokens: list[zenoh.LivelinessToken] = []
+        self._queryables: list[zenoh.Queryable[None]] = []
         for arm in arm_ids:
             self.publishers[arm] = self._declare_publishers(arm)
             self._queryables.append(
-                self.session.declare_queryable(self.keys.arm(arm, keys.CMD), self._on_query(arm))
+                self.session.declare_queryable(self.keys.arm(arm, keys.CMD), on_query(arm))
             )
         # Tokens last: an agent is announced only once it can serve its arms.
         for arm in arm_ids:
@@ -127,23 +120,9 @@ class ZenohRelay:
             stop_ack=pub(keys.ESTOP_ACK, block, zenoh.Priority.REAL_TIME),
         )
 
-    def _on_safety(self, channel: str, arm: str | None):  # type: ignore[no-untyped-def]
-        def handler(sample: zenoh.Sample) -> None:
-            self.safety.put(SafetyEvent(channel, arm, sample.payload.to_bytes()))
-
-        return handler
-
-    def _on_query(self, arm: str):  # type: ignore[no-untyped-def]
-        def handler(query: zenoh.Query) -> None:
-            payload = query.payload.to_bytes() if query.payload is not None else b""
-            try:
-                self.commands.put_nowait(IncomingQuery(arm, query, payload))
-            except queue.Full:
-                # Counted and answered nowhere: the caller's get() times out. This only happens
-                # when 256 commands are queued, i.e. the agent is wedged.
-                self.dropped_queries += 1
-
-        return handler
+    def mirror_command(self, arm: str, text: str) -> None:
+        """Publish a command string written to ``arm`` on ``raw/command``."""
+        self.publishers[arm].raw_command.put(text)
 
     def close(self) -> None:
         """Undeclare tokens first (the fleet sees the agent leave), then close the session."""
@@ -153,14 +132,11 @@ class ZenohRelay:
         for queryable in self._queryables:
             queryable.undeclare()
         self._queryables.clear()
+        for subscriber in self._subscribers:
+            subscriber.undeclare()
+        self._subscribers.clear()
         for pubs in self.publishers.values():
-            for publisher in (
-                pubs.joints,
-                pubs.status,
-                pubs.diag,
-                pubs.raw_feedback,
-                pubs.raw_command,
-            ):
+            for publisher in pubs.all():
                 publisher.undeclare()
         self.publishers.clear()
         self.session.close()

@@ -22,6 +22,9 @@ STILL_TOLERANCE_DEG = 0.3
 """... within 0.3 deg of each other on every joint mean the arm is still."""
 RESET_IDS_KEPT = 256
 """Stop ids an operator reset, remembered so their repeats (heartbeat) do not re-latch."""
+SUPERSEDED_IDS_KEPT = 64
+"""Stop ids replaced by a newer stop before a reset (released by that reset too); a flood of
+distinct stop ids keeps only the newest."""
 STOP_REPEAT_S = 0.2
 """Until the arm is seen still, the stop command is re-sent every 0.2 s (two control cycles):
 a stop is not trusted to one DDS sample or to an ack the arm may not send."""
@@ -66,6 +69,8 @@ class ActiveStop:
     dds_written_ns: int | None = None
     still_ns: int | None = None
     last_sent_s: float = 0.0
+    detail: str | None = None
+    """Why the stop's command was not written (a hold with no fresh pose), for its ack."""
 
 
 @dataclass
@@ -114,16 +119,19 @@ class ArmSafety:
 
     def latch(self, stop_id: str, source: str, reason: str, now_s: float, now_ns: int) -> bool:
         """Latch a stop; False if this stop is already latched or was reset (a repeat)."""
-        if stop_id in self.reset_stop_ids or (
-            self.stop is not None and self.stop.stop_id == stop_id
+        if (
+            stop_id in self.reset_stop_ids
+            or stop_id in self.superseded_ids  # a repeat of a stop acted on while latched
+            or (self.stop is not None and self.stop.stop_id == stop_id)
         ):
             return False
         if self.stop is None:
             self.standstill.clear()
         else:
             self.superseded_ids.append(self.stop.stop_id)  # reset releases it too
+            del self.superseded_ids[:-SUPERSEDED_IDS_KEPT]
         self.stop = ActiveStop(stop_id, source, reason, now_ns, now_s)
-        self.last_reason = f"stopped by {source}" + (f": {reason}" if reason else "")
+        self.last_reason = (f"stopped by {source}" + (f": {reason}" if reason else ""))[:1000]
         self.watched_by = None
         self.lease = None  # a stop ends every ownership: whoever resets decides who goes next
         return True

@@ -1,107 +1,134 @@
 """The agent's ``commands`` thread: key-space commands in, checked D1 commands out.
 
-Takes queries off the relay's queue, decodes and checks them (limits, link, power, stop latch,
-lease, lifetime), assigns seqs, registers them in flight (under the agent's lock, before any
-write, so no ack can arrive unmatched) and writes them to DDS, now or at a synchronized start.
-Replies are sent by whichever thread completes the command (see ``EdgeAgent``).
+Takes queries off the command inbox, decodes and checks them (limits, link, power, stop latch,
+lease, lifetime, in-flight limit), assigns seqs, registers them in flight (under the agent's
+lock, before any write, so no ack can arrive unmatched) and writes them through the arm's
+writer, now or at a synchronized start. Replies are sent by whichever thread completes the
+command (see ``EdgeAgent``). Queries the inbox could not queue are answered 3205 "busy" first.
 """
 
 from __future__ import annotations
 
 import logging
-import queue
 import threading
 import time
-from typing import TYPE_CHECKING
+from collections.abc import Callable
 
-import msgspec
-
-from edge_agent.commands import InFlight, Refused, plan
-from edge_agent.relay import IncomingQuery
+from edge_agent.commands import InFlight, Plan, Refused, plan
+from edge_agent.holds import NO_FRESH_POSE, allowed_while_latched, hold_command
+from edge_agent.inbox import CommandInbox, IncomingQuery
 from edge_agent.safety import LeaseRefused
+from edge_agent.scheduler import SchedulerFull, StartScheduler
 from edge_agent.slots import ArmSlot, Outbox
+from edge_agent.writer import ArmWriter
 from fleet.d1 import protocol as p
+from fleet.d1.seq import SeqExhausted
 from fleet.wire import messages as m
 from fleet.wire import payloads
 from fleet.wire.messages import ErrorCode, ErrorInfo
-
-if TYPE_CHECKING:
-    from edge_agent.agent import EdgeAgent
 
 log = logging.getLogger("edge_agent.commands")
 
 MAX_START_DELAY_S = 5.0
 """A synchronized start further ahead than this is refused (a clock problem, not a plan)."""
+MAX_IN_FLIGHT = 32
+"""Commands in flight per arm (waiting for acks, a target or a start time); one more is
+refused 3205 "busy". A real client has one or two; 65534 in flight exhausted the seqs."""
+
+Collect = Callable[[ArmSlot, float, Outbox], None]
+Flush = Callable[[Outbox], None]
 
 
 class CommandService:
     """Serves ``arm/<arm>/cmd`` for every arm of the agent."""
 
-    def __init__(self, agent: EdgeAgent) -> None:
-        self.agent = agent
-        self._timers: list[threading.Timer] = []  # synchronized starts not yet written
-
-    def cancel_pending_starts(self) -> None:
-        """Shutdown: no delayed start may fire once the agent stops (it writes nothing anyway)."""
-        for timer in self._timers:
-            timer.cancel()
+    def __init__(
+        self,
+        lock: threading.Lock,
+        slots: dict[str, ArmSlot],
+        writer: ArmWriter,
+        inbox: CommandInbox,
+        scheduler: StartScheduler,
+        hooks: tuple[Collect, Flush],
+        heartbeats: dict[str, float],
+        stopping: threading.Event,
+    ) -> None:
+        self._lock = lock
+        self._slots = slots
+        self._writer = writer
+        self._inbox = inbox
+        self._scheduler = scheduler
+        self._collect, self._flush = hooks
+        self._heartbeats = heartbeats  # coordinator -> last heartbeat (guarded by lock)
+        self._stopping = stopping
 
     def run(self) -> None:
         """The ``commands`` thread: serve queries until the agent stops."""
-        while not self.agent.stopping.is_set():
-            try:
-                item = self.agent.relay.commands.get(timeout=0.2)
-            except queue.Empty:
+        while not self._stopping.is_set():
+            for item in self._inbox.take_busy():
+                why = "the agent is busy (its command queue is full); retry later"
+                self._refuse(item, ErrorCode.REJECTED, f"arm {item.arm!r}: {why}", time.monotonic())
+            item = self._inbox.take()
+            if item is None:
+                self._inbox.wake.wait(0.2)
                 continue
             self._handle(item)
 
     def _handle(self, item: IncomingQuery) -> None:
         now = time.monotonic()
-        slot = self.agent.slots[item.arm]
+        slot = self._slots[item.arm]
         try:
             command = payloads.COMMAND.decode(item.payload)
-        except msgspec.DecodeError as exc:
-            with self.agent.lock:
+        except payloads.PayloadError as exc:
+            op = payloads.unknown_op(item.payload)
+            code, why = (
+                (ErrorCode.NOT_IMPLEMENTED, f"unknown op {op!r} (known: {sorted(m.COMMAND_OPS)})")
+                if op is not None
+                else (ErrorCode.PARAMETER, str(exc))
+            )
+            with self._lock:
                 slot.tracker.rejected += 1
-                slot.tracker.last_error = f"bad command payload: {exc}"
-            self._refuse(item, ErrorCode.PARAMETER, f"bad command payload: {exc}", now)
+                slot.tracker.last_error = why[:1000]
+            self._refuse(item, code, why, now)
             return
-        with self.agent.lock:
+        with self._lock:
             slot.tracker.commands += 1
             try:
-                texts, flight, delay_s = self._accept(slot, item, command, now)
+                planned, flight, delay_s = self._accept(slot, item, command, now)
             except Refused as exc:
                 slot.tracker.rejected += 1
-                slot.tracker.last_error = str(exc)
+                slot.tracker.last_error = str(exc)[:1000]
                 refused: Refused | None = exc
             else:
                 refused = None
         if refused is not None:
             self._refuse(item, refused.code, str(refused), now)
             return
-        moves = isinstance(command, m.MOTION_OPS) or (isinstance(command, m.Torque) and command.on)
         if flight is None:  # a lease release: nothing goes to the arm
             self._reply_now(item, now)
-        elif delay_s > 0:
-            write = self.agent.guarded(lambda: self._write_all(item.arm, texts, flight, moves))
-            timer = threading.Timer(delay_s, write)
-            timer.name = f"start-{item.arm}"
-            timer.daemon = True
-            self._timers = [t for t in self._timers if t.is_alive()] + [timer]
-            timer.start()
-        else:
-            self._write_all(item.arm, texts, flight, moves)
+            return
+
+        def write() -> None:
+            self._write_all(item.arm, command, planned, flight)
+
+        if delay_s <= 0:
+            write()
+            return
+        try:
+            self._scheduler.schedule(now + delay_s, write)
+        except SchedulerFull as exc:
+            self._fail(item.arm, flight, ErrorCode.REJECTED, f"busy: {exc}")
 
     def _accept(
         self, slot: ArmSlot, item: IncomingQuery, command: m.ArmCommand, now: float
-    ) -> tuple[list[str], InFlight | None, float]:
+    ) -> tuple[Plan, InFlight | None, float]:
         """Check, plan and register one command (caller holds the lock); raises Refused."""
         safety = slot.safety
         if isinstance(command, m.Release):
             if command.owner is None or not safety.release(command.owner):
                 holder = safety.lease.owner if safety.lease else "nobody"
                 raise Refused(ErrorCode.LEASE_INVALID, f"arm {item.arm!r} is held by {holder}")
-            return [], None, 0.0
+            return Plan((), {}), None, 0.0
         if command.lifetime_s is not None and command.stamp_ns is not None:
             age_s = (time.time_ns() - command.stamp_ns) / 1e9
             if age_s > command.lifetime_s:
@@ -110,8 +137,8 @@ class CommandService:
                     f"target for arm {item.arm!r} arrived {age_s * 1000:.0f} ms after it was sent, "
                     f"past its lifetime of {command.lifetime_s * 1000:.0f} ms: not executed",
                 )
-        planned = plan(command, slot.tracker)
-        if not isinstance(command, m.Hold):
+        planned = plan(command, slot.tracker, now)
+        if not (isinstance(command, m.Hold) and safety.latched):  # a stop ended every lease
             try:
                 safety.check_owner(command.owner, command.takeover, now)
             except LeaseRefused as exc:
@@ -125,13 +152,19 @@ class CommandService:
                     f"start_at_ns is {delay_s:.1f} s ahead (max {MAX_START_DELAY_S:g} s); "
                     "are the hosts' clocks synchronized?",
                 )
-        if (
-            isinstance(command, m.MOTION_OPS)
-            and command.owner in self.agent.safety_loop.last_heartbeat_s
-        ):
+        flights = {id(f) for f, _q in slot.in_flight.values()}
+        if len(flights) >= MAX_IN_FLIGHT:
+            raise Refused(
+                ErrorCode.REJECTED,
+                f"arm {item.arm!r} is busy: {len(flights)} commands in flight (max "
+                f"{MAX_IN_FLIGHT}); wait for their replies",
+            )
+        try:
+            seqs = tuple(slot.seqs.allocate() for _ in planned.commands)
+        except SeqExhausted as exc:  # cannot happen under MAX_IN_FLIGHT; never a crash
+            raise Refused(ErrorCode.REJECTED, f"arm {item.arm!r} is busy: {exc}") from None
+        if isinstance(command, m.MOTION_OPS) and command.owner in self._heartbeats:
             safety.watch(command.owner)
-        seqs = tuple(slot.seqs.allocate() for _ in planned.commands)
-        texts = [p.encode_command(c, s) for c, s in zip(planned.commands, seqs)]
         config = slot.tracker.config
         start = now + max(0.0, delay_s)
         flight = InFlight(
@@ -146,42 +179,55 @@ class CommandService:
         )
         for seq in seqs:
             slot.in_flight[seq] = (flight, item.query)
-        return texts, flight, delay_s
+        return planned, flight, delay_s
 
-    def _write_all(self, arm: str, texts: list[str], flight: InFlight, moves: bool) -> None:
-        """Write a command's DDS strings (now, or from a synchronized-start timer).
+    def _write_all(self, arm: str, command: m.ArmCommand, planned: Plan, flight: InFlight) -> None:
+        """Write a command's D1 commands (now, or at its synchronized start), each composed at
+        the moment of writing: not at all once a stop latched that does not allow it (the arm
+        writer serializes this with the stop's own write), and a hold with the pose of then."""
+        for index, (d1, seq) in enumerate(zip(planned.commands, flight.seqs)):
 
-        A stop may latch at any moment, on the safety thread: motion is not written once the
-        arm is latched, and if a stop latched while it was being written, the stop's action is
-        written again after it, so the last word the arm hears is the stop's.
-        """
-        pubs = self.agent.relay.publishers[arm]
-        slot = self.agent.slots[arm]
-        for text in texts:
-            with self.agent.lock:
+            def compose(
+                slot: ArmSlot, now: float, index: int = index, d1: p.Command = d1, seq: int = seq
+            ) -> tuple[p.Command, int] | None:
                 if flight.error is not None:
-                    return  # cancelled meanwhile
-                if moves and (slot.safety.latched or self.agent.stopping.is_set()):
-                    flight.fail(ErrorCode.REJECTED, "stopped before its start time: not written")
-                    out = Outbox()
-                    self.agent.collect_finished(slot, time.monotonic(), out)
-                    latched = None
-                else:
-                    out, latched = None, slot.safety.stop
-            if out is not None:
-                self.agent.flush(out)
+                    return None  # cancelled meanwhile (a stop, a contact)
+                latched = slot.safety.latched
+                if (latched or self._stopping.is_set()) and not allowed_while_latched(
+                    command, slot.tracker.config.stop_action
+                ):
+                    flight.fail(ErrorCode.REJECTED, "a protective stop latched first: not written")
+                    return None
+                if index in planned.holds:
+                    held = hold_command(slot.tracker, now)
+                    if held is None:
+                        flight.fail(ErrorCode.REJECTED, NO_FRESH_POSE.split(":")[0])
+                        return None
+                    d1 = held
+                    if flight.targets_deg:
+                        flight.targets_deg = dict(enumerate(held.angles_deg))
+                return d1, seq
+
+            written = self._writer.write(arm, compose)
+            with self._lock:
+                if written is not None:
+                    flight.written_ns = flight.written_ns or written.written_ns
+                    if not written.ok:
+                        flight.fail(ErrorCode.SEND_FAILED, "the DDS write failed (maybe sent)")
+                stop_here = written is None or flight.error is not None
+                out = Outbox()
+                if stop_here:
+                    self._collect(self._slots[arm], time.monotonic(), out)
+            if stop_here:
+                self._flush(out)
                 return
-            ok = self.agent.link.write(arm, text)
-            with self.agent.lock:
-                flight.written_ns = flight.written_ns or time.time_ns()
-                stopped_meanwhile = moves and slot.safety.stop is not latched
-            if stopped_meanwhile:
-                self.agent.safety_loop.rewrite_stop(arm)
-            self.agent.contact.on_sent(arm, text)
-            if not ok:
-                with self.agent.lock:
-                    flight.fail(ErrorCode.SEND_FAILED, "the DDS write failed (maybe sent)")
-            pubs.raw_command.put(text)
+
+    def _fail(self, arm: str, flight: InFlight, code: ErrorCode, why: str) -> None:
+        out = Outbox()
+        with self._lock:
+            flight.fail(code, why)
+            self._collect(self._slots[arm], time.monotonic(), out)
+        self._flush(out)
 
     def _reply_now(
         self, item: IncomingQuery, started: float, error: ErrorInfo | None = None
@@ -197,7 +243,7 @@ class CommandService:
             latency_ms=round((time.monotonic() - started) * 1000.0, 3),
             error=error,
         )
-        self.agent.flush(Outbox(replies=[(item.query, reply)]))
+        self._flush(Outbox(replies=[(item.query, reply)]))
 
     def _refuse(self, item: IncomingQuery, code: ErrorCode, message: str, started: float) -> None:
-        self._reply_now(item, started, ErrorInfo(int(code), message))
+        self._reply_now(item, started, ErrorInfo(int(code), message[:1000]))

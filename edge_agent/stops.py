@@ -1,188 +1,208 @@
 """The agent's protective stop, reset, heartbeat watchdog: the ``safety`` thread.
 
 A stop is acted on locally first, whatever the coordinator does: the agent latches the arm,
-writes the arm's stop action to DDS (``hold``: the measured angles become the target; ``unload``;
-``power_off``), cancels commands in flight, and acknowledges on ``arm/<arm>/estop/ack``. It then
-re-sends the action every 0.2 s until feedback shows the arm still, and acknowledges again with
-the time it was seen still. Nothing here waits for the arm's own acks: a stop is confirmed by
-feedback (``power=0`` has been reported acknowledged and ignored).
+writes the arm's stop action to DDS (``hold``: the fresh measured angles become the target;
+``unload``; ``power_off``), cancels commands in flight, and acknowledges on
+``arm/<arm>/estop/ack``. It then re-sends the action every 0.2 s until feedback shows the arm
+still, and acknowledges again with the time it was seen still. Nothing here waits for the arm's
+own acks: a stop is confirmed by feedback (``power=0`` has been reported acknowledged and
+ignored).
+
+Each tick the thread first acts on every stop and reset that arrived (in arrival order), then on
+the newest heartbeat of each source, then on the watchdog and the stop repeats. A stop payload
+that does not decode, or that found the inbox full, still stops the arms it names.
 """
 
 from __future__ import annotations
 
 import logging
-import queue
+import os
 import threading
 import time
-from typing import TYPE_CHECKING
+from collections.abc import Callable
+from itertools import count
 
-import msgspec
-
-from edge_agent.commands import clamp_to_limits
-from edge_agent.relay import SafetyEvent
+from edge_agent.holds import NO_FRESH_POSE, hold_command, stop_command
+from edge_agent.inbox import ResetEvent, SafetyInbox, StopEvent
+from edge_agent.relay import ZenohRelay
 from edge_agent.slots import ArmSlot, Outbox
+from edge_agent.writer import ArmWriter, transient_seq
 from fleet.d1 import protocol as p
-from fleet.wire import keys, payloads
+from fleet.guard import ThreadGuard
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, encode
-
-if TYPE_CHECKING:
-    from edge_agent.agent import EdgeAgent
 
 log = logging.getLogger("edge_agent.stops")
 
 SAFETY_TICK_S = 0.05
+HEARTBEAT_FORGET_S = 30.0
+"""A heartbeat source silent this long is forgotten (its arms' watchdogs tripped long ago)."""
+MAX_HEARTBEAT_SOURCES = 256
+"""Heartbeat sources remembered at once; the oldest that watches no arm is forgotten first."""
 
-
-def stop_command(action: str, angles_deg: tuple[float, ...] | None) -> p.Command | None:
-    """The D1 command for a stop action; None for ``hold`` before any angle was reported."""
-    if action == "unload":
-        return p.SetAllTorque(0)
-    if action == "power_off":
-        return p.SetPower(False)
-    if angles_deg is None:
-        return None
-    return p.SetAllAngles(clamp_to_limits(angles_deg), 0)
+CancelInFlight = Callable[[ArmSlot, float, str, Outbox], None]
+Flush = Callable[[Outbox], None]
 
 
 class SafetyLoop:
-    """Drains stop/reset/heartbeat events and runs the watchdog and stop repeats."""
+    """Acts on stops, resets and heartbeats; runs the watchdog and the stop repeats."""
 
-    def __init__(self, agent: EdgeAgent) -> None:
-        self.agent = agent
-        self.last_heartbeat_s: dict[str, float] = {}
-        self.bad_events = 0
-        self.thread = threading.Thread(target=self._run, name="safety", daemon=True)
+    def __init__(
+        self,
+        lock: threading.Lock,
+        slots: dict[str, ArmSlot],
+        relay: ZenohRelay,
+        writer: ArmWriter,
+        inbox: SafetyInbox,
+        hooks: tuple[CancelInFlight, Flush],
+        stopping: threading.Event,
+        guard: ThreadGuard,
+    ) -> None:
+        self._lock = lock
+        self._slots = slots
+        self._relay = relay
+        self._writer = writer
+        self._inbox = inbox
+        self._cancel_in_flight, self._flush = hooks
+        self._stopping = stopping
+        self.last_heartbeat_s: dict[str, float] = {}  # guarded by lock (read by commands)
+        self._undecodable_ids = count(1)
+        self.thread = guard.thread(self._run, "safety")
 
     def _run(self) -> None:
-        try:
-            events = self.agent.relay.safety
-            while not self.agent.stopping.is_set():
-                try:
-                    event = events.get(timeout=SAFETY_TICK_S)
-                except queue.Empty:
-                    event = None
-                if event is not None:
-                    self._handle(event)
-                self._tick()
-        except BaseException:
-            log.exception("safety thread failed")
-            raise
+        while not self._stopping.is_set():
+            self._inbox.wake.wait(SAFETY_TICK_S)
+            self._inbox.wake.clear()
+            control, beats = self._inbox.take()
+            for event in control:
+                if isinstance(event, StopEvent):
+                    self._on_stop(event)
+                else:
+                    self._on_reset(event)
+            for beat, arrived_s in beats:
+                self._on_heartbeat(beat, arrived_s)
+            self._tick()
 
     # ------------------------------------------------------------------ events
 
-    def _handle(self, event: SafetyEvent) -> None:
-        arms = [event.arm] if event.arm is not None else list(self.agent.arm_ids)
-        try:
-            if event.channel == keys.ESTOP:
-                self.stop_arms(arms, payloads.STOP.decode(event.payload))
-            elif event.channel == keys.RESET:
-                request_reset = payloads.RESET.decode(event.payload)
-                for arm in arms:
-                    self.reset(arm, request_reset.source)
-            elif event.channel == keys.HEARTBEAT:
-                self._on_heartbeat(payloads.HEARTBEAT.decode(event.payload))
-        except msgspec.DecodeError as exc:
-            self.bad_events += 1
-            log.warning("ignored a malformed %s message: %s", event.channel, exc)
+    def _targets(self, arm: str | None) -> list[str]:
+        return list(self._slots) if arm is None else [arm]
 
-    def _on_heartbeat(self, beat: m.Heartbeat) -> None:
-        now = time.monotonic()
-        self.last_heartbeat_s[beat.coordinator] = now
+    def _on_stop(self, event: StopEvent) -> None:
+        if event.request is not None:
+            self.stop_arms(self._targets(event.arm), event.request)
+            return
+        # Undecodable, or dropped by a flood: it still stops. An arm already latched just
+        # acknowledges its current stop again (a flood must not rewrite the stop at its rate).
+        now_ns = time.time_ns()
+        request = m.StopRequest(
+            stamp_ns=now_ns,
+            source="unknown",
+            stop_id=f"undecodable-{os.getpid()}-{next(self._undecodable_ids)}",
+            reason=event.why[:900],
+        )
+        with self._lock:
+            free = [a for a in self._targets(event.arm) if not self._slots[a].safety.latched]
+            latched = [a for a in self._targets(event.arm) if a not in free]
+        self.stop_arms(free, request)
+        self._reack(latched)
+
+    def _on_reset(self, event: ResetEvent) -> None:
+        for arm in self._targets(event.arm):
+            self.reset(arm, event.request.source)
+
+    def _on_heartbeat(self, beat: m.Heartbeat, arrived_s: float) -> None:
+        with self._lock:
+            self.last_heartbeat_s[beat.coordinator] = arrived_s
         for target, request in beat.stops.items():
-            arms = self.agent.arm_ids if target == "*" else [target]
+            if target == "*":
+                arms = list(self._slots)
+            elif target in self._slots:
+                arms = [target]
+            else:
+                continue  # another agent's arm
             # Heartbeats repeat stops 10 times a second: no fresh ack for each repeat.
-            self.stop_arms([a for a in arms if a in self.agent.slots], request, reack=False)
+            self.stop_arms(arms, request, reack=False)
 
     # ------------------------------------------------------------------ stop and reset
-
-    def stop(self, arm: str, request: m.StopRequest) -> None:
-        """Latch ``arm`` and act on the stop (a repeat of a latched or reset stop is ignored)."""
-        self.stop_arms([arm], request)
 
     def stop_arms(self, arms: list[str], request: m.StopRequest, reack: bool = True) -> None:
         """Latch every arm of ``arms`` and write all their stop commands to DDS first, then
         publish acks, status and replies: the last arm's DDS write does not wait for the
-        first arm's Zenoh traffic (1 ms per arm when done arm by arm)."""
+        first arm's Zenoh traffic (1 ms per arm when done arm by arm). A repeat of the latched
+        stop is acknowledged again (``reack``); a repeat of a reset stop is ignored."""
         now, now_ns = time.monotonic(), time.time_ns()
         out = Outbox()
-        latched: list[tuple[str, ArmSlot, str | None]] = []
-        repeats = Outbox()
-        with self.agent.lock:
+        latched: list[str] = []
+        repeats: list[str] = []
+        with self._lock:
             for arm in arms:
-                slot = self.agent.slots[arm]
+                slot = self._slots[arm]
                 safety = slot.safety
-                if reack and safety.is_current(request.stop_id):
-                    # A repeat: acknowledge again, the first ack may have been lost.
-                    ack = self._ack(arm, slot)
-                    if ack is not None:
-                        pubs = self.agent.relay.publishers[arm]
-                        repeats.puts.append((pubs.stop_ack, encode(ack)))
+                if safety.is_current(request.stop_id):
+                    if reack:
+                        repeats.append(arm)  # the first ack may have been lost
                     continue
                 if not safety.latch(request.stop_id, request.source, request.reason, now, now_ns):
                     continue
                 slot.tracker.estopped = True
                 slot.tracker.stop_reason = safety.last_reason
-                self.agent.cancel_in_flight(slot, now, "a protective stop was latched", out)
-                latched.append((arm, slot, self._stop_text(slot, now)))
-        self.agent.flush(repeats)
+                self._cancel_in_flight(slot, now, "a protective stop was latched", out)
+                latched.append(arm)
+        self._reack(repeats)
         if not latched:
             return
-        written = [self._write_dds(arm, text) for arm, _slot, text in latched]
+        for arm in latched:
+            self._write_stop(arm, request.stop_id)
         acks = Outbox()
-        with self.agent.lock:
-            for (arm, slot, text), written_ns in zip(latched, written):
-                stop = slot.safety.stop
-                if stop is not None and stop.stop_id == request.stop_id:
-                    stop.dds_written_ns = written_ns
-                pubs = self.agent.relay.publishers[arm]
+        with self._lock:
+            for arm in latched:
+                slot = self._slots[arm]
+                pubs = self._relay.publishers[arm]
                 ack = self._ack(arm, slot)
                 if ack is not None:
                     acks.puts.append((pubs.stop_ack, encode(ack)))
-                if text is not None:
-                    out.puts.append((pubs.raw_command, text))
                 out.puts.append((pubs.status, encode(slot.tracker.status(now, now_ns))))
-        self.agent.flush(acks)
-        self.agent.flush(out)
-        action = {slot.tracker.config.stop_action for _arm, slot, _text in latched}
+        self._flush(acks)
+        self._flush(out)
+        with self._lock:
+            actions = {self._slots[a].tracker.config.stop_action for a in latched}
         log.warning(
-            "stopped %s by %s (%s)",
-            ", ".join(arm for arm, _slot, _text in latched),
-            request.source,
-            "/".join(sorted(action)),
+            "stopped %s by %s (%s)", ", ".join(latched), request.source, "/".join(sorted(actions))
         )
 
-    def rewrite_stop(self, arm: str) -> None:
-        """Write the latched stop's action again (motion was written while it latched)."""
-        with self.agent.lock:
-            slot = self.agent.slots[arm]
-            text = self._stop_text(slot, time.monotonic()) if slot.safety.latched else None
-        self._write(arm, text)
+    def _reack(self, arms: list[str]) -> None:
+        out = Outbox()
+        with self._lock:
+            for arm in arms:
+                ack = self._ack(arm, self._slots[arm])
+                if ack is not None:
+                    out.puts.append((self._relay.publishers[arm].stop_ack, encode(ack)))
+        self._flush(out)
 
-    def _stop_text(self, slot: ArmSlot, now: float) -> str | None:
-        """Encode the stop action with a fresh seq (caller holds the lock)."""
-        command = stop_command(slot.tracker.config.stop_action, slot.tracker.angles_deg)
-        stop = slot.safety.stop
-        if stop is not None:
+    def _write_stop(self, arm: str, stop_id: str | None) -> bool:
+        """Write the stop action of the stop latched on ``arm`` (``stop_id``; None: whichever
+        is latched), composed at the moment of writing. True if it is this stop's first write
+        (a hold without a fresh pose is written by a later repeat)."""
+
+        def compose(slot: ArmSlot, now: float) -> tuple[p.Command, int] | None:
+            stop = slot.safety.stop
+            if stop is None or (stop_id is not None and stop.stop_id != stop_id):
+                return None  # reset meanwhile, or superseded (the newer stop writes its own)
             stop.last_sent_s = now
-        if command is None:
-            return None
-        seq = slot.seqs.allocate()
-        slot.seqs.release(seq)  # a stop waits for standstill in feedback, not for acks
-        return p.encode_command(command, seq)
+            command = stop_command(slot.tracker.config.stop_action, slot.tracker, now)
+            stop.detail = NO_FRESH_POSE if command is None else None
+            return None if command is None else (command, transient_seq(slot))
 
-    def _write_dds(self, arm: str, text: str | None) -> int | None:
-        """Write to DDS only; the wall-clock time of the write, None if nothing was written."""
-        if text is None:
-            return None
-        ok = self.agent.link.write(arm, text)
-        return time.time_ns() if ok else None
-
-    def _write(self, arm: str, text: str | None) -> int | None:
-        written_ns = self._write_dds(arm, text)
-        if text is not None:
-            self.agent.relay.publishers[arm].raw_command.put(text)
-        return written_ns
+        written = self._writer.write(arm, compose)
+        if written is None or not written.ok:
+            return False
+        with self._lock:
+            stop = self._slots[arm].safety.stop
+            if stop is not None and stop.dds_written_ns is None:
+                stop.dds_written_ns = written.written_ns
+                return True
+        return False
 
     def _ack(self, arm: str, slot: ArmSlot) -> m.StopAck | None:
         stop = slot.safety.stop
@@ -195,68 +215,88 @@ class SafetyLoop:
             received_ns=stop.received_ns,
             dds_written_ns=stop.dds_written_ns,
             still_ns=stop.still_ns,
+            detail=stop.detail,
         )
 
     def reset(self, arm: str, source: str) -> None:
-        """Release the latch; the measured pose becomes the target, so nothing moves."""
+        """Release the latch; the fresh measured pose becomes the target, so nothing moves."""
         now, now_ns = time.monotonic(), time.time_ns()
-        with self.agent.lock:
-            slot = self.agent.slots[arm]
+        with self._lock:
+            slot = self._slots[arm]
             released = slot.safety.reset()
             if released is None:
                 return
             slot.tracker.estopped = False
-            slot.safety.last_reason = f"reset by {source}"
-            text = self._stop_text_for_hold(slot)
+            slot.safety.last_reason = f"reset by {source[:128]}"
             status = encode(slot.tracker.status(now, now_ns))
-        self._write(arm, text)
-        self.agent.flush(Outbox(puts=[(self.agent.relay.publishers[arm].status, status)]))
-        log.warning("arm %s reset by %s", arm, source)
 
-    def _stop_text_for_hold(self, slot: ArmSlot) -> str | None:
-        command = stop_command("hold", slot.tracker.angles_deg)
-        if command is None or slot.tracker.powered is False or slot.tracker.link != "ok":
-            # No fresh pose: release the latch but write nothing (a stale pose would move it).
-            return None
-        seq = slot.seqs.allocate()
-        slot.seqs.release(seq)
-        return p.encode_command(command, seq)
+        def hold_unless_off(slot: ArmSlot, now: float) -> tuple[p.Command, int] | None:
+            if slot.safety.latched or slot.tracker.powered is False:
+                return None  # stopped again meanwhile, or nothing to hold
+            command = hold_command(slot.tracker, now)  # None without a fresh pose
+            return None if command is None else (command, transient_seq(slot))
+
+        self._writer.write(arm, hold_unless_off)
+        self._flush(Outbox(puts=[(self._relay.publishers[arm].status, status)]))
+        log.warning("arm %s reset by %s", arm, source)
 
     # ------------------------------------------------------------------ periodic
 
     def _tick(self) -> None:
-        """Repeat unconfirmed stops; trip the watchdog of arms whose coordinator went silent."""
+        """Repeat unconfirmed stops; trip the watchdog of arms whose coordinator went silent;
+        forget heartbeat sources long silent."""
         now = time.monotonic()
-        for arm, slot in self.agent.slots.items():
-            with self.agent.lock:
+        expired: list[tuple[str, str | None, float]] = []
+        resend: list[str] = []
+        with self._lock:
+            self._forget_sources(now)
+            for arm, slot in self._slots.items():
                 watched = slot.safety.watched_by
-                expired = slot.safety.watchdog_expired(
-                    None if watched is None else self.last_heartbeat_s.get(watched), now
-                )
-                resend = (
-                    None
-                    if expired
-                    else (self._stop_text(slot, now) if slot.safety.needs_resend(now) else None)
-                )
-            if expired:
-                silent = now - self.last_heartbeat_s.get(watched or "", now - 99.0)
-                self.stop(
-                    arm,
-                    m.StopRequest(
-                        stamp_ns=time.time_ns(),
-                        source="watchdog",
-                        stop_id=f"watchdog-{arm}-{time.time_ns()}",
-                        reason=f"heartbeat of coordinator {watched!r} lost for {silent:.2f} s",
-                    ),
-                )
-            elif resend is not None:
-                self._write(arm, resend)
+                last = None if watched is None else self.last_heartbeat_s.get(watched)
+                if slot.safety.watchdog_expired(last, now):
+                    expired.append((arm, watched, now - (last if last is not None else now - 99)))
+                elif slot.safety.needs_resend(now):
+                    resend.append(arm)
+            watching = frozenset(s.safety.watched_by for s in self._slots.values())
+        self._inbox.keep_sources(frozenset(w for w in watching if w is not None))
+        for arm, watched, silent in expired:
+            request = m.StopRequest(
+                stamp_ns=time.time_ns(),
+                source="watchdog",
+                stop_id=f"watchdog-{arm}-{time.time_ns()}",
+                reason=f"heartbeat of coordinator {watched!r} lost for {silent:.2f} s"[:1000],
+            )
+            self.stop_arms([arm], request)
+        for arm in resend:
+            if self._write_stop(arm, None):
+                self._reack([arm])  # the hold was written at last (feedback came back)
+
+    def _forget_sources(self, now: float) -> None:
+        """Keep the heartbeat table bounded (caller holds the lock)."""
+        table = self.last_heartbeat_s
+        for source in [s for s, t in table.items() if now - t > HEARTBEAT_FORGET_S]:
+            del table[source]
+        if len(table) > MAX_HEARTBEAT_SOURCES:
+            watching = {s.safety.watched_by for s in self._slots.values()}
+            spare = sorted((t, s) for s, t in table.items() if s not in watching)
+            for _t, source in spare[: len(table) - MAX_HEARTBEAT_SOURCES]:
+                del table[source]
 
     def on_still(self, arm: str, slot: ArmSlot, out: Outbox) -> None:
         """Feedback showed a stopped arm still: acknowledge it (caller holds the lock)."""
         ack = self._ack(arm, slot)
         if ack is not None:
-            out.puts.append((self.agent.relay.publishers[arm].stop_ack, encode(ack)))
+            out.puts.append((self._relay.publishers[arm].stop_ack, encode(ack)))
+
+    def latch_all(self, reason: str) -> None:
+        """A thread of the agent failed: latch and stop every arm before the process exits."""
+        request = m.StopRequest(
+            stamp_ns=time.time_ns(),
+            source="edge-agent",
+            stop_id=f"agent-failure-{os.getpid()}",
+            reason=reason[:1000],
+        )
+        self.stop_arms(list(self._slots), request)
 
 
-__all__ = ["ErrorCode", "SafetyLoop", "stop_command"]
+__all__ = ["ErrorCode", "SafetyLoop"]

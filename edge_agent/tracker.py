@@ -24,6 +24,8 @@ class ArmTracker:
 
     config: ArmConfig
     angles_deg: tuple[float, ...] | None = None
+    angles_s: float | None = None
+    """When ``angles_deg`` was reported (monotonic s): a hold needs a fresh pose."""
     enabled: bool | None = None
     powered: bool | None = None
     error: bool | None = None
@@ -61,6 +63,7 @@ class ArmTracker:
         message = decoded.message
         if isinstance(message, p.JointAngles):
             self.angles_deg = message.angles_deg
+            self.angles_s = now
             self._angle_times.append(now)
         elif isinstance(message, p.ArmStatus):
             self.enabled, self.powered, self.error = message.enabled, message.powered, message.error

@@ -7,7 +7,8 @@ import math
 
 import pytest
 
-from edge_agent.commands import InFlight, Plan, Refused, clamp_to_limits, plan
+from edge_agent.commands import InFlight, Plan, Refused, plan
+from edge_agent.holds import clamp_to_limits
 from edge_agent.tracker import ArmTracker
 from fleet.d1 import protocol as p
 from fleet.inventory import ArmConfig
@@ -40,7 +41,7 @@ def _tracker(
 
 def _refused(command: m.ArmCommand, tracker: ArmTracker) -> Refused:
     with pytest.raises(Refused) as info:
-        plan(command, tracker)
+        plan(command, tracker, now=0.0)
     return info.value
 
 
@@ -48,26 +49,26 @@ def _refused(command: m.ArmCommand, tracker: ArmTracker) -> Refused:
 
 
 def test_move_joint_plans_one_command_and_its_target() -> None:
-    result = plan(m.MoveJoint(joint=2, angle_deg=-45.5), _tracker())
+    result = plan(m.MoveJoint(joint=2, angle_deg=-45.5), _tracker(), now=0.0)
     assert result == Plan((p.SetJointAngle(2, -45.5),), {2: -45.5})
 
 
 def test_move_joints_plans_all_angles() -> None:
     target = [1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0]
-    result = plan(m.MoveJoints(angles_deg=target, mode=0), _tracker())
+    result = plan(m.MoveJoints(angles_deg=target, mode=0), _tracker(), now=0.0)
     assert result.commands == (p.SetAllAngles(tuple(target), 0),)
     assert result.targets_deg == dict(enumerate(target))
 
 
 def test_zero_plans_return_to_zero() -> None:
-    result = plan(m.Zero(), _tracker())
+    result = plan(m.Zero(), _tracker(), now=0.0)
     assert result.commands == (p.ReturnToZero(),)
     assert result.targets_deg == dict.fromkeys(range(7), 0.0)
 
 
 def test_power_plans_set_power() -> None:
-    assert plan(m.Power(on=False), _tracker()).commands == (p.SetPower(False),)
-    assert plan(m.Power(on=True), _tracker(powered=False)).commands == (p.SetPower(True),)
+    assert plan(m.Power(on=False), _tracker(), now=0.0).commands == (p.SetPower(False),)
+    assert plan(m.Power(on=True), _tracker(powered=False), now=0.0).commands == (p.SetPower(True),)
 
 
 MOTIONS = [
@@ -104,7 +105,7 @@ def test_motion_refused_while_powered_off(command: m.ArmCommand) -> None:
 
 
 def test_motion_allowed_while_power_state_unknown() -> None:
-    assert plan(m.Zero(), _tracker(powered=None)).commands == (p.ReturnToZero(),)
+    assert plan(m.Zero(), _tracker(powered=None), now=0.0).commands == (p.ReturnToZero(),)
 
 
 @pytest.mark.parametrize(
@@ -142,17 +143,17 @@ def test_out_of_range_is_a_parameter_error_in_any_state() -> None:
 
 
 def test_limits_are_inclusive() -> None:
-    plan(m.MoveJoints(angles_deg=[135.0, -90.0, 90.0, -135.0, 90.0, 135.0, 65.0]), _tracker())
-    plan(m.MoveJoint(joint=6, angle_deg=0.0), _tracker())
+    plan(m.MoveJoints(angles_deg=[135.0, -90.0, 90.0, -135.0, 90.0, 135.0, 65.0]), _tracker(), now=0.0)
+    plan(m.MoveJoint(joint=6, angle_deg=0.0), _tracker(), now=0.0)
 
 
 def test_torque_on_holds_the_measured_pose_first() -> None:
     # A re-enabled D1 chases its old cached target: the plan makes the measured pose the target.
-    result = plan(m.Torque(on=True), _tracker())
+    result = plan(m.Torque(on=True), _tracker(), now=0.0)
     assert result.commands == (p.SetAllAngles(HOME, 0), p.SetAllTorque(1))
-    result = plan(m.Torque(on=True, joint=3), _tracker())
+    result = plan(m.Torque(on=True, joint=3), _tracker(), now=0.0)
     assert result.commands == (p.SetAllAngles(HOME, 0), p.SetJointTorque(3, True))
-    result = plan(m.Torque(on=True, strength=80000), _tracker())
+    result = plan(m.Torque(on=True, strength=80000), _tracker(), now=0.0)
     assert result.commands == (p.SetAllAngles(HOME, 0), p.SetAllTorque(80000))
     assert result.targets_deg == {}
 
@@ -162,20 +163,41 @@ def test_torque_on_needs_measured_angles_and_no_stop() -> None:
     assert _refused(m.Torque(on=True), _tracker(estopped=True)).code == ErrorCode.REJECTED
 
 
-def test_torque_off_is_allowed_while_stopped() -> None:
-    assert plan(m.Torque(on=False), _tracker(estopped=True)).commands == (p.SetAllTorque(0),)
-    result = plan(m.Torque(on=False, joint=4), _tracker(estopped=True))
-    assert result.commands == (p.SetJointTorque(4, False),)
+def test_torque_off_and_power_off_are_refused_while_a_hold_stop_is_latched() -> None:
+    # The stop holds the arm up: unloading or powering it off would let it fall.
+    for command in (m.Torque(on=False), m.Torque(on=False, joint=4), m.Power(on=False)):
+        refused = _refused(command, _tracker(estopped=True))
+        assert refused.code == ErrorCode.REJECTED and "fall" in str(refused)
 
 
-def test_power_on_refused_while_stopped_power_off_allowed() -> None:
+def test_torque_off_and_power_off_are_allowed_while_an_unload_stop_is_latched() -> None:
+    for action in ("unload", "power_off"):
+        config = ArmConfig(id="a1", stop_action=action)  # type: ignore[arg-type]
+        tracker = _tracker(estopped=True, config=config)
+        assert plan(m.Torque(on=False), tracker, now=0.0).commands == (p.SetAllTorque(0),)
+        result = plan(m.Torque(on=False, joint=4), tracker, now=0.0)
+        assert result.commands == (p.SetJointTorque(4, False),)
+        assert plan(m.Power(on=False), tracker, now=0.0).commands == (p.SetPower(False),)
+
+
+def test_power_on_and_torque_on_refused_while_stopped() -> None:
     assert _refused(m.Power(on=True), _tracker(estopped=True)).code == ErrorCode.REJECTED
-    assert plan(m.Power(on=False), _tracker(estopped=True)).commands == (p.SetPower(False),)
+    assert _refused(m.Torque(on=True), _tracker(estopped=True)).code == ErrorCode.REJECTED
+
+
+def test_hold_refuses_a_start_time_and_a_stale_pose() -> None:
+    later = m.Hold(start_at_ns=1)
+    assert _refused(later, _tracker()).code == ErrorCode.PARAMETER
+    tracker = _tracker()
+    stale_s = tracker.config.link_stale_s + 0.01
+    with pytest.raises(Refused) as info:
+        plan(m.Hold(), tracker, now=stale_s)
+    assert info.value.code == ErrorCode.REJECTED and "fresh" in str(info.value)
 
 
 def test_hold_uses_the_measured_pose_clamped_to_the_limits() -> None:
     measured = (135.4, -90.2, 0.0, 0.0, 0.0, 0.0, -0.3)
-    result = plan(m.Hold(), _tracker(angles=measured, estopped=True))
+    result = plan(m.Hold(), _tracker(angles=measured, estopped=True), now=0.0)
     held = (135.0, -90.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     assert result.commands == (p.SetAllAngles(held, 0),)
     assert result.targets_deg == dict(enumerate(held))
@@ -204,7 +226,7 @@ def test_every_planned_command_encodes() -> None:
         m.Power(on=True),
         m.MoveJoint(joint=6, angle_deg=65.0),
     ]:
-        for d1 in plan(command, tracker).commands:
+        for d1 in plan(command, tracker, now=0.0).commands:
             p.decode_command(p.encode_command(d1, 1))
 
 

@@ -190,6 +190,10 @@ class Release(_CommandBase, tag="release", kw_only=True):
 
 ArmCommand = MoveJoint | MoveJoints | Torque | Power | Zero | Hold | Release
 MOTION_OPS = (MoveJoint, MoveJoints, Zero)
+COMMAND_OPS = frozenset(
+    str(kind.__struct_config__.tag) for kind in (MoveJoint, MoveJoints, Torque, Power, Zero)
+) | {"hold", "release"}
+"""Every ``op`` an agent serves (another one is answered 3203, not implemented)."""
 
 
 class CommandReply(Struct, frozen=True):

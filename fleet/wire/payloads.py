@@ -63,6 +63,23 @@ def payload_kind(name: str, struct: type[T] | Any, max_bytes: int) -> PayloadKin
     return PayloadKind(name, struct, max_bytes, msgspec.json.Decoder(struct))
 
 
+class _CommandOp(msgspec.Struct):
+    op: str
+
+
+_COMMAND_OP: PayloadKind[_CommandOp] = payload_kind("command", _CommandOp, 4 * KIB)
+
+
+def unknown_op(data: bytes) -> str | None:
+    """The ``op`` of a command payload that failed to decode, if it names no command the
+    agents serve (answered 3203 "not implemented", not 3204 "bad parameter")."""
+    try:
+        op = _COMMAND_OP.decode(data).op
+    except PayloadError:
+        return None
+    return None if op in m.COMMAND_OPS else op[:64]
+
+
 JOINTS: PayloadKind[m.Joints] = payload_kind("joints", m.Joints, 1 * KIB)
 STATUS: PayloadKind[m.ArmStatus] = payload_kind("status", m.ArmStatus, 4 * KIB)
 DIAG: PayloadKind[m.Diag] = payload_kind("diag", m.Diag, 8 * KIB)

@@ -1,0 +1,206 @@
+"""What the agent's Zenoh callbacks hand to its threads: bounded, decoded, stops first.
+
+Safety (``SafetyInbox``): stops and resets go into one bounded FIFO, in arrival order (a reset
+must not overtake the stop put before it, nor a stop the reset), which the ``safety`` thread
+empties before it looks at heartbeats. Heartbeats are latest-wins per source: a flood of them
+neither delays a stop nor grows memory. A stop payload that does not decode still stops (anyone
+may stop anyway); a stop that finds the FIFO full is not dropped either: its target is marked,
+and the safety thread latches it ("flood").
+
+Commands (``CommandInbox``): a bounded FIFO of queries for the ``commands`` thread; a query that
+finds it full goes to a bounded "busy" queue the same thread answers first with 3205, so the
+caller learns at once that the agent is overloaded instead of waiting for a timeout.
+
+Callbacks run on Zenoh threads: they decode (size-capped, through ``fleet.wire.payloads``),
+append under a short lock and signal; they never block and never call Zenoh.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+
+import zenoh
+
+from fleet.wire import messages as m
+from fleet.wire import payloads
+
+CONTROL_DEPTH = 1024
+"""Stops and resets waiting for the safety thread (it serves one in well under a millisecond)."""
+MAX_BEAT_SOURCES = 64
+"""Distinct heartbeat sources kept between two safety ticks (50 ms); sources that watch an
+arm are always kept."""
+COMMAND_DEPTH = 256
+"""Commands waiting for the commands thread."""
+BUSY_DEPTH = 256
+"""Commands waiting for their 3205 "busy" answer; beyond this a query is dropped (counted)."""
+
+
+@dataclass(frozen=True)
+class StopEvent:
+    """A stop for ``arm`` (None: every arm of the agent). ``request`` is None when the payload
+    did not decode or the FIFO was full; ``why`` then says which."""
+
+    arm: str | None
+    request: m.StopRequest | None
+    why: str = ""
+
+
+@dataclass(frozen=True)
+class ResetEvent:
+    """A reset of ``arm`` (None: every arm of the agent)."""
+
+    arm: str | None
+    request: m.ResetRequest
+
+
+ControlEvent = StopEvent | ResetEvent
+
+
+@dataclass
+class InboxCounters:
+    """What the callbacks refused or dropped (published in every arm's ``diag``)."""
+
+    bad_payloads: int = 0
+    undecodable_stops: int = 0
+    dropped_events: int = 0
+    busy: int = 0
+    dropped_queries: int = 0
+
+
+class SafetyInbox:
+    """Stops and resets (one ordered FIFO) and heartbeats (latest per source)."""
+
+    def __init__(self, counters: InboxCounters) -> None:
+        self.counters = counters
+        self.wake = threading.Event()
+        self._lock = threading.Lock()
+        self._control: deque[ControlEvent] = deque()
+        self._flooded: dict[str | None, None] = {}  # targets of stops that found the FIFO full
+        self._beats: dict[str, tuple[m.Heartbeat, float]] = {}
+        self._keep: frozenset[str] = frozenset()
+
+    def on_stop(self, arm: str | None, data: bytes) -> None:
+        """A sample on ``estop`` or ``arm/<arm>/estop`` (Zenoh thread)."""
+        try:
+            event = StopEvent(arm, payloads.STOP.decode(data))
+        except payloads.PayloadError as exc:
+            event = StopEvent(arm, None, f"undecodable stop request ({exc.why[:200]})")
+            with self._lock:
+                self.counters.bad_payloads += 1
+                self.counters.undecodable_stops += 1
+        with self._lock:
+            if len(self._control) < CONTROL_DEPTH:
+                self._control.append(event)
+            else:
+                self._flooded[arm] = None  # bounded: the agent's arms and None
+        self.wake.set()
+
+    def on_reset(self, arm: str | None, data: bytes) -> None:
+        """A sample on ``reset`` or ``arm/<arm>/reset`` (Zenoh thread). An undecodable or
+        dropped reset releases nothing: failing safe keeps the latch."""
+        try:
+            event = ResetEvent(arm, payloads.RESET.decode(data))
+        except payloads.PayloadError:
+            with self._lock:
+                self.counters.bad_payloads += 1
+            return
+        with self._lock:
+            if len(self._control) < CONTROL_DEPTH:
+                self._control.append(event)
+            else:
+                self.counters.dropped_events += 1
+                return
+        self.wake.set()
+
+    def on_heartbeat(self, data: bytes) -> None:
+        """A sample on ``heartbeat`` (Zenoh thread): keep the newest per source."""
+        arrived = time.monotonic()
+        try:
+            beat = payloads.HEARTBEAT.decode(data)
+        except payloads.PayloadError:
+            with self._lock:
+                self.counters.bad_payloads += 1
+            return
+        with self._lock:
+            source = beat.coordinator
+            if (
+                source not in self._beats
+                and len(self._beats) >= MAX_BEAT_SOURCES
+                and source not in self._keep
+            ):
+                self.counters.dropped_events += 1
+                return
+            self._beats[source] = (beat, arrived)
+
+    def keep_sources(self, sources: frozenset[str]) -> None:
+        """Sources whose heartbeats are never dropped (they watch an arm)."""
+        self._keep = sources
+
+    def take(self) -> tuple[list[ControlEvent], list[tuple[m.Heartbeat, float]]]:
+        """Everything pending: stops and resets in arrival order (then the stops that found
+        the FIFO full), and the newest heartbeat of each source with its arrival time."""
+        with self._lock:
+            control = list(self._control)
+            self._control.clear()
+            control += [
+                StopEvent(arm, None, "stop request dropped at a full queue (flood)")
+                for arm in self._flooded
+            ]
+            self._flooded.clear()
+            beats = list(self._beats.values())
+            self._beats.clear()
+        return control, beats
+
+
+@dataclass(frozen=True)
+class IncomingQuery:
+    """A command query handed from a Zenoh thread to the agent's command thread."""
+
+    arm: str
+    query: zenoh.Query
+    payload: bytes
+
+
+class CommandInbox:
+    """Command queries for the commands thread, and those to answer "busy"."""
+
+    def __init__(self, counters: InboxCounters) -> None:
+        self.counters = counters
+        self.wake = threading.Event()
+        self._lock = threading.Lock()
+        self._queries: deque[IncomingQuery] = deque()
+        self._busy: deque[IncomingQuery] = deque()
+
+    def on_query(self, arm: str, query: zenoh.Query) -> None:
+        """A query on ``arm/<arm>/cmd`` (Zenoh thread)."""
+        payload = query.payload.to_bytes() if query.payload is not None else b""
+        item = IncomingQuery(arm, query, payload)
+        with self._lock:
+            if len(self._queries) < COMMAND_DEPTH:
+                self._queries.append(item)
+            elif len(self._busy) < BUSY_DEPTH:
+                self._busy.append(item)
+                self.counters.busy += 1
+            else:
+                # Dropping the query ends it: the caller gets no reply at once, not a timeout.
+                self.counters.dropped_queries += 1
+                return
+        self.wake.set()
+
+    def take_busy(self) -> list[IncomingQuery]:
+        """Queries to answer 3205 "busy" now."""
+        with self._lock:
+            busy = list(self._busy)
+            self._busy.clear()
+        return busy
+
+    def take(self) -> IncomingQuery | None:
+        """The oldest query waiting to be served, or None."""
+        with self._lock:
+            if self._queries:
+                return self._queries.popleft()
+            self.wake.clear()
+            return None

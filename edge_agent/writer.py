@@ -1,0 +1,87 @@
+"""The one path that writes a D1 command to an arm.
+
+Every sender (commands, stops and their repeats, resets, the watchdog, contact force limiting,
+a failed thread, shutdown) writes through ``ArmWriter.write``. Writes of one arm are serialized
+by that arm's write lock, and what to write is decided under the agent's lock *inside* it, at
+the moment of writing (``compose``): so a motion checked before a stop latched can never be
+written after the stop's own command, and a hold takes the pose of that moment.
+
+Lock order: an arm's write lock, then the agent's lock (briefly, to compose). The agent's lock
+is never held across the DDS write or a Zenoh put; the write lock is held across the DDS write
+(that is its job) but never across a Zenoh put.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from edge_agent.link import DdsLink
+from edge_agent.slots import ArmSlot
+from fleet.d1 import protocol as p
+
+Compose = Callable[[ArmSlot, float], "tuple[p.Command, int] | None"]
+"""Called with the arm's slot and the monotonic time, under the agent's lock, just before the
+write: returns (command, seq) to write now, or None to write nothing."""
+
+Observer = Callable[[str, p.Command, float], None]
+"""Told (arm, command, monotonic time) after each write, outside every lock."""
+
+
+@dataclass(frozen=True)
+class Written:
+    """A command written to an arm: whether DDS took it, when, and the text."""
+
+    ok: bool
+    written_ns: int
+    command: p.Command
+    text: str
+
+
+class ArmWriter:
+    """Writes D1 commands to the agent's arms, one arm at a time each."""
+
+    def __init__(
+        self,
+        lock: threading.Lock,
+        slots: dict[str, ArmSlot],
+        link: DdsLink,
+        mirror: Callable[[str, str], None],
+    ) -> None:
+        self._lock = lock
+        self._slots = slots
+        self._link = link
+        self._mirror = mirror  # raw/command: what was written, for recorders and debugging
+        self._arm_locks = {arm: threading.Lock() for arm in slots}
+        self.observers: list[Observer] = []
+
+    def write(self, arm: str, compose: Compose) -> Written | None:
+        """Compose and write one command to ``arm``; None if ``compose`` chose nothing."""
+        with self._arm_locks[arm]:
+            now = time.monotonic()
+            with self._lock:
+                chosen = compose(self._slots[arm], now)
+            if chosen is None:
+                return None
+            command, seq = chosen
+            text = p.encode_command(command, seq)
+            ok = self._link.write(arm, text)
+            written = Written(ok, time.time_ns(), command, text)
+        self._mirror(arm, text)
+        for observer in self.observers:
+            observer(arm, command, now)
+        return written
+
+    def write_now(self, arm: str, command: p.Command) -> Written | None:
+        """Write ``command`` with a seq nobody waits for (its effect is confirmed by feedback)."""
+        return self.write(arm, lambda slot, _now: (command, transient_seq(slot)))
+
+
+def transient_seq(slot: ArmSlot) -> int:
+    """A seq for a command whose acks nobody awaits (a stop, a hold, a force limit): unique
+    among the seqs in flight, and free again at once (caller holds the agent's lock)."""
+    seq = slot.seqs.allocate()
+    slot.seqs.release(seq)
+    return seq
