@@ -32,10 +32,13 @@ def shutdown_event() -> threading.Event:
     return stop
 
 
-def wait_for(stop: threading.Event) -> None:
-    """Block the main thread until ``stop`` is set, waking up so signal handlers can run."""
-    while not stop.wait(0.5):
-        pass
+def wait_for(stop: threading.Event, failed: threading.Event | None = None) -> bool:
+    """Block the main thread until ``stop`` (a signal) or ``failed`` (a thread's guard) is
+    set, waking up so signal handlers can run. True when a thread failed."""
+    while not stop.wait(0.1):
+        if failed is not None and failed.is_set():
+            return True
+    return False
 
 
 def add_inventory_options(parser: argparse.ArgumentParser) -> None:

@@ -143,7 +143,11 @@ def test_out_of_range_is_a_parameter_error_in_any_state() -> None:
 
 
 def test_limits_are_inclusive() -> None:
-    plan(m.MoveJoints(angles_deg=[135.0, -90.0, 90.0, -135.0, 90.0, 135.0, 65.0]), _tracker(), now=0.0)
+    plan(
+        m.MoveJoints(angles_deg=[135.0, -90.0, 90.0, -135.0, 90.0, 135.0, 65.0]),
+        _tracker(),
+        now=0.0,
+    )
     plan(m.MoveJoint(joint=6, angle_deg=0.0), _tracker(), now=0.0)
 
 

@@ -287,7 +287,7 @@ def test_fault_requests_decode_and_apply() -> None:
         b'{"op":"drop_feedback","on":true}',
         b'{"op":"mute_acks","on":true}',
     ):
-        f.apply_fault(faults, f.fault_decoder.decode(payload))
+        f.apply_fault(faults, f.FAULT.decode(payload))
     assert faults == Faults(
         stalls={2: 15.5},
         motors_offline={4},
@@ -295,7 +295,7 @@ def test_fault_requests_decode_and_apply() -> None:
         drop_feedback=True,
         mute_acks=True,
     )
-    f.apply_fault(faults, f.fault_decoder.decode(b'{"op":"clear"}'))
+    f.apply_fault(faults, f.FAULT.decode(b'{"op":"clear"}'))
     assert faults == Faults()
 
 

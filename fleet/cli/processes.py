@@ -13,6 +13,7 @@ import time
 from collections.abc import Callable
 
 from fleet.client import FleetClient
+from fleet.guard import EXIT_THREAD_FAILED
 from fleet.inventory import Inventory
 from fleet.runtime import inventory_from_args, shutdown_event, wait_for
 from fleet.wire.session import open_router
@@ -85,7 +86,10 @@ def run_sim(args: argparse.Namespace) -> int:
             ", ".join(arms),
             inventory.domain_of(inventory.arm(arms[0])),
         )
-        wait_for(stop)
+        failed = wait_for(stop, sim.guard.failed)
+    if failed:
+        log.error("%s: the simulator stopped; restart it", sim.guard.failure)
+        return EXIT_THREAD_FAILED
     return 0
 
 
@@ -97,7 +101,13 @@ def run_coordinator(args: argparse.Namespace) -> int:
     stop = shutdown_event()
     with Coordinator(inventory) as coordinator:
         coordinator.start()
-        wait_for(stop)
+        failed = wait_for(stop, coordinator.failed)
+    if failed:
+        log.error(
+            "%s: the heartbeat stopped (agents hold the arms it commanded); restart it",
+            coordinator.guard.failure,
+        )
+        return EXIT_THREAD_FAILED
     return 0
 
 

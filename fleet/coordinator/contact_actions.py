@@ -23,12 +23,18 @@ def perform(client: FleetClient, owner: str, action: Action) -> None:
         client.put_stop(request, arm)
         log.warning("arm %s stopped: %s", arm, action.reason)
     elif action.kind == "hold":
-        reply = client.command(arm, m.Hold())
+        reply = client.command(arm, _safety_hold(owner))
         log.warning("arm %s held (%s): %s", arm, "ok" if reply.ok else reply.error, action.reason)
     elif action.kind == "backoff_retry":
         _backoff_retry(client, owner, action)
     else:
         log.info("arm %s: %s", arm, action.reason)
+
+
+def _safety_hold(owner: str) -> m.Hold:
+    """A hold is subject to the arm's lease like any command: the contact policy's hold takes
+    the arm from whoever moved it into the contact (their next command is refused 3207)."""
+    return m.Hold(owner=owner, takeover=True)
 
 
 def _backoff_retry(client: FleetClient, owner: str, action: Action) -> None:
@@ -45,7 +51,7 @@ def _backoff_retry(client: FleetClient, owner: str, action: Action) -> None:
     reply = client.command(arm, back)
     if not reply.ok:
         log.warning("arm %s: back-off failed (%s); holding", arm, reply.error)
-        client.command(arm, m.Hold())
+        client.command(arm, _safety_hold(owner))
         return
     retry = client.command(arm, m.MoveJoint(joint=joint, angle_deg=action.retry_deg, owner=owner))
     log.info("arm %s: retried joint %d -> %s (%s)", arm, joint, action.retry_deg, retry.ok)

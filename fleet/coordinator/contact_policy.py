@@ -58,8 +58,15 @@ class _Place:
     times: list[float] = field(default_factory=list)
 
 
+MAX_PLACES = 32
+"""Places remembered per (arm, joint); a new place beyond this forgets the one met longest ago."""
+MAX_TIMES = 16
+"""Contacts remembered per place (``avoid_after`` needs only a few)."""
+
+
 class CollisionMemory:
-    """Where joints met obstacles: places within ``place_deg`` of each other are one place."""
+    """Where joints met obstacles: places within ``place_deg`` of each other are one place.
+    Bounded: at most MAX_PLACES places per joint, MAX_TIMES contacts per place."""
 
     def __init__(self, place_deg: float = 3.0, expire_s: float = 600.0, avoid_after: int = 3):
         self.place_deg, self.expire_s, self.avoid_after = place_deg, expire_s, avoid_after
@@ -72,8 +79,11 @@ class CollisionMemory:
         for place in places:
             if place.direction == direction and abs(place.angle_deg - angle_deg) <= self.place_deg:
                 place.times.append(now)
+                del place.times[:-MAX_TIMES]
                 return len(place.times)
         places.append(_Place(angle_deg, direction, [now]))
+        if len(places) > MAX_PLACES:
+            places.remove(min(places, key=lambda p: p.times[-1]))
         return 1
 
     def avoided(self, arm: str, joint: int, target_deg: float, now: float) -> float | None:

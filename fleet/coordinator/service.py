@@ -1,22 +1,24 @@
 """The coordinator process: fleet state, heartbeat, stop bookkeeping, multi-arm commands.
 
-Threads: ``heartbeat`` (heartbeat at the inventory's rate, fleet state every other beat),
-``events`` (liveliness, stops, resets, stop acks), ``multi-arm`` (coordinator/cmd queries).
-Zenoh callbacks only record a time or queue the sample. A stop never depends on this process:
+Threads: ``heartbeat`` (heartbeat at the inventory's rate, fleet state every other beat, diag
+once a second), ``events`` (tokens, stops and resets first, then statuses, stop acks and
+contacts), ``multi-arm`` (coordinator/cmd queries, served on a bounded pool). All run under one
+``ThreadGuard``: a failure stops the heartbeat at once and the process exits 1. Zenoh callbacks
+only decode and queue (``intake.py``, bounded). A stop never depends on this process:
 agents subscribe to the stop keys themselves; the coordinator repeats latched stops in its
 heartbeat (for agents that missed one) and reports the fan-out.
 """
 
 from __future__ import annotations
 
-import dataclasses
+import itertools
 import logging
 import os
-import queue
 import socket
 import threading
 import time
-from concurrent.futures import Future, ThreadPoolExecutor
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 
 import msgspec
 import zenoh
@@ -24,8 +26,10 @@ import zenoh
 from fleet.client import STOP_QOS, FleetClient
 from fleet.coordinator.contact_actions import perform
 from fleet.coordinator.contact_policy import Action, ContactPolicy
+from fleet.coordinator.intake import Control, CoordinatorIntake
 from fleet.coordinator.state import FleetStateTracker
 from fleet.coordinator.stops import FLEET, StopBook
+from fleet.guard import ThreadGuard
 from fleet.inventory import Inventory, InventoryError
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
@@ -36,18 +40,19 @@ log = logging.getLogger("fleet.coordinator")
 JSON = zenoh.Encoding.APPLICATION_JSON
 
 
-@dataclasses.dataclass(frozen=True)
-class _Event:
-    channel: str
-    arm: str | None
-    payload: bytes
-    kind: zenoh.SampleKind
+def _error(code: ErrorCode, why: str) -> ErrorInfo:
+    return ErrorInfo(int(code), why[:1000])
 
 
-def _log_failure(future: Future[None]) -> None:
-    """A pool task's exception is logged, never lost."""
-    if not future.cancelled() and future.exception() is not None:
-        log.error("a multi-arm request failed", exc_info=future.exception())
+MAX_ACTIVE_REQUESTS = 4
+"""Multi-arm requests served at once; one more is answered 3205 "busy" at once (a request that
+waits for its arms to reach their targets can take minutes)."""
+QUERY_DEPTH = 64
+"""Requests waiting for the multi-arm thread; beyond it they are answered "busy"."""
+MAX_PENDING_ACTIONS = 64
+"""Contact-policy actions waiting for a worker; more are dropped (counted): a flood of forged
+contact events must not queue commands without bound."""
+DIAG_PERIOD_S = 1.0
 
 
 class Coordinator:
@@ -55,7 +60,7 @@ class Coordinator:
 
     def __init__(self, inventory: Inventory) -> None:
         self.inventory = inventory
-        self.id = f"coordinator@{socket.gethostname()}:{os.getpid()}"
+        self.id = f"coordinator@{socket.gethostname()[:64]}:{os.getpid()}"
         self.keys = keys.KeySpace(inventory.fleet)
         arms = list(inventory.arms)
         settings = inventory.coordinator
@@ -63,11 +68,21 @@ class Coordinator:
         self.state = FleetStateTracker(arms, settings.offline_after_s)
         self.stops = StopBook(arms)
         self.contacts = ContactPolicy()  # fleet contact table, policies, collision memory
-        self._contact_actions: list[Action] = []  # guarded by self.lock, done off-thread
-        self.lock = threading.Lock()  # guards self.state and self.stops
+        self.lock = threading.Lock()  # guards self.state, self.stops and self.contacts
         self.stopping = threading.Event()
-        self._events: queue.SimpleQueue[_Event] = queue.SimpleQueue()
-        self._queries: queue.Queue[zenoh.Query] = queue.Queue(maxsize=64)
+        # A failed thread stops the heartbeat at once (agents then hold the arms this
+        # coordinator commands) and the process exits 1: no zombie that beats on.
+        self.guard = ThreadGuard("coordinator", lambda _what: self.stopping.set())
+        self.failed = self.guard.failed
+        self.intake = CoordinatorIntake(self.keys, frozenset(arms))
+        self._undecodable_ids = itertools.count(1)
+        self._queries: deque[zenoh.Query] = deque()
+        self._busy: deque[zenoh.Query] = deque()
+        self._query_lock = threading.Lock()
+        self._query_wake = threading.Event()
+        self.requests_active = 0  # guarded by _query_lock
+        self.busy = self.dropped_queries = 0
+        self._pending_actions = 0  # guarded by lock
         self.session = open_client(inventory.endpoints)
         self.client = FleetClient(inventory, self.session)
         self._declared: list[zenoh.Subscriber[None] | zenoh.Queryable[None]] = []
@@ -77,149 +92,191 @@ class Coordinator:
         )
         self._state_pub = self.session.declare_publisher(self.keys.state, encoding=JSON)
         self._report_pub = self.session.declare_publisher(self.keys.stop_report, encoding=JSON)
+        self._diag_pub = self.session.declare_publisher(self.keys.coordinator_diag, encoding=JSON)
         self._pool = ThreadPoolExecutor(max_workers=16, thread_name_prefix="fan-out")
         # Multi-arm requests are served side by side: one that waits for its arms to reach
         # their targets must not hold up the next. A pool of its own: a request fans out on
         # _pool, and sharing one pool could starve it of workers.
-        self._requests = ThreadPoolExecutor(max_workers=4, thread_name_prefix="multi-arm")
+        self._requests = ThreadPoolExecutor(
+            max_workers=MAX_ACTIVE_REQUESTS, thread_name_prefix="multi-arm"
+        )
         self._threads = [
-            threading.Thread(target=self._loop(self._beat), name="heartbeat", daemon=True),
-            threading.Thread(target=self._loop(self._drain_events), name="events", daemon=True),
-            threading.Thread(target=self._loop(self._serve_query), name="multi-arm", daemon=True),
+            self.guard.thread(self._beat, "heartbeat"),
+            self.guard.thread(self._drain_events, "events"),
+            self.guard.thread(self._serve_queries, "multi-arm"),
         ]
 
     def _declare(self) -> None:
+        intake, wrap = self.intake, self.guard.wrap
         sub = self.session.declare_subscriber
         self._declared += [
             self.session.liveliness().declare_subscriber(
-                self.keys.all_arms(keys.AGENT), self._on_token, history=True
+                self.keys.all_arms(keys.AGENT), wrap(intake.on_token, "token"), history=True
             ),
-            sub(self.keys.all_arms(keys.STATUS), self._on_status),
-            sub(self.keys.estop, self._queue(keys.ESTOP)),
-            sub(self.keys.all_arms(keys.ESTOP), self._queue(keys.ESTOP)),
-            sub(self.keys.reset, self._queue(keys.RESET)),
-            sub(self.keys.all_arms(keys.RESET), self._queue(keys.RESET)),
-            sub(self.keys.all_arms(keys.ESTOP_ACK), self._queue(keys.ESTOP_ACK)),
-            sub(self.keys.all_arms(keys.CONTACT), self._queue(keys.CONTACT)),
-            self.session.declare_queryable(self.keys.coordinator_cmd, self._on_query),
+            sub(self.keys.all_arms(keys.STATUS), wrap(intake.on_status, "status")),
+            sub(self.keys.estop, wrap(intake.on_stop(True), "estop")),
+            sub(self.keys.all_arms(keys.ESTOP), wrap(intake.on_stop(False), "estop")),
+            sub(self.keys.reset, wrap(intake.on_reset(True), "reset")),
+            sub(self.keys.all_arms(keys.RESET), wrap(intake.on_reset(False), "reset")),
+            sub(self.keys.all_arms(keys.ESTOP_ACK), wrap(intake.on_report, "estop-ack")),
+            sub(self.keys.all_arms(keys.CONTACT), wrap(intake.on_report, "contact")),
+            self.session.declare_queryable(
+                self.keys.coordinator_cmd, wrap(self._on_query, "coordinator-cmd")
+            ),
         ]
 
-    # ------------------------------------------------------------------ Zenoh callbacks
-
-    def _arm_of(self, sample: zenoh.Sample) -> str | None:
-        key = str(sample.key_expr)
-        try:
-            return self.keys.parse_arm_key(key).arm
-        except keys.KeyError_:
-            return None
-
-    def _on_token(self, sample: zenoh.Sample) -> None:
-        self._events.put(_Event(keys.AGENT, self._arm_of(sample), b"", sample.kind))
-
-    def _on_status(self, sample: zenoh.Sample) -> None:
-        self._events.put(
-            _Event(keys.STATUS, self._arm_of(sample), sample.payload.to_bytes(), sample.kind)
-        )
-
-    def _queue(self, channel: str):  # type: ignore[no-untyped-def]
-        def handler(sample: zenoh.Sample) -> None:
-            payload = sample.payload.to_bytes()
-            self._events.put(_Event(channel, self._arm_of(sample), payload, sample.kind))
-
-        return handler
-
     def _on_query(self, query: zenoh.Query) -> None:
-        try:
-            self._queries.put_nowait(query)
-        except queue.Full:
-            log.warning("multi-arm command queue full: a query was not served")
+        """Zenoh thread: queue the request; if full, queue it for a "busy" answer."""
+        with self._query_lock:
+            if len(self._queries) < QUERY_DEPTH:
+                self._queries.append(query)
+            elif len(self._busy) < QUERY_DEPTH:
+                self._busy.append(query)
+            else:
+                self.dropped_queries += 1  # dropping the query ends it: no reply, at once
+                return
+        self._query_wake.set()
 
     # ------------------------------------------------------------------ threads
-
-    def _loop(self, step):  # type: ignore[no-untyped-def]
-        def run() -> None:
-            try:
-                while not self.stopping.is_set():
-                    step()
-            except BaseException:
-                log.exception("coordinator thread %s failed", threading.current_thread().name)
-                raise
-
-        return run
 
     def _beat(self) -> None:
         seq = 0
         next_beat = time.monotonic()
+        next_diag = next_beat
         while not self.stopping.is_set():
             now, stamp = time.monotonic(), time.time_ns()
             with self.lock:
                 beat = m.Heartbeat(stamp, self.id, seq, self.period_s, self.stops.latched())
                 state = self.state.state(self.id, now, stamp) if seq % 2 == 0 else None
+            if self.stopping.is_set():
+                return  # a thread failed meanwhile: not one more beat
             self._heartbeat_pub.put(encode(beat))
             if state is not None:
                 self._state_pub.put(encode(state))
+            if now >= next_diag:
+                next_diag = now + DIAG_PERIOD_S
+                self._diag_pub.put(encode(self.diag(stamp)))
             seq += 1
             next_beat += self.period_s
             self.stopping.wait(max(0.0, next_beat - time.monotonic()))
 
-    def _drain_events(self) -> None:
-        try:
-            event = self._events.get(timeout=0.2)
-        except queue.Empty:
-            return
-        report: m.StopReport | None = None
-        actions: list[Action] = []
-        now = time.monotonic()
-        try:
-            with self.lock:
-                report = self._apply(event, now)
-                actions, self._contact_actions = self._contact_actions, []
-        except msgspec.DecodeError as exc:
-            log.warning("ignored a malformed %s sample: %s", event.channel, exc)
-        if report is not None:
-            self._report_pub.put(encode(report))
-        for action in actions:  # contact policy: commands and stops, on the pool's threads
-            self._pool.submit(perform, self.client, self.id, action)
+    def diag(self, stamp_ns: int) -> m.CoordinatorDiag:
+        """The coordinator's counters."""
+        counters = self.intake.counters
+        with self._query_lock:
+            busy, dropped, active = self.busy, self.dropped_queries, self.requests_active
+        return m.CoordinatorDiag(
+            stamp_ns=stamp_ns,
+            coordinator=self.id,
+            bad_events=counters.bad_events,
+            unknown_arms=counters.unknown_arms,
+            dropped_events=counters.dropped_events,
+            busy=busy,
+            dropped_queries=dropped,
+            requests_active=active,
+        )
 
-    def _apply(self, event: _Event, now: float) -> m.StopReport | None:
-        """Apply one event (caller holds the lock)."""
-        if event.channel == keys.AGENT and event.arm is not None:
-            self.state.on_token(event.arm, event.kind == zenoh.SampleKind.PUT, now)
-        elif event.channel == keys.STATUS and event.arm is not None:
-            self.state.on_status(event.arm, payloads.STATUS.decode(event.payload), now)
-        elif event.channel == keys.ESTOP:
-            request = payloads.STOP.decode(event.payload)
-            self.stops.on_stop(event.arm or FLEET, request)
-            log.warning(
-                "stop %s by %s on %s", request.stop_id[:8], request.source, event.arm or "all"
+    def _drain_events(self) -> None:
+        while not self.stopping.is_set():
+            self.intake.wake.wait(0.2)
+            self.intake.wake.clear()
+            control, statuses, reports = self.intake.take()
+            stop_reports: list[m.StopReport] = []
+            actions: list[Action] = []
+            now = time.monotonic()
+            with self.lock:
+                for event in control:
+                    self._apply_control(event, now)
+                for arm, status in statuses.items():
+                    self.state.on_status(arm, status, now)
+                for report in reports:
+                    if isinstance(report.payload, m.StopAck):
+                        stop_report = self.stops.on_ack(report.arm, report.payload)
+                        if stop_report is not None:
+                            stop_reports.append(stop_report)
+                    else:
+                        actions += self.contacts.on_event(report.arm, report.payload, now)
+                        self.state.on_contact(report.arm, self.contacts.in_contact(report.arm))
+                actions = actions[: max(0, MAX_PENDING_ACTIONS - self._pending_actions)]
+                self._pending_actions += len(actions)
+            for stop_report in stop_reports:
+                self._report_pub.put(encode(stop_report))
+            for action in actions:  # contact policy: commands and stops, on the pool's threads
+                self._pool.submit(self.guard.wrap(self._perform, "contact-action"), action)
+
+    def _perform(self, action: Action) -> None:
+        try:
+            perform(self.client, self.id, action)
+        finally:
+            with self.lock:
+                self._pending_actions -= 1
+
+    def _apply_control(self, event: Control, now: float) -> None:
+        """Apply one token change, stop or reset (caller holds the lock)."""
+        if event.kind == "token" and event.arm is not None:
+            self.state.on_token(event.arm, event.present, now)
+        elif event.kind == "stop":
+            request = event.stop or m.StopRequest(
+                stamp_ns=time.time_ns(),
+                source="unknown",
+                stop_id=f"undecodable-{os.getpid()}-{next(self._undecodable_ids)}",
+                reason=event.why[:900],
             )
-        elif event.channel == keys.RESET:
+            if self.stops.on_stop(event.arm or FLEET, request):
+                log.warning(
+                    "stop %s by %s on %s: %s",
+                    request.stop_id[:24],
+                    request.source,
+                    event.arm or "all",
+                    request.reason[:200],
+                )
+        elif event.kind == "reset":
             self.stops.on_reset(event.arm or FLEET)
-        elif event.channel == keys.CONTACT and event.arm is not None:
-            contact = payloads.CONTACT.decode(event.payload)
-            self._contact_actions += self.contacts.on_event(event.arm, contact, now)
-            self.state.on_contact(event.arm, self.contacts.in_contact(event.arm))
-        elif event.channel == keys.ESTOP_ACK:
-            return self.stops.on_ack(payloads.STOP_ACK.decode(event.payload))
-        return None
 
     # ------------------------------------------------------------------ multi-arm commands
 
-    def _serve_query(self) -> None:
-        try:
-            query = self._queries.get(timeout=0.2)
-        except queue.Empty:
-            return
-        self._requests.submit(self._answer, query).add_done_callback(_log_failure)
+    def _serve_queries(self) -> None:
+        while not self.stopping.is_set():
+            self._query_wake.wait(0.2)
+            with self._query_lock:
+                busy = list(self._busy)
+                self._busy.clear()
+                self.busy += len(busy)
+                query = self._queries.popleft() if self._queries else None
+                if query is not None and self.requests_active >= MAX_ACTIVE_REQUESTS:
+                    busy.append(query)
+                    self.busy += 1
+                    query = None
+                elif query is not None:
+                    self.requests_active += 1
+                if not self._queries and not self._busy:
+                    self._query_wake.clear()
+            for waiting in busy:
+                why = (
+                    f"the coordinator is busy ({MAX_ACTIVE_REQUESTS} requests in progress); "
+                    "retry when one finishes"
+                )
+                self._reply(
+                    waiting, m.MultiArmReply(False, {}, None, _error(ErrorCode.REJECTED, why))
+                )
+            if query is not None:
+                self._requests.submit(self.guard.wrap(self._answer, "multi-arm request"), query)
 
     def _answer(self, query: zenoh.Query) -> None:
-        payload = query.payload.to_bytes() if query.payload is not None else b""
         try:
-            reply = self.command(payloads.MULTI_REQUEST.decode(payload))
-        except msgspec.DecodeError as exc:
-            reply = m.MultiArmReply(False, {}, None, ErrorInfo(int(ErrorCode.PARAMETER), str(exc)))
-        except InventoryError as exc:
-            reply = m.MultiArmReply(False, {}, None, ErrorInfo(int(ErrorCode.PARAMETER), str(exc)))
+            payload = query.payload.to_bytes() if query.payload is not None else b""
+            try:
+                reply = self.command(payloads.MULTI_REQUEST.decode(payload))
+            except (payloads.PayloadError, InventoryError) as exc:
+                reply = m.MultiArmReply(False, {}, None, _error(ErrorCode.PARAMETER, str(exc)))
+            self._reply(query, reply)
+        finally:
+            with self._query_lock:
+                self.requests_active -= 1
+            self._query_wake.set()
+
+    @staticmethod
+    def _reply(query: zenoh.Query, reply: m.MultiArmReply) -> None:
         query.reply(query.key_expr, encode(reply), encoding=JSON)
         query.drop()
 
@@ -231,7 +288,8 @@ class Coordinator:
         if refused is not None:
             return refused
         changes: dict[str, object] = {"owner": self.id}
-        if request.sync and len(arms) > 1:
+        if request.sync and len(arms) > 1 and not isinstance(request.command, m.Hold):
+            # (a hold takes the pose of the moment it is written: it has no start time)
             lead = (
                 request.lead_s
                 if request.lead_s is not None
@@ -292,7 +350,7 @@ class Coordinator:
         self._pool.shutdown(wait=False, cancel_futures=True)
         for entity in self._declared:
             entity.undeclare()
-        for publisher in (self._heartbeat_pub, self._state_pub, self._report_pub):
+        for publisher in (self._heartbeat_pub, self._state_pub, self._report_pub, self._diag_pub):
             publisher.undeclare()
         self.session.close()
 

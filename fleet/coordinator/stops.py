@@ -20,15 +20,19 @@ class StopBook:
     """Which stops are latched, and how each one fanned out."""
 
     def __init__(self, arms: list[str], keep: int = 32) -> None:
-        self._arms = arms
+        self._arms = frozenset(arms)
         self._latched: dict[str, m.StopRequest] = {}
         self._reset_since_fleet_stop: set[str] = set()
         self._fanouts: dict[str, _Fanout] = {}
         self._keep = keep
 
-    def on_stop(self, target: str, request: m.StopRequest) -> None:
+    def on_stop(self, target: str, request: m.StopRequest) -> bool:
         """A stop was put on the fleet key (``target`` = ``*``) or on one arm's key.
-        The newest stop per target is the one the heartbeat repeats."""
+        The newest stop per target is the one the heartbeat repeats. A stop for an arm that is
+        not in the inventory is not recorded (False): no agent serves it, and a flood of
+        invented names must not grow the heartbeat."""
+        if target != FLEET and target not in self._arms:
+            return False
         self._latched[target] = request
         if target == FLEET:
             self._reset_since_fleet_stop.clear()
@@ -36,11 +40,14 @@ class StopBook:
             self._fanouts[request.stop_id] = _Fanout(request)
             while len(self._fanouts) > self._keep:
                 del self._fanouts[next(iter(self._fanouts))]
+        return True
 
     def on_reset(self, target: str) -> None:
         """A reset of the fleet (``*``: clears everything) or of one arm."""
         if target == FLEET:
             self._latched.clear()
+            return
+        if target not in self._arms:
             return
         self._latched.pop(target, None)
         self._reset_since_fleet_stop.add(target)
@@ -51,12 +58,13 @@ class StopBook:
         """The stops the heartbeat repeats."""
         return dict(self._latched)
 
-    def on_ack(self, ack: m.StopAck) -> m.StopReport | None:
-        """Record an agent's ack; returns the updated report of that stop (None if unknown)."""
+    def on_ack(self, arm: str, ack: m.StopAck) -> m.StopReport | None:
+        """Record the ack published on ``arm``'s key (the key says which arm, not the payload);
+        returns the updated report of that stop (None if the stop or the arm is unknown)."""
         fanout = self._fanouts.get(ack.stop_id)
-        if fanout is None:
+        if fanout is None or arm not in self._arms:
             return None
-        fanout.acks[ack.arm] = ack
+        fanout.acks[arm] = ack
         return self.report(ack.stop_id)
 
     def report(self, stop_id: str) -> m.StopReport | None:

@@ -8,11 +8,11 @@ from __future__ import annotations
 
 import math
 
-import msgspec
 from msgspec import Struct
 
 from fleet.sim.model import Faults
 from fleet.sim.obstacles import Obstacle
+from fleet.wire.payloads import PayloadKind, payload_kind
 
 
 class _Fault(Struct, tag_field="op", forbid_unknown_fields=True, frozen=True):
@@ -124,7 +124,8 @@ Fault = (
     | ClearFaults
 )
 
-fault_decoder: msgspec.json.Decoder[Fault] = msgspec.json.Decoder(Fault)
+FAULT: PayloadKind[Fault] = payload_kind("sim/fault", Fault, 4096)
+"""Fault requests, decoded like every key-space payload (size-capped; PayloadError only)."""
 
 
 class FaultReply(Struct, frozen=True):

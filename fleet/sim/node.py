@@ -15,7 +15,6 @@ import threading
 import time
 from dataclasses import dataclass
 
-import msgspec
 import zenoh
 from cyclonedds.core import (
     GuardCondition,
@@ -32,8 +31,9 @@ from cyclonedds.util import duration
 
 from fleet.d1 import dds
 from fleet.d1.protocol import encode_message
+from fleet.guard import ThreadGuard
 from fleet.inventory import ArmConfig, Inventory
-from fleet.sim.faults import FaultReply, apply_fault, fault_decoder
+from fleet.sim.faults import FAULT, FaultReply, apply_fault
 from fleet.sim.model import SimArmModel
 from fleet.wire import keys
 from fleet.wire.messages import encode
@@ -43,6 +43,8 @@ log = logging.getLogger("fleet.sim")
 
 FEEDBACK_PERIOD_S = (0.100, 0.111)
 """The real arm's feed runs at about 9-10 Hz: each period is drawn from this range."""
+MAX_PENDING_FAULTS = 64
+"""Fault requests waiting for the simulator loop; more are dropped."""
 STATUS_EVERY = 5
 """Status (2/3) and motor (2/4) reports go out with every 5th angle report (about 2 Hz)."""
 
@@ -87,7 +89,8 @@ class SimulatedArms:
         self._queryables: list[zenoh.Queryable[None]] = []
         self._keys = keys.KeySpace(inventory.fleet)
         self._endpoints = inventory.endpoints
-        self._thread = threading.Thread(target=self._run, name="sim-arms", daemon=True)
+        self.guard = ThreadGuard("fleet sim")
+        self._thread = self.guard.thread(self._run, "sim-arms")
 
     def _period(self) -> float:
         return self._rng.uniform(*FEEDBACK_PERIOD_S)
@@ -107,10 +110,12 @@ class SimulatedArms:
     def _on_fault_query(self, arm_id: str):  # type: ignore[no-untyped-def]
         def handler(query: zenoh.Query) -> None:
             payload = query.payload.to_bytes() if query.payload is not None else b""
+            if self._faults.qsize() >= MAX_PENDING_FAULTS:
+                return  # a flood: dropping the query answers it (no reply) at once
             self._faults.put((arm_id, query, payload))
             self._guard.set(True)
 
-        return handler
+        return self.guard.wrap(handler, "sim/fault")
 
     def model(self, arm_id: str) -> SimArmModel:
         """The model of ``arm_id`` (for in-process inspection only)."""
@@ -119,19 +124,15 @@ class SimulatedArms:
     # ------------------------------------------------------------------ loop
 
     def _run(self) -> None:
-        try:
-            while not self._stop.is_set():
-                now = time.monotonic()
-                deadline = min(a.next_feedback_s for a in self._arms.values())
-                timeout = max(0.0, min(deadline - now, 0.5))
-                self._waitset.wait(duration(seconds=timeout))
-                self._guard.set(False)
-                self._serve_faults()
-                self._serve_commands()
-                self._publish_feedback(time.monotonic())
-        except BaseException:
-            log.exception("simulated arm loop failed")
-            raise
+        while not self._stop.is_set():
+            now = time.monotonic()
+            deadline = min(a.next_feedback_s for a in self._arms.values())
+            timeout = max(0.0, min(deadline - now, 0.5))
+            self._waitset.wait(duration(seconds=timeout))
+            self._guard.set(False)
+            self._serve_faults()
+            self._serve_commands()
+            self._publish_feedback(time.monotonic())
 
     def _serve_commands(self) -> None:
         for arm in self._arms.values():
@@ -168,10 +169,10 @@ class SimulatedArms:
             except queue.Empty:
                 return
             try:
-                apply_fault(self._arms[arm_id].model.faults, fault_decoder.decode(payload))
+                apply_fault(self._arms[arm_id].model.faults, FAULT.decode(payload))
                 reply = FaultReply(ok=True)
-            except (msgspec.DecodeError, ValueError) as exc:
-                reply = FaultReply(ok=False, error=str(exc))
+            except ValueError as exc:  # PayloadError, or figures out of range
+                reply = FaultReply(ok=False, error=str(exc)[:1000])
             query.reply(query.key_expr, encode(reply))
             query.drop()
 

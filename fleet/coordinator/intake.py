@@ -1,0 +1,190 @@
+"""What the coordinator's Zenoh callbacks hand to its ``events`` thread: decoded, bounded,
+checked against the inventory, stops first.
+
+- control (a bounded FIFO, served first, in arrival order): agent tokens, stops, resets. A stop
+  that does not decode is recorded as one anyway (``undecodable``: the agents stopped on it,
+  and the heartbeat repeats it for any that missed it); a stop that finds the FIFO full marks
+  its target, and the thread records it ("flood"), so no stop is lost;
+- status: latest-wins per arm (the newest status is all the fleet state needs);
+- reports (a bounded FIFO): stop acks and contact events; overflow is counted.
+Samples on the keys of arms that are not in the inventory are counted and dropped: nothing an
+unknown name sends is stored. The arm comes from the key, never from the payload.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import deque
+from dataclasses import dataclass
+from typing import Literal
+
+import zenoh
+
+from fleet.wire import keys, payloads
+from fleet.wire import messages as m
+
+CONTROL_DEPTH = 1024
+REPORT_DEPTH = 4096
+
+ControlKind = Literal["token", "stop", "reset"]
+
+
+@dataclass(frozen=True)
+class Control:
+    """An agent token change, a stop or a reset. ``arm`` None: the fleet-wide key. For a stop,
+    ``stop`` None means undecodable (or dropped by a flood), ``why`` says which."""
+
+    kind: ControlKind
+    arm: str | None
+    present: bool = False
+    stop: m.StopRequest | None = None
+    why: str = ""
+
+
+@dataclass(frozen=True)
+class Report:
+    """A stop ack or a contact event of an inventory arm."""
+
+    arm: str
+    payload: m.StopAck | m.ContactEvent
+
+
+@dataclass
+class IntakeCounters:
+    """Published in ``coordinator/diag``."""
+
+    bad_events: int = 0
+    unknown_arms: int = 0
+    dropped_events: int = 0
+
+
+class CoordinatorIntake:
+    """Zenoh callbacks -> bounded queues for the events thread."""
+
+    def __init__(self, space: keys.KeySpace, arms: frozenset[str]) -> None:
+        self.counters = IntakeCounters()
+        self.wake = threading.Event()
+        self._space = space
+        self._arms = arms
+        self._lock = threading.Lock()
+        self._control: deque[Control] = deque()
+        self._flooded: dict[str | None, None] = {}
+        self._status: dict[str, m.ArmStatus] = {}
+        self._reports: deque[Report] = deque()
+
+    def _arm(self, sample: zenoh.Sample) -> str | None:
+        """The inventory arm whose key the sample came on; None (counted) otherwise."""
+        try:
+            arm = self._space.parse_arm_key(str(sample.key_expr)).arm
+        except keys.KeyError_:
+            arm = None
+        if arm not in self._arms:
+            with self._lock:
+                self.counters.unknown_arms += 1
+            return None
+        return arm
+
+    def _bad(self) -> None:
+        with self._lock:
+            self.counters.bad_events += 1
+
+    # ------------------------------------------------------------------ callbacks
+
+    def on_token(self, sample: zenoh.Sample) -> None:
+        """An agent's liveliness token appeared or went away."""
+        arm = self._arm(sample)
+        if arm is not None:
+            present = sample.kind == zenoh.SampleKind.PUT
+            self._push_control(Control("token", arm, present=present))
+
+    def on_stop(self, fleet_wide: bool):  # type: ignore[no-untyped-def]
+        """The callback of the fleet's (``fleet_wide``) or the arms' stop key."""
+
+        def handler(sample: zenoh.Sample) -> None:
+            arm = None if fleet_wide else self._arm(sample)
+            if not fleet_wide and arm is None:
+                return
+            try:
+                event = Control("stop", arm, stop=payloads.STOP.decode(sample.payload.to_bytes()))
+            except payloads.PayloadError as exc:
+                self._bad()
+                event = Control("stop", arm, why=f"undecodable stop request ({exc.why[:200]})")
+            self._push_control(event)
+
+        return handler
+
+    def on_reset(self, fleet_wide: bool):  # type: ignore[no-untyped-def]
+        """The callback of the fleet's or the arms' reset key; a bad reset releases nothing."""
+
+        def handler(sample: zenoh.Sample) -> None:
+            arm = None if fleet_wide else self._arm(sample)
+            if not fleet_wide and arm is None:
+                return
+            try:
+                payloads.RESET.decode(sample.payload.to_bytes())
+            except payloads.PayloadError:
+                self._bad()
+                return
+            self._push_control(Control("reset", arm))
+
+        return handler
+
+    def on_status(self, sample: zenoh.Sample) -> None:
+        """An agent's status: latest wins."""
+        arm = self._arm(sample)
+        if arm is None:
+            return
+        try:
+            status = payloads.STATUS.decode(sample.payload.to_bytes())
+        except payloads.PayloadError:
+            self._bad()
+            return
+        with self._lock:
+            self._status[arm] = status
+        self.wake.set()
+
+    def on_report(self, sample: zenoh.Sample) -> None:
+        """A stop ack or a contact event."""
+        arm = self._arm(sample)
+        if arm is None:
+            return
+        channel = self._space.parse_arm_key(str(sample.key_expr)).channel
+        kind = payloads.STOP_ACK if channel == keys.ESTOP_ACK else payloads.CONTACT
+        try:
+            payload: m.StopAck | m.ContactEvent = kind.decode(sample.payload.to_bytes())
+        except payloads.PayloadError:
+            self._bad()
+            return
+        with self._lock:
+            if len(self._reports) >= REPORT_DEPTH:
+                self.counters.dropped_events += 1
+                return
+            self._reports.append(Report(arm, payload))
+        self.wake.set()
+
+    def _push_control(self, event: Control) -> None:
+        with self._lock:
+            if len(self._control) < CONTROL_DEPTH:
+                self._control.append(event)
+            elif event.kind == "stop":
+                self._flooded[event.arm] = None  # bounded: the inventory's arms and None
+            else:
+                self.counters.dropped_events += 1
+        self.wake.set()
+
+    # ------------------------------------------------------------------ events thread
+
+    def take(self) -> tuple[list[Control], dict[str, m.ArmStatus], list[Report]]:
+        """Everything pending, control first (stops that found the FIFO full at its end)."""
+        with self._lock:
+            control = list(self._control)
+            self._control.clear()
+            control += [
+                Control("stop", arm, why="stop request dropped at a full queue (flood)")
+                for arm in self._flooded
+            ]
+            self._flooded.clear()
+            status, self._status = self._status, {}
+            reports = list(self._reports)
+            self._reports.clear()
+        return control, status, reports
