@@ -40,6 +40,7 @@ from edge_agent.writer import ArmWriter, transient_seq
 from fleet.d1 import protocol as p
 from fleet.guard import ThreadGuard
 from fleet.inventory import Inventory
+from fleet.wire import keys
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, encode
 
@@ -233,7 +234,9 @@ class EdgeAgent:
         for publisher, payload in out.puts:
             publisher.put(payload)
         for query, reply in out.replies:
-            query.reply(query.key_expr, encode(reply), encoding=JSON)
+            # On the arm's own key, not the query's: a wildcard query (arm/*/cmd) gets one
+            # reply per arm, which consolidation would merge if they shared the wildcard key.
+            query.reply(self.relay.keys.arm(reply.arm, keys.CMD), encode(reply), encoding=JSON)
             query.drop()
 
     # ------------------------------------------------------------------ state access

@@ -67,9 +67,18 @@ class ThreadGuard:
             first = self.failure is None
             if first:
                 self.failure = f"{where}: {type(exc).__name__ if exc else 'failed'}: {exc or ''}"
-        if first and self._on_failure is not None:
-            try:
-                self._on_failure(self.failure or where)
-            except BaseException:  # noqa: BLE001 - the failure path must reach `failed`
-                log.exception("%s: the failure handler failed too", self.process)
-        self.failed.set()
+        if not first:
+            return
+        # On a thread of its own: the failing thread may be a Zenoh callback (publishing from
+        # there can deadlock the session) or hold state the handler needs.
+        handler = threading.Thread(target=self._handle, name="guard-failure", daemon=True)
+        handler.start()
+
+    def _handle(self) -> None:
+        try:
+            if self._on_failure is not None:
+                self._on_failure(self.failure or "unknown")
+        except BaseException:  # noqa: BLE001 - the failure path must reach `failed`
+            log.exception("%s: the failure handler failed too", self.process)
+        finally:
+            self.failed.set()

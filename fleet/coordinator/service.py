@@ -70,6 +70,7 @@ class Coordinator:
         self.contacts = ContactPolicy()  # fleet contact table, policies, collision memory
         self.lock = threading.Lock()  # guards self.state, self.stops and self.contacts
         self.stopping = threading.Event()
+        self._closed = False
         # A failed thread stops the heartbeat at once (agents then hold the arms this
         # coordinator commands) and the process exits 1: no zombie that beats on.
         self.guard = ThreadGuard("coordinator", lambda _what: self.stopping.set())
@@ -275,9 +276,8 @@ class Coordinator:
                 self.requests_active -= 1
             self._query_wake.set()
 
-    @staticmethod
-    def _reply(query: zenoh.Query, reply: m.MultiArmReply) -> None:
-        query.reply(query.key_expr, encode(reply), encoding=JSON)
+    def _reply(self, query: zenoh.Query, reply: m.MultiArmReply) -> None:
+        query.reply(self.keys.coordinator_cmd, encode(reply), encoding=JSON)
         query.drop()
 
     def command(self, request: m.MultiArmRequest) -> m.MultiArmReply:
@@ -340,11 +340,12 @@ class Coordinator:
     def close(self) -> None:
         """Stop the loops, join, undeclare, close the session (idempotent). Agents holding
         arms under this coordinator's command will hold them when the heartbeat stops."""
-        if self.stopping.is_set():
+        if self._closed:
             return
-        self.stopping.set()
+        self._closed = True
+        self.stopping.set()  # (already set if a thread failed: that stopped the heartbeat)
         for thread in self._threads:
-            if thread.is_alive():
+            if thread.is_alive() and thread is not threading.current_thread():
                 thread.join(timeout=2.0)
         self._requests.shutdown(wait=False, cancel_futures=True)
         self._pool.shutdown(wait=False, cancel_futures=True)

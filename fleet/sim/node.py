@@ -173,7 +173,7 @@ class SimulatedArms:
                 reply = FaultReply(ok=True)
             except ValueError as exc:  # PayloadError, or figures out of range
                 reply = FaultReply(ok=False, error=str(exc)[:1000])
-            query.reply(query.key_expr, encode(reply))
+            query.reply(self._keys.arm(arm_id, keys.SIM_FAULT), encode(reply))
             query.drop()
 
     # ------------------------------------------------------------------ shutdown

@@ -1,0 +1,188 @@
+"""A thread that dies takes its process down safely: the agent latches and stops every arm and
+exits 1; the coordinator stops its heartbeat at once (the agents' watchdogs then hold what it
+commanded) and exits 1. No zombie that looks healthy.
+
+The agent and the coordinator run in this process, through their real ``main`` (real DDS, real
+Zenoh, a real router and simulator in subprocesses); the failure is injected by patching one
+method of one thread to raise, the only thing here that is not the product itself.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from typing import Any
+
+import pytest
+
+import edge_agent.__main__ as agent_main
+from edge_agent.agent import EdgeAgent
+from edge_agent.inbox import SafetyInbox
+from edge_agent.serving import CommandService
+from edge_agent.stops import SafetyLoop
+from edge_agent.tracker import ArmTracker
+from fleet.cli import main as fleet_main
+from fleet.client import FleetClient
+from fleet.coordinator.service import Coordinator
+from fleet.guard import EXIT_THREAD_FAILED, ThreadGuard
+from fleet.wire import keys
+from fleet.wire import messages as m
+from tests.harness import FleetHarness, wait_until
+
+# ----------------------------------------------------------------------------- the guard
+
+
+def test_the_guard_reports_once_and_never_reraises() -> None:
+    failures: list[str] = []
+    guard = ThreadGuard("test", failures.append)
+
+    def boom() -> None:
+        raise RecursionError("deep")
+
+    thread = guard.thread(boom, "worker")
+    thread.start()
+    thread.join(timeout=5.0)
+    assert guard.failed.wait(5.0)
+    assert len(failures) == 1 and "worker" in failures[0] and "RecursionError" in failures[0]
+    assert guard.wrap(boom, "callback")() is None  # a callback's failure is reported, not raised
+    assert len(failures) == 1  # on_failure runs once
+
+
+def test_a_failing_failure_handler_still_sets_failed() -> None:
+    def handler(_what: str) -> None:
+        raise OSError("cannot even hold")
+
+    guard = ThreadGuard("test", handler)
+    guard.fail("somewhere", ValueError("x"))
+    assert guard.failed.wait(5.0)
+
+
+# ----------------------------------------------------------------------------- processes
+
+
+def _after(calls: int, method: Callable[..., Any]) -> Callable[..., Any]:
+    """``method`` that raises on its ``calls``-th call (the thread ran normally until then)."""
+    count = [0]
+
+    def patched(*args: Any, **kwargs: Any) -> Any:
+        count[0] += 1
+        if count[0] >= calls:
+            raise RuntimeError("injected failure")
+        return method(*args, **kwargs)
+
+    return patched
+
+
+@contextmanager
+def _main_thread_signals(give_up_s: float) -> Iterator[None]:
+    """Run a process's main() here: restore the signal handlers after, and SIGTERM ourselves
+    if it has not returned in ``give_up_s`` (so a missed failure fails the test, never hangs)."""
+    saved = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    timer = threading.Timer(give_up_s, lambda: os.kill(os.getpid(), signal.SIGTERM))
+    timer.start()
+    try:
+        yield
+    finally:
+        timer.cancel()
+        for sig, handler in saved.items():
+            signal.signal(sig, handler)
+
+
+class _Seen:
+    """Statuses and stop acks of the fleet, as a client sees them."""
+
+    def __init__(self, client: FleetClient) -> None:
+        self.statuses: list[m.ArmStatus] = []
+        self.acks: list[m.StopAck] = []
+        self.beats: list[float] = []
+        decode = __import__("msgspec").json.decode
+        session = client.session
+        self._subs = [
+            session.declare_subscriber(
+                client.keys.all_arms(keys.STATUS),
+                lambda s: self.statuses.append(decode(s.payload.to_bytes(), type=m.ArmStatus)),
+            ),
+            session.declare_subscriber(
+                client.keys.all_arms(keys.ESTOP_ACK),
+                lambda s: self.acks.append(decode(s.payload.to_bytes(), type=m.StopAck)),
+            ),
+            session.declare_subscriber(
+                client.keys.heartbeat, lambda _s: self.beats.append(time.monotonic())
+            ),
+        ]
+
+    def close(self) -> None:
+        for sub in self._subs:
+            sub.undeclare()
+
+
+INJECTIONS: dict[str, tuple[type, str, int]] = {
+    "dds-feedback": (ArmTracker, "on_feedback", 40),
+    "safety": (SafetyLoop, "_tick", 40),
+    "housekeeping": (EdgeAgent, "_diag", 3),
+    "commands": (CommandService, "_handle", 1),
+    "zenoh-callback": (SafetyInbox, "on_heartbeat", 1),
+}
+
+
+@pytest.mark.parametrize("thread", sorted(INJECTIONS))
+def test_a_failed_agent_thread_latches_every_arm_and_exits_1(
+    fleet_harness: FleetHarness, monkeypatch: pytest.MonkeyPatch, thread: str
+) -> None:
+    h = fleet_harness
+    h.start_router()
+    h.start_sim()
+    client = h.client()
+    seen = _Seen(client)
+    owner, name, calls = INJECTIONS[thread]
+    monkeypatch.setattr(owner, name, _after(calls, getattr(owner, name)))
+
+    def trigger() -> None:  # what makes the patched method run, for the event-driven ones
+        wait_until(lambda: any(s.link == "ok" for s in seen.statuses), 20.0)
+        if thread == "commands":
+            client.command("a1", m.Hold())
+        if thread == "zenoh-callback":
+            beat = m.Heartbeat(time.time_ns(), "test", 1, 0.1)
+            client.session.put(client.keys.heartbeat, m.encode(beat))
+
+    threading.Thread(target=trigger, daemon=True).start()
+    with _main_thread_signals(give_up_s=40.0):
+        code = agent_main.main(["--inventory", str(h.inventory_path), "--arm", "a1"])
+    seen.close()
+    assert code == EXIT_THREAD_FAILED
+    failure_acks = [a for a in seen.acks if a.stop_id.startswith("agent-failure")]
+    assert failure_acks, f"no stop was acknowledged before the agent exited: {seen.acks}"
+    assert any(s.estopped and "agent thread failed" in (s.stop_reason or "") for s in seen.statuses)
+
+
+def test_a_failed_coordinator_thread_stops_the_heartbeat_and_exits_1(
+    fleet_harness: FleetHarness, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    h = fleet_harness
+    h.start_router()
+    client = h.client()
+    seen = _Seen(client)
+    monkeypatch.setattr(Coordinator, "_apply_control", _after(1, Coordinator._apply_control))
+
+    stopped_at: list[float] = []
+
+    def trigger() -> None:
+        wait_until(lambda: len(seen.beats) >= 5, 20.0)
+        stopped_at.append(time.monotonic())
+        client.put_stop(client.stop_request(source="test"))
+
+    threading.Thread(target=trigger, daemon=True).start()
+    argv = ["coordinator", "--inventory", str(h.inventory_path)]
+    with _main_thread_signals(give_up_s=40.0):
+        code = fleet_main.main(argv)
+    seen.close()
+    assert code == EXIT_THREAD_FAILED
+    assert len(seen.beats) >= 5
+    # The events thread died on the stop: not one heartbeat after its failure (before the
+    # fix, the heartbeat went on and kept every agent's watchdog satisfied).
+    late = [t for t in seen.beats if t > stopped_at[0] + 0.2]
+    assert not late, f"{len(late)} heartbeats after the coordinator's thread failed"
