@@ -17,6 +17,7 @@ from msgspec import Struct
 
 from fleet.contact.config import ContactConfig, check_config
 from fleet.d1.limits import JOINT_COUNT
+from fleet.tomlfile import TomlError, brief, decode_toml, read_text
 from fleet.wire.keys import KeyError_, check_name
 
 DEFAULT_INVENTORY = "inventory.toml"
@@ -173,7 +174,7 @@ def _check_arm(arm: ArmConfig, path: str) -> None:
     if len(arm.joint_sign) != JOINT_COUNT or any(s not in (1, -1) for s in arm.joint_sign):
         raise _fail(path, where, f"joint_sign must be {JOINT_COUNT} values of 1 or -1")
     if arm.domain_id is not None and not 0 <= arm.domain_id <= 232:
-        raise _fail(path, where, f"domain_id {arm.domain_id} is outside 0..232")
+        raise _fail(path, where, f"domain_id {brief(arm.domain_id)} is outside 0..232")
     if not 0 < arm.link_stale_s < arm.link_lost_s:
         raise _fail(path, where, "need 0 < link_stale_s < link_lost_s")
     if arm.recv_ack_timeout_s <= 0 or arm.exec_ack_timeout_s <= 0:
@@ -188,11 +189,9 @@ def _check_arm(arm: ArmConfig, path: str) -> None:
 def parse_inventory(text: str, path: str = DEFAULT_INVENTORY) -> Inventory:
     """Parse and validate inventory text; ``path`` is only used in error messages."""
     try:
-        raw = msgspec.toml.decode(text)
-    except msgspec.DecodeError as exc:
-        raise InventoryError(f"{path}: not valid TOML: {exc}") from None
-    if not isinstance(raw, dict):
-        raise InventoryError(f"{path}: expected a TOML document")
+        raw = decode_toml(text)
+    except TomlError as exc:
+        raise InventoryError(f"{path}: {exc}") from None
     known = {"fleet", "zenoh", "dds", "coordinator", "defaults", "arms", "groups"}
     for key in raw:
         if key not in known:
@@ -226,7 +225,7 @@ def parse_inventory(text: str, path: str = DEFAULT_INVENTORY) -> Inventory:
     except KeyError_ as exc:
         raise InventoryError(f"{path}: fleet.name: {exc}") from None
     if not 0 <= dds.domain_id <= 232:
-        raise InventoryError(f"{path}: dds.domain_id {dds.domain_id} is outside 0..232")
+        raise InventoryError(f"{path}: dds.domain_id {brief(dds.domain_id)} is outside 0..232")
     arms: dict[str, ArmConfig] = {}
     for arm_id, arm_raw in arms_raw.items():
         where = f"arms.{arm_id}"
@@ -296,9 +295,8 @@ def _parse_groups(raw: Any, arms: dict[str, ArmConfig], path: str) -> dict[str, 
 
 def load_inventory(path: str | Path = DEFAULT_INVENTORY) -> Inventory:
     """Read and validate ``path``."""
-    path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise InventoryError(f"{path}: cannot read the inventory: {exc.strerror}") from None
+        text = read_text(path, "the inventory")
+    except TomlError as exc:
+        raise InventoryError(f"{path}: {exc}") from None
     return parse_inventory(text, str(path))

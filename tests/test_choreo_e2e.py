@@ -15,8 +15,9 @@ from fleet.api import Fleet
 from fleet.choreo.player import Player
 from fleet.choreo.script import parse_script
 from fleet.client import FleetClient
+from fleet.record.reader import read_recording
 from fleet.record.recorder import Recorder
-from fleet.record.replay import read_recording, recorded_joints, teach_script
+from fleet.record.replay import recorded_joints, teach_script
 from fleet.teleop.mapping import parse_mappings
 from fleet.teleop.mirror import Mirror
 from fleet.wire import messages as m
@@ -161,7 +162,9 @@ def test_recording_replays_the_same_trajectory(
         schemas = {s.name: s.encoding for s in summary.schemas.values()}
     assert client.keys.arm("a1", "raw/command") in topics and schemas["Joints"] == "jsonschema"
 
-    source, samples = recorded_joints(read_recording(path))
+    recording = read_recording(path)
+    assert recording.complete, recording.describe()
+    source, samples = recorded_joints(recording.messages)
     assert source == "a1"
     start = tuple(_angles(client)["a2"])
     script = teach_script(samples, "a2", start, str(path))

@@ -17,13 +17,13 @@ file and the path: ``dance.toml: step[2].a1: 7 angles expected, got 6``.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal, cast
 
-import msgspec
-
 from fleet.d1.limits import JOINT_COUNT
+from fleet.tomlfile import TomlError, brief, decode_toml
 
 Easing = Literal["linear", "ease_in", "ease_out", "ease_in_out"]
 EASINGS: tuple[str, ...] = ("linear", "ease_in", "ease_out", "ease_in_out")
@@ -32,6 +32,9 @@ Pose = tuple[float, ...]
 
 HARD_MAX_SPEED_DEG_S = 180.0
 """No script may ask more of a joint than this (the simulated arm's mode-0 speed limit)."""
+MAX_LOOPS = 1_000_000
+"""More passes than anyone plays (``loops = 0`` plays forever); a file's 400-digit count would
+overflow the timeline's time-left arithmetic (int times float)."""
 
 _MOVE_KEYS = {"duration_s", "easing", "label"}
 _WAIT_KEYS = {"wait", "arms", "timeout_s", "label"}
@@ -103,14 +106,35 @@ def _fail(source: str, where: str, why: str) -> ScriptError:
     return ScriptError(f"{source}: {where}: {why}" if where else f"{source}: {why}")
 
 
-def _number(value: Any, source: str, where: str, low: float, high: float | None = None) -> float:
+def _number(value: Any, source: str, where: str, low: float, high: float) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise _fail(source, where, f"a number expected, got {value!r}")
-    number = float(value)
-    if not low <= number or (high is not None and number > high) or number != number:
-        bound = f"{low:g}..{high:g}" if high is not None else f">= {low:g}"
-        raise _fail(source, where, f"{number:g} is outside {bound}")
+        raise _fail(source, where, f"a number expected, got {brief(value)}")
+    try:
+        number = float(value)
+    except OverflowError:  # an integer of more than ~308 digits
+        number = math.inf if value > 0 else -math.inf
+    if not (math.isfinite(number) and low <= number <= high):
+        raise _fail(source, where, f"{brief(value)} is outside {low:g}..{high:g}")
     return number
+
+
+def _table(value: Any, source: str, where: str) -> Mapping[str, Any]:
+    if not isinstance(value, dict):
+        raise _fail(source, where, f"a table expected, got {brief(value)}")
+    return value
+
+
+def _text(value: Any, source: str, where: str) -> str:
+    if not isinstance(value, str):
+        raise _fail(source, where, f"a string expected, got {brief(value)}")
+    return value
+
+
+def _names(value: Any, source: str, where: str) -> list[str]:
+    """A list of arm or group names (strings)."""
+    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+        raise _fail(source, where, f"a list of arms or groups expected, got {brief(value)}")
+    return value
 
 
 def _pose(value: Any, poses: Mapping[str, Pose], source: str, where: str) -> Pose:
@@ -120,7 +144,7 @@ def _pose(value: Any, poses: Mapping[str, Pose], source: str, where: str) -> Pos
             raise _fail(source, where, f"unknown pose {value!r} (poses: {known})")
         return poses[value]
     if not isinstance(value, list) or len(value) != JOINT_COUNT:
-        raise _fail(source, where, f"{JOINT_COUNT} angles expected, got {value!r}")
+        raise _fail(source, where, f"{JOINT_COUNT} angles expected, got {brief(value)}")
     return tuple(_number(v, source, f"{where}[{i}]", -1e6, 1e6) for i, v in enumerate(value))
 
 
@@ -146,8 +170,9 @@ def _move(
 ) -> Move:
     duration = _number(raw.get("duration_s"), source, f"{where}.duration_s", 0.1, 3600.0)
     easing = raw.get("easing", "ease_in_out")
-    if easing not in EASINGS:
-        raise _fail(source, f"{where}.easing", f"{easing!r} is not one of {', '.join(EASINGS)}")
+    if not isinstance(easing, str) or easing not in EASINGS:
+        why = f"{brief(easing)} is not one of {', '.join(EASINGS)}"
+        raise _fail(source, f"{where}.easing", why)
     targets: dict[str, Pose] = {}
     # "all" first, then groups, then arms: the most specific entry wins.
     order = sorted(
@@ -160,7 +185,8 @@ def _move(
             targets[arm] = pose
     if not targets:
         raise _fail(source, where, "a move step names no arm (give `a1 = [...]` or `all = ...`)")
-    return Move(duration, cast(Easing, easing), targets, str(raw.get("label", "")))
+    label = _text(raw.get("label", ""), source, f"{where}.label")
+    return Move(duration, cast(Easing, easing), targets, label)
 
 
 def _wait(
@@ -175,16 +201,16 @@ def _wait(
     if unknown:
         raise _fail(source, where, f"unknown field(s) in a wait step: {', '.join(sorted(unknown))}")
     condition = raw["wait"]
-    if condition not in ("reached", "grip"):
-        raise _fail(source, f"{where}.wait", f"{condition!r} is not 'reached' or 'grip'")
-    names = raw.get("arms", list(involved))
-    if not isinstance(names, list) or not names:
+    if not isinstance(condition, str) or condition not in ("reached", "grip"):
+        raise _fail(source, f"{where}.wait", f"{brief(condition)} is not 'reached' or 'grip'")
+    names = _names(raw.get("arms", list(involved)), source, f"{where}.arms")
+    if not names:
         raise _fail(source, f"{where}.arms", "a non-empty list of arms or groups expected")
     waited: list[str] = []
     for name in names:
-        waited += _resolve(str(name), arms, groups, source, f"{where}.arms")
+        waited += _resolve(name, arms, groups, source, f"{where}.arms")
     timeout = _number(raw.get("timeout_s", 10.0), source, f"{where}.timeout_s", 0.1, 600.0)
-    label = str(raw.get("label", ""))
+    label = _text(raw.get("label", ""), source, f"{where}.label")
     return Wait(cast(Condition, condition), tuple(dict.fromkeys(waited)), timeout, label)
 
 
@@ -197,25 +223,27 @@ def parse_script(
     """Parse a choreography TOML against the inventory's ``arms`` and ``groups``."""
     groups = dict(groups or {})
     try:
-        raw = msgspec.toml.decode(text)
-    except msgspec.DecodeError as exc:
-        raise _fail(source, "", f"not valid TOML: {exc}") from None
+        raw = decode_toml(text)
+    except TomlError as exc:
+        raise _fail(source, "", str(exc)) from None
     unknown = set(raw) - {"choreo", "poses", "step"}
     if unknown:
         raise _fail(source, "", f"unknown table(s) {', '.join(sorted(unknown))}")
-    head = raw.get("choreo", {})
+    head = _table(raw.get("choreo", {}), source, "choreo")
     if set(head) - _CHOREO_KEYS:
         raise _fail(source, "choreo", f"unknown field(s) {sorted(set(head) - _CHOREO_KEYS)}")
-    poses = {str(k): _pose(v, {}, source, f"poses.{k}") for k, v in raw.get("poses", {}).items()}
+    raw_poses = _table(raw.get("poses", {}), source, "poses")
+    poses = {k: _pose(v, {}, source, f"poses.{k}") for k, v in raw_poses.items()}
     raw_steps = raw.get("step", [])
     if not isinstance(raw_steps, list) or not raw_steps:
         raise _fail(source, "step", "no [[step]] tables: a script needs at least one move")
+    tables = [_table(step, source, f"step[{i}]") for i, step in enumerate(raw_steps)]
     moves: list[tuple[int, Move]] = []
-    for i, step in enumerate(raw_steps):
+    for i, step in enumerate(tables):
         if "wait" not in step:
             moves.append((i, _move(step, arms, groups, poses, source, f"step[{i}]")))
     involved = list(dict.fromkeys(a for _i, mv in moves for a in mv.poses))
-    for name in head.get("arms", []):
+    for name in _names(head.get("arms", []), source, "choreo.arms"):
         for arm in _resolve(name, arms, groups, source, "choreo.arms"):
             if arm not in involved:
                 involved.append(arm)
@@ -224,18 +252,18 @@ def parse_script(
     by_index = dict(moves)
     steps: list[Step] = [
         by_index[i] if i in by_index else _wait(s, arms, groups, source, f"step[{i}]", involved)
-        for i, s in enumerate(raw_steps)
+        for i, s in enumerate(tables)
     ]
     loops = head.get("loops", 1)
-    if isinstance(loops, bool) or not isinstance(loops, int) or loops < 0:
-        why = f"a whole number >= 0 expected (0 = forever), got {loops!r}"
+    if isinstance(loops, bool) or not isinstance(loops, int) or not 0 <= loops <= MAX_LOOPS:
+        why = f"a whole number 0..{MAX_LOOPS} expected (0 = forever), got {brief(loops)}"
         raise _fail(source, "choreo.loops", why)
 
     def setting(key: str, default: float, low: float, high: float) -> float:
         return _number(head.get(key, default), source, f"choreo.{key}", low, high)
 
     return Script(
-        name=str(head.get("name", source)),
+        name=_text(head.get("name", source), source, "choreo.name"),
         arms=tuple(involved),
         steps=tuple(steps),
         loops=loops,

@@ -5,13 +5,13 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Callable
-from pathlib import Path
 
-from fleet.choreo.script import Script, ScriptError, parse_script
+from fleet.choreo.script import MAX_LOOPS, Script, ScriptError, parse_script
 from fleet.choreo.timeline import Frame
 from fleet.client import FleetClient
 from fleet.inventory import Inventory
 from fleet.runtime import inventory_from_args, shutdown_event
+from fleet.tomlfile import TomlError, brief, read_text
 
 DEFAULT_SCRIPT = "choreo/demo.toml"
 
@@ -64,13 +64,15 @@ def register(
 def load_script(path: str, inventory: Inventory, loops: int | None = None) -> Script:
     """Read and parse a choreography against the inventory (ScriptError names file and path)."""
     try:
-        text = Path(path).read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ScriptError(f"{path}: cannot read it: {exc.strerror}") from None
+        text = read_text(path)
+    except TomlError as exc:
+        raise ScriptError(f"{path}: {exc}") from None
     script = parse_script(text, path, list(inventory.arms), inventory.groups)
     if loops is not None:
         from dataclasses import replace
 
+        if loops > MAX_LOOPS:
+            raise ScriptError(f"--loops: at most {MAX_LOOPS} (0 = forever), got {brief(loops)}")
         script = replace(script, loops=max(0, loops))
     return script
 

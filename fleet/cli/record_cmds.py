@@ -37,7 +37,9 @@ def register(
 
 
 def run_record(args: argparse.Namespace) -> int:
-    """``fleet record``: until Ctrl-C or ``--for-s``; prints what it wrote."""
+    """``fleet record``: until Ctrl-C or ``--for-s``; prints what it wrote, what it lost and
+    the joints' gaps by seq. Exit 1 if the recorder failed (the file is finished as far as
+    possible; an unfinished one is readable up to its last flush)."""
     from fleet.record.recorder import Recorder
 
     inventory = inventory_from_args(args)
@@ -46,28 +48,54 @@ def run_record(args: argparse.Namespace) -> int:
         arms += [a for a in inventory.resolve(target) if a not in arms]
     path = args.output or time.strftime("fleet-%Y%m%d-%H%M%S.mcap")
     stop = shutdown_event()
-    with FleetClient(inventory) as client, Recorder(client.session, client.keys, arms, path) as rec:
-        print(f"recording {', '.join(arms)} to {path}; Ctrl-C stops", flush=True)
-        deadline = None if args.for_s is None else time.monotonic() + args.for_s
-        while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
-            stop.wait(0.2)
-    total = sum(rec.counts.values())
-    print(f"wrote {total} messages on {len(rec.counts)} keys to {path} ({rec.dropped} dropped)")
+    with FleetClient(inventory) as client:
+        try:
+            rec = Recorder(client.session, client.keys, arms, path)
+        except OSError as exc:
+            print(f"fleet record: {path}: cannot write it: {exc.strerror or exc}", file=sys.stderr)
+            return 2
+        with rec:
+            print(f"recording {', '.join(arms)} to {path}; Ctrl-C stops", flush=True)
+            deadline = None if args.for_s is None else time.monotonic() + args.for_s
+            while not (stop.is_set() or rec.failed.is_set()):
+                if deadline is not None and time.monotonic() >= deadline:
+                    break
+                stop.wait(0.2)
+    print(rec.summary(), flush=True)
+    if rec.error is not None or rec.finish_error is not None:
+        why = rec.finish_error if rec.error is None else f"{type(rec.error).__name__}: {rec.error}"
+        state = "finished" if rec.finished else "unfinished, readable up to its last flush"
+        print(f"fleet record: the recorder failed ({why}); {path} is {state}", file=sys.stderr)
+        return 1
     return 0
 
 
 def run_replay(args: argparse.Namespace) -> int:
-    """``fleet replay``: exit 0 done, 1 aborted on the arm, 2 bad file or limits."""
+    """``fleet replay``: exit 0 done, 1 aborted on the arm, 2 bad file or limits. An unfinished
+    recording (its recorder was killed) is replayed as far as it is readable, with a warning."""
     from fleet.choreo.player import Player
     from fleet.choreo.script import ScriptError
-    from fleet.record.replay import read_recording, recorded_joints, replay_read_only, teach_script
+    from fleet.record.errors import RecordError
+    from fleet.record.reader import read_recording
+    from fleet.record.replay import (
+        recorded_joints,
+        replay_read_only,
+        teach_script,
+        usable_samples,
+    )
 
     inventory = inventory_from_args(args)
     try:
-        messages = read_recording(args.file)
-    except (OSError, ValueError) as exc:
-        print(f"fleet replay: {args.file}: cannot read it: {exc}", file=sys.stderr)
+        recording = read_recording(args.file)
+    except OSError as exc:
+        print(f"fleet replay: {args.file}: cannot read it: {exc.strerror or exc}", file=sys.stderr)
         return 2
+    except RecordError as exc:
+        print(f"fleet replay: {exc}", file=sys.stderr)
+        return 2
+    if not recording.complete:
+        print(f"fleet replay: warning: {recording.describe()}", file=sys.stderr, flush=True)
+    messages = recording.messages
     stop = shutdown_event()
     with FleetClient(inventory) as client:
         if args.onto is None:
@@ -78,13 +106,20 @@ def run_replay(args: argparse.Namespace) -> int:
             return 0
         inventory.arm(args.onto)
         try:
-            source, samples = recorded_joints(messages, args.arm)
+            source, samples = recorded_joints(messages, args.arm, args.file)
+            usable, skipped = usable_samples(samples)
+            if skipped:
+                print(
+                    f"fleet replay: skipped {skipped} of {len(samples)} samples of {source} "
+                    "(stamp not after the previous one, or not 7 angles)",
+                    file=sys.stderr,
+                )
             snap = client.snapshot([args.onto])[args.onto][1]
             if snap is None:
                 print(f"fleet replay: no joints from {args.onto!r}; is its agent running?")
                 return 3
-            script = teach_script(samples, args.onto, tuple(snap.angles_deg), args.file)
-            print(f"replaying {source}'s {len(samples)} samples onto {args.onto}", flush=True)
+            script = teach_script(usable, args.onto, tuple(snap.angles_deg), args.file)
+            print(f"replaying {source}'s {len(usable)} samples onto {args.onto}", flush=True)
             result = Player(client, script).play(stop)
         except (ValueError, ScriptError) as exc:
             print(f"fleet replay: {exc}", file=sys.stderr)

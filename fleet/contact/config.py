@@ -13,6 +13,11 @@ from typing import Literal
 import msgspec
 from msgspec import Struct
 
+MAX_BUFFER_SIZE = 100_000
+"""Samples kept per joint, at most (about 3 hours at 10 Hz)."""
+MAX_REVERSALS = 1000
+"""Oscillation reversals, at most (more could never fit in a window of feedback)."""
+
 Method = Literal["tracking", "stall", "status", "oscillation", "model"]
 METHODS: tuple[Method, ...] = ("tracking", "stall", "status", "oscillation", "model")
 """Methods 1..5 of the plan: tracking error, velocity stall (with 1), ``error_status``,
@@ -92,10 +97,14 @@ def check_config(config: ContactConfig) -> str | None:
         if not 0 < t.release_deg < t.suspect_deg <= t.confirm_deg:
             return f"{name}: need 0 < release_deg < suspect_deg <= confirm_deg"
         positive = (t.stall_error_deg, t.stall_velocity_deg_s, t.model_error_deg, t.release_s)
-        if min(positive) <= 0 or t.confirm_s < 0 or t.oscillation_reversals < 2:
-            return f"{name}: thresholds must be positive (oscillation_reversals >= 2)"
+        if min(positive) <= 0 or t.confirm_s < 0:
+            return f"{name}: thresholds must be positive"
+        if not 2 <= t.oscillation_reversals <= MAX_REVERSALS:
+            return f"{name}: oscillation_reversals must be 2..{MAX_REVERSALS}"
         if t.force_limit_deg is not None and t.force_limit_deg <= t.suspect_deg:
             return f"{name}: force_limit_deg must exceed suspect_deg (or be omitted)"
-    if config.buffer_size < 8:
-        return "buffer_size must be at least 8"
+    if not 8 <= config.buffer_size <= MAX_BUFFER_SIZE:
+        # The upper bound also keeps a file's 400-digit size out of deque(maxlen=...), which
+        # raises OverflowError in the agent.
+        return f"buffer_size must be 8..{MAX_BUFFER_SIZE}"
     return None

@@ -14,14 +14,13 @@ from __future__ import annotations
 
 import threading
 import time
-from dataclasses import dataclass
-from pathlib import Path
 
 import zenoh
-from mcap.reader import make_reader
 
 from fleet.choreo.script import Move, Pose, Script
-from fleet.d1.limits import CONTROL_RATE_HZ
+from fleet.d1.limits import CONTROL_RATE_HZ, JOINT_COUNT
+from fleet.record.errors import RecordError, TeachError
+from fleet.record.reader import Recorded
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
 
@@ -30,26 +29,9 @@ APPROACH_SPEED_DEG_S = 30.0
 TEACH_MAX_SPEED_DEG_S = 120.0
 """A recorded motion faster than this (a hand can fling an unloaded arm) is refused on replay;
 the default of hand-written scripts (90 deg/s) would refuse the arm's own mode-1 moves."""
-
-
-@dataclass(frozen=True)
-class Recorded:
-    """One recorded message: its original key, payload and log time."""
-
-    key: str
-    data: bytes
-    log_time_ns: int
-
-
-def read_recording(path: str | Path) -> list[Recorded]:
-    """Every message of an MCAP recording, in log-time order."""
-    with open(path, "rb") as stream:
-        reader = make_reader(stream)
-        messages = [
-            Recorded(channel.topic, message.data, message.log_time)
-            for _schema, channel, message in reader.iter_messages(log_time_order=True)
-        ]
-    return messages
+MAX_TEACH_S = 3600.0
+"""Drag-teach replays at most this much of a recording (36,000 steps at 10 Hz): a stamp far
+off (a stray put, a clock step) would otherwise make the resampling loop run for years."""
 
 
 def _split(key: str) -> tuple[str, str, str] | None:
@@ -61,27 +43,59 @@ def _split(key: str) -> tuple[str, str, str] | None:
     return (fleet, arm, channel) if channel in keys.ARM_CHANNELS else None
 
 
-def recorded_joints(messages: list[Recorded], arm: str | None = None) -> tuple[str, list[m.Joints]]:
-    """The joints samples of ``arm`` (default: the only arm with joints in the file)."""
+def recorded_joints(
+    messages: list[Recorded], arm: str | None = None, source: str = "<recording>"
+) -> tuple[str, list[m.Joints]]:
+    """The joints samples of ``arm`` (default: the only arm with joints in the file). A joints
+    payload that does not decode is a damaged file (``fleet record`` writes none): RecordError."""
     arms: dict[str, list[m.Joints]] = {}
-    for message in messages:
+    for index, message in enumerate(messages):
         split = _split(message.key)
         if split is not None and split[2] == keys.JOINTS:
-            arms.setdefault(split[1], []).append(payloads.JOINTS.decode(message.data))
+            try:
+                sample = payloads.JOINTS.decode(message.data)
+            except payloads.PayloadError as exc:
+                raise RecordError(f"{source}: message {index} ({message.key}): {exc}") from None
+            arms.setdefault(split[1], []).append(sample)
     if arm is None:
         if len(arms) != 1:
-            raise ValueError(f"the recording has joints of {sorted(arms)}: pass --arm")
+            raise RecordError(f"{source}: the recording has joints of {sorted(arms)}: pass --arm")
         arm = next(iter(arms))
     if arm not in arms:
-        raise ValueError(f"the recording has no joints of {arm!r} (it has {sorted(arms)})")
+        raise RecordError(f"{source}: no joints of {arm!r} (it has {sorted(arms)})")
     return arm, arms[arm]
 
 
+def usable_samples(samples: list[m.Joints]) -> tuple[list[m.Joints], int]:
+    """The samples drag-teach can follow, and how many it skipped: each kept sample has seven
+    angles and a stamp later than the one kept before it. Out-of-order or repeated stamps (an
+    agent restarted with its clock stepped back, a stray put on the joints key) are skipped, not
+    sorted in: a sample from elsewhere in time would be a jump in the motion."""
+    kept: list[m.Joints] = []
+    for sample in samples:
+        if len(sample.angles_deg) != JOINT_COUNT:
+            continue
+        if kept and sample.stamp_ns <= kept[-1].stamp_ns:
+            continue
+        kept.append(sample)
+    return kept, len(samples) - len(kept)
+
+
 def teach_script(samples: list[m.Joints], onto: str, start_pose: Pose, source: str) -> Script:
-    """The drag-teach choreography: approach the first sample, then follow the recording."""
+    """The drag-teach choreography: approach the first sample, then follow the recording
+    (resampled at the control rate). Unusable samples are skipped (``usable_samples``); more
+    than ``MAX_TEACH_S`` of recording, or fewer than two samples, is a TeachError."""
+    samples, _skipped = usable_samples(samples)
     if len(samples) < 2:
-        raise ValueError(f"{source}: fewer than two joint samples: nothing to replay")
+        raise TeachError(f"{source}: fewer than two usable joint samples: nothing to replay")
     t0 = samples[0].stamp_ns
+    span_s = (samples[-1].stamp_ns - t0) / 1e9
+    if span_s > MAX_TEACH_S:
+        raise TeachError(
+            f"{source}: the joint samples span {span_s:.0f} s (stamps {t0} .. "
+            f"{samples[-1].stamp_ns}); drag-teach replays at most {MAX_TEACH_S:.0f} s: "
+            "record a shorter take"
+        )
     times = [(s.stamp_ns - t0) / 1e9 for s in samples]
     period = 1.0 / CONTROL_RATE_HZ
     steps: list[Move] = []
@@ -89,16 +103,16 @@ def teach_script(samples: list[m.Joints], onto: str, start_pose: Pose, source: s
     distance = max(abs(a - b) for a, b in zip(first, start_pose))
     approach = max(1.0, 1.5 * distance / APPROACH_SPEED_DEG_S)
     steps.append(Move(approach, "ease_in_out", {onto: first}, "approach"))
-    t, index = period, 0
-    while t <= times[-1] + 1e-9:
-        while times[index + 1] < t:
+    index = 0
+    for k in range(1, int(span_s * CONTROL_RATE_HZ + 1e-6) + 1):  # at most 36,000 steps
+        t = k * period
+        while index + 2 < len(times) and times[index + 1] < t:  # bounded by len(times)
             index += 1
         a, b = samples[index], samples[index + 1]
         span = max(times[index + 1] - times[index], 1e-6)
         u = min(1.0, max(0.0, (t - times[index]) / span))
         pose = tuple(x + (y - x) * u for x, y in zip(a.angles_deg, b.angles_deg))
         steps.append(Move(period, "linear", {onto: pose}, f"replay {t:.1f} s"))
-        t += period
     return Script(
         name=f"replay of {source}",
         arms=(onto,),
