@@ -132,11 +132,12 @@ class FleetClient:
         def on_ack(sample: zenoh.Sample) -> None:
             try:
                 ack = payloads.STOP_ACK.decode(sample.payload.to_bytes())
-            except payloads.PayloadError:
+                arm = self.keys.parse_arm_key(str(sample.key_expr)).arm  # the key, not the payload
+            except (payloads.PayloadError, keys.KeyError_):
                 return
-            if ack.stop_id == request.stop_id and ack.arm in acks:
+            if ack.stop_id == request.stop_id and arm in acks:
                 with lock:
-                    acks[ack.arm] = ack
+                    acks[arm] = ack
 
         def complete() -> bool:
             with lock:

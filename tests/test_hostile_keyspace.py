@@ -240,3 +240,39 @@ def test_every_agent_and_the_coordinator_survive_and_diag_counts(
     diag = decode(m.Diag, latest(client, client.keys.arm("a1", keys.DIAG), wait_s=2.5))
     assert diag.bad_payloads > 0 and diag.undecodable_stops > 0, diag  # type: ignore[attr-defined]
     assert all(code is None for code in alive(harness).values()), alive(harness)
+
+
+def test_long_multi_arm_requests_never_queue_without_bound(
+    fleet: tuple[FleetHarness, FleetClient],
+) -> None:
+    harness, client = fleet
+    wait_reset(client, ARMS)
+    fault = client.keys.arm("a1", keys.SIM_FAULT)
+    stall = b'{"op":"stall","joint":0,"angle_deg":0.0}'
+    assert [r for r in client.session.get(fault, payload=stall) if r.ok is not None]
+    try:
+        # Each request waits (up to 4 s) for a target the stalled joint never reaches.
+        blocked = m.MoveJoint(joint=0, angle_deg=30.0, wait_reached=True, timeout_s=4.0)
+        request = m.encode(m.MultiArmRequest(target="a1", command=blocked))
+        started = time.monotonic()
+        arrived: list[tuple[float, bytes]] = []
+
+        def on_reply(reply: zenoh.Reply) -> None:  # when each answer arrives, not when read
+            if reply.ok is not None:
+                arrived.append((time.monotonic() - started, reply.ok.payload.to_bytes()))
+
+        for _ in range(10):
+            client.session.get(client.keys.coordinator_cmd, on_reply, payload=request, timeout=15.0)
+        wait_until(lambda: len(arrived) == 10, 15.0)
+        answers = [(t, decode(m.MultiArmReply, data)) for t, data in arrived]
+        busy = [t for t, r in answers if r.error and "busy" in r.error.message]  # type: ignore[attr-defined]
+        print(f"10 long requests: {len(busy)} busy, answered after {[round(t, 1) for t in busy]} s")
+        assert len(answers) == 10
+        assert len(busy) >= 10 - 4 and max(busy) < 3.0, answers
+        diag = decode(m.CoordinatorDiag, latest(client, client.keys.coordinator_diag, 2.5))
+        assert diag.busy >= len(busy), diag  # type: ignore[attr-defined]
+    finally:
+        unstall = b'{"op":"clear"}'
+        assert [r for r in client.session.get(fault, payload=unstall) if r.ok is not None]
+    client.command("a1", m.Release(owner=_state(client).coordinator))  # type: ignore[union-attr]
+    assert_fleet_stops_and_serves(harness, client)

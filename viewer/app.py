@@ -14,6 +14,7 @@ import time
 
 import viser
 
+from fleet.guard import ThreadGuard
 from fleet.inventory import Inventory
 from fleet.wire.session import open_client
 from viewer.commands import Commander
@@ -47,6 +48,10 @@ class Viewer:
         urdf = load_urdf()
         model = ArmModel.from_urdf(urdf)
         meshes = link_meshes(urdf, model.links)
+        # Every thread and callback under one guard: a dead render or stop thread would leave a
+        # viewer that shows a frozen fleet or a STOP ALL that confirms nothing; it exits instead.
+        self.guard = ThreadGuard("viewer")
+        self.failed = self.guard.failed
         self.session = open_client(inventory.endpoints)
         self.server = viser.ViserServer(
             host=host, port=port, label=f"d1-fleet · {inventory.fleet}", verbose=False
@@ -54,14 +59,14 @@ class Viewer:
         self.host = host
         self.port = self.server.get_port()  # viser silently takes the next free port
         self.state = FleetState(inventory, self.session)
-        self.commander = Commander(inventory, self.session, notify=self._notify)
+        self.commander = Commander(inventory, self.session, notify=self._notify, guard=self.guard)
         self.panels = FleetPanels(self.server, inventory, self.commander)
         self.scene = FleetScene(self.server, inventory, model, meshes)
-        self.state.start()
+        self.state.start(self.guard)
         self._closing = threading.Event()
         self._closed = False
         self.ticks = 0
-        self._thread = threading.Thread(target=self._render_loop, name="viewer-render", daemon=True)
+        self._thread = self.guard.thread(self._render_loop, "viewer-render")
         self._thread.start()
 
     @property
@@ -73,25 +78,21 @@ class Viewer:
         self.panels.notify(title, body, is_error)
 
     def _render_loop(self) -> None:
-        try:
-            period = 1.0 / self.rate_hz
-            next_panels = 0.0
-            next_tick = time.monotonic()
-            while not self._closing.wait(max(0.0, next_tick - time.monotonic())):
-                now = time.monotonic()
-                # Fixed-rate ticks that skip, never catch up: a late tick is not followed by a
-                # burst; the newest snapshot is all that is drawn.
-                next_tick = max(next_tick + period, now)
-                snapshot = self.state.snapshot()
-                self.scene.render(snapshot)
-                self.panels.record(snapshot, now)
-                if now >= next_panels:
-                    next_panels = now + 1.0 / PANEL_RATE_HZ
-                    self.panels.update(snapshot)
-                self.ticks += 1
-        except Exception:
-            log.exception("the viewer-render thread failed")
-            raise
+        period = 1.0 / self.rate_hz
+        next_panels = 0.0
+        next_tick = time.monotonic()
+        while not self._closing.wait(max(0.0, next_tick - time.monotonic())):
+            now = time.monotonic()
+            # Fixed-rate ticks that skip, never catch up: a late tick is not followed by a
+            # burst; the newest snapshot is all that is drawn.
+            next_tick = max(next_tick + period, now)
+            snapshot = self.state.snapshot()
+            self.scene.render(snapshot)
+            self.panels.record(snapshot, now)
+            if now >= next_panels:
+                next_panels = now + 1.0 / PANEL_RATE_HZ
+                self.panels.update(snapshot)
+            self.ticks += 1
 
     def close(self) -> None:
         """Shutdown order: stop drawing -> stop commanding (join) -> unsubscribe -> close the

@@ -20,6 +20,7 @@ import zenoh
 
 from fleet.client import FleetClient
 from fleet.d1.limits import JOINT_RANGE_DEG
+from fleet.guard import ThreadGuard
 from fleet.inventory import Inventory
 from fleet.wire import keys
 from fleet.wire import messages as m
@@ -42,7 +43,13 @@ def clamp_to_limits(joint: int, angle_deg: float) -> float:
 class Commander:
     """The viewer's outgoing side on the key space. A context manager; ``close()`` idempotent."""
 
-    def __init__(self, inventory: Inventory, session: zenoh.Session, notify: Notify) -> None:
+    def __init__(
+        self,
+        inventory: Inventory,
+        session: zenoh.Session,
+        notify: Notify,
+        guard: ThreadGuard | None = None,
+    ) -> None:
         self.keys = keys.KeySpace(inventory.fleet)
         self.client = FleetClient(inventory, session=session)
         self._notify = notify
@@ -52,9 +59,10 @@ class Commander:
         self._closing = threading.Event()
         self._stops: queue.SimpleQueue[m.StopRequest | None] = queue.SimpleQueue()
         self.stops_sent = 0
+        guard = guard or ThreadGuard("viewer")
         self._threads = [
-            threading.Thread(target=self._jog_loop, name="viewer-jog", daemon=True),
-            threading.Thread(target=self._stop_loop, name="viewer-stop", daemon=True),
+            guard.thread(self._jog_loop, "viewer-jog"),
+            guard.thread(self._stop_loop, "viewer-stop"),
         ]
         for thread in self._threads:
             thread.start()
@@ -79,25 +87,21 @@ class Commander:
         log.warning("reset sent to the whole fleet")
 
     def _stop_loop(self) -> None:
-        try:
-            while True:
-                request = self._stops.get()
-                if request is None or self._closing.is_set():
-                    return
-                acks = self.client.estop(request=request, timeout_s=STOP_CONFIRM_S)
-                unconfirmed = [a for a, ack in acks.items() if ack is None or ack.still_ns is None]
-                if unconfirmed:
-                    self._notify(
-                        "STOP not confirmed",
-                        f"no acknowledgment or standstill from {', '.join(unconfirmed)}: "
-                        "check those arms (their agents may be down)",
-                        True,
-                    )
-                else:
-                    self._notify("STOP ALL", "every arm acknowledged and is still", False)
-        except Exception:
-            log.exception("the viewer-stop thread failed")
-            raise
+        while True:
+            request = self._stops.get()
+            if request is None or self._closing.is_set():
+                return
+            acks = self.client.estop(request=request, timeout_s=STOP_CONFIRM_S)
+            unconfirmed = [a for a, ack in acks.items() if ack is None or ack.still_ns is None]
+            if unconfirmed:
+                self._notify(
+                    "STOP not confirmed",
+                    f"no acknowledgment or standstill from {', '.join(unconfirmed)}: "
+                    "check those arms (their agents may be down)",
+                    True,
+                )
+            else:
+                self._notify("STOP ALL", "every arm acknowledged and is still", False)
 
     # ------------------------------------------------------------------ jog
 
@@ -108,20 +112,16 @@ class Commander:
         self._wake.set()
 
     def _jog_loop(self) -> None:
-        try:
-            while not self._closing.is_set():
-                if not self._wake.wait(0.2):
-                    continue
-                self._wake.clear()
-                with self._lock:
-                    batch, self._pending = self._pending, {}
-                for (arm, joint), angle in batch.items():
-                    if self._closing.is_set():
-                        return
-                    self._send_jog(arm, joint, angle)
-        except Exception:
-            log.exception("the viewer-jog thread failed")
-            raise
+        while not self._closing.is_set():
+            if not self._wake.wait(0.2):
+                continue
+            self._wake.clear()
+            with self._lock:
+                batch, self._pending = self._pending, {}
+            for (arm, joint), angle in batch.items():
+                if self._closing.is_set():
+                    return
+                self._send_jog(arm, joint, angle)
 
     def _send_jog(self, arm: str, joint: int, angle_deg: float) -> None:
         reply = self.client.command(arm, m.MoveJoint(joint=joint, angle_deg=angle_deg))

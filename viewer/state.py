@@ -19,6 +19,7 @@ import numpy.typing as npt
 import zenoh
 
 from fleet.d1.limits import JOINT_COUNT
+from fleet.guard import ThreadGuard
 from fleet.inventory import Inventory
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
@@ -91,15 +92,26 @@ class FleetState:
         self._last_warning = -math.inf
         self._handles: list[zenoh.Subscriber[None]] = []
 
-    def start(self) -> None:
-        """Declare the subscribers (liveliness with history: tokens already present count)."""
+    def start(self, guard: ThreadGuard | None = None) -> None:
+        """Declare the subscribers (liveliness with history: tokens already present count);
+        with ``guard``, a callback's unexpected failure fails the viewer instead of vanishing."""
+
+        def wrap(callback: Callable[[zenoh.Sample], None]) -> Callable[[zenoh.Sample], object]:
+            return callback if guard is None else guard.wrap(callback, "viewer-state")
+
         self._handles = [
-            self._session.declare_subscriber(self.keys.all_arms(keys.JOINTS), self._on_joints),
-            self._session.declare_subscriber(self.keys.all_arms(keys.STATUS), self._on_status),
-            self._session.liveliness().declare_subscriber(
-                self.keys.all_arms(keys.AGENT), self._on_token, history=True
+            self._session.declare_subscriber(
+                self.keys.all_arms(keys.JOINTS), wrap(self._on_joints)
             ),
-            self._session.declare_subscriber(self.keys.all_arms(keys.CONTACT), self._on_contact),
+            self._session.declare_subscriber(
+                self.keys.all_arms(keys.STATUS), wrap(self._on_status)
+            ),
+            self._session.liveliness().declare_subscriber(
+                self.keys.all_arms(keys.AGENT), wrap(self._on_token), history=True
+            ),
+            self._session.declare_subscriber(
+                self.keys.all_arms(keys.CONTACT), wrap(self._on_contact)
+            ),
         ]
 
     # ------------------------------------------------------------------ zenoh callbacks

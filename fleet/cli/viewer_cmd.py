@@ -6,6 +6,7 @@ import argparse
 import logging
 from collections.abc import Callable
 
+from fleet.guard import EXIT_THREAD_FAILED
 from fleet.runtime import inventory_from_args, shutdown_event, wait_for
 
 log = logging.getLogger("fleet")
@@ -43,5 +44,8 @@ def run_viewer(args: argparse.Namespace) -> int:
         print(
             f"d1-fleet viewer: {viewer.url}  (fleet {inventory.fleet!r}; Ctrl-C stops)", flush=True
         )
-        wait_for(stop)
+        failed = wait_for(stop, viewer.failed)
+    if failed:
+        log.error("%s: the viewer stopped; restart it", viewer.guard.failure)
+        return EXIT_THREAD_FAILED
     return 0

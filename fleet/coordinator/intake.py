@@ -2,9 +2,8 @@
 checked against the inventory, stops first.
 
 - control (a bounded FIFO, served first, in arrival order): agent tokens, stops, resets. A stop
-  that does not decode is recorded as one anyway (``undecodable``: the agents stopped on it,
-  and the heartbeat repeats it for any that missed it); a stop that finds the FIFO full marks
-  its target, and the thread records it ("flood"), so no stop is lost;
+  that does not decode (or found the FIFO full) is passed on without a request: the agents
+  stopped on it themselves; the coordinator counts and logs it;
 - status: latest-wins per arm (the newest status is all the fleet state needs);
 - reports (a bounded FIFO): stop acks and contact events; overflow is counted.
 Samples on the keys of arms that are not in the inventory are counted and dropped: nothing an

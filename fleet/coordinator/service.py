@@ -11,7 +11,6 @@ heartbeat (for agents that missed one) and reports the fan-out.
 
 from __future__ import annotations
 
-import itertools
 import logging
 import os
 import socket
@@ -76,7 +75,7 @@ class Coordinator:
         self.guard = ThreadGuard("coordinator", lambda _what: self.stopping.set())
         self.failed = self.guard.failed
         self.intake = CoordinatorIntake(self.keys, frozenset(arms))
-        self._undecodable_ids = itertools.count(1)
+        self.undecodable_stops = 0  # guarded by lock
         self._queries: deque[zenoh.Query] = deque()
         self._busy: deque[zenoh.Query] = deque()
         self._query_lock = threading.Lock()
@@ -171,6 +170,7 @@ class Coordinator:
             coordinator=self.id,
             bad_events=counters.bad_events,
             unknown_arms=counters.unknown_arms,
+            undecodable_stops=self.undecodable_stops,
             dropped_events=counters.dropped_events,
             busy=busy,
             dropped_queries=dropped,
@@ -216,13 +216,14 @@ class Coordinator:
         """Apply one token change, stop or reset (caller holds the lock)."""
         if event.kind == "token" and event.arm is not None:
             self.state.on_token(event.arm, event.present, now)
-        elif event.kind == "stop":
-            request = event.stop or m.StopRequest(
-                stamp_ns=time.time_ns(),
-                source="unknown",
-                stop_id=f"undecodable-{os.getpid()}-{next(self._undecodable_ids)}",
-                reason=event.why[:900],
-            )
+        elif event.kind == "stop" and event.stop is None:
+            # The agents stopped on it themselves. It is not repeated: an id made up here would
+            # be one no agent saw, and a heartbeat composed before an operator's reset would
+            # re-latch it after that reset.
+            self.undecodable_stops += 1
+            log.warning("a stop on %s did not decode: %s", event.arm or "all", event.why[:200])
+        elif event.kind == "stop" and event.stop is not None:
+            request = event.stop
             if self.stops.on_stop(event.arm or FLEET, request):
                 log.warning(
                     "stop %s by %s on %s: %s",

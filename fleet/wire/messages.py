@@ -334,6 +334,8 @@ class CoordinatorDiag(Struct, frozen=True):
     """Samples (status, stop, reset, ack, contact) whose payload did not decode."""
     unknown_arms: Count
     """Samples on the key of an arm that is not in the inventory (ignored)."""
+    undecodable_stops: Count
+    """Stops that did not decode: the agents stopped on them; the heartbeat does not repeat them."""
     dropped_events: Count
     """Events dropped at a full queue (a flood); stops are never dropped."""
     busy: Count
