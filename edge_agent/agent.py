@@ -67,7 +67,7 @@ class EdgeAgent:
         self.failed = self.guard.failed
         self.counters = InboxCounters()
         self.safety_inbox = SafetyInbox(self.counters)
-        self.command_inbox = CommandInbox(self.counters)
+        self.command_inbox = CommandInbox(self.counters, lambda item: self.commands.busy(item))
         suffixes = {a: inventory.arm(a).suffix for a in arm_ids}
         # DDS first: if the interface is wrong we fail before announcing anything on Zenoh.
         self.link = DdsLink(domain_id, interface, peers, suffixes, self._on_feedback, self.guard)
@@ -208,7 +208,6 @@ class EdgeAgent:
             bad_payloads=counters.bad_payloads,
             undecodable_stops=counters.undecodable_stops,
             busy=counters.busy,
-            dropped_queries=counters.dropped_queries,
             dropped_events=counters.dropped_events,
             write_failures=self.link.write_failures,
         )

@@ -8,11 +8,12 @@ may stop anyway); a stop that finds the FIFO full is not dropped either: its tar
 and the safety thread latches it ("flood").
 
 Commands (``CommandInbox``): a bounded FIFO of queries for the ``commands`` thread; a query that
-finds it full goes to a bounded "busy" queue the same thread answers first with 3205, so the
-caller learns at once that the agent is overloaded instead of waiting for a timeout.
+finds it full is answered 3205 "busy" at once, from the queryable's callback (replying there is
+how Zenoh's own examples serve queries), so the caller learns that the agent is overloaded
+instead of waiting for a timeout, and nothing is queued without bound.
 
 Callbacks run on Zenoh threads: they decode (size-capped, through ``fleet.wire.payloads``),
-append under a short lock and signal; they never block and never call Zenoh.
+append under a short lock and signal; besides that busy reply they never call Zenoh.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from __future__ import annotations
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import zenoh
@@ -33,9 +35,7 @@ MAX_BEAT_SOURCES = 64
 """Distinct heartbeat sources kept between two safety ticks (50 ms); sources that watch an
 arm are always kept."""
 COMMAND_DEPTH = 256
-"""Commands waiting for the commands thread."""
-BUSY_DEPTH = 256
-"""Commands waiting for their 3205 "busy" answer; beyond this a query is dropped (counted)."""
+"""Commands waiting for the commands thread; one more is answered 3205 "busy"."""
 
 
 @dataclass(frozen=True)
@@ -67,7 +67,6 @@ class InboxCounters:
     undecodable_stops: int = 0
     dropped_events: int = 0
     busy: int = 0
-    dropped_queries: int = 0
 
 
 class SafetyInbox:
@@ -165,37 +164,29 @@ class IncomingQuery:
 
 
 class CommandInbox:
-    """Command queries for the commands thread, and those to answer "busy"."""
+    """Command queries for the commands thread; ``busy`` answers those it cannot queue."""
 
-    def __init__(self, counters: InboxCounters) -> None:
+    def __init__(self, counters: InboxCounters, busy: Callable[[IncomingQuery], None]) -> None:
         self.counters = counters
         self.wake = threading.Event()
+        self._busy = busy
         self._lock = threading.Lock()
         self._queries: deque[IncomingQuery] = deque()
-        self._busy: deque[IncomingQuery] = deque()
 
     def on_query(self, arm: str, query: zenoh.Query) -> None:
         """A query on ``arm/<arm>/cmd`` (Zenoh thread)."""
         payload = query.payload.to_bytes() if query.payload is not None else b""
         item = IncomingQuery(arm, query, payload)
         with self._lock:
-            if len(self._queries) < COMMAND_DEPTH:
+            queued = len(self._queries) < COMMAND_DEPTH
+            if queued:
                 self._queries.append(item)
-            elif len(self._busy) < BUSY_DEPTH:
-                self._busy.append(item)
-                self.counters.busy += 1
             else:
-                # Dropping the query ends it: the caller gets no reply at once, not a timeout.
-                self.counters.dropped_queries += 1
-                return
-        self.wake.set()
-
-    def take_busy(self) -> list[IncomingQuery]:
-        """Queries to answer 3205 "busy" now."""
-        with self._lock:
-            busy = list(self._busy)
-            self._busy.clear()
-        return busy
+                self.counters.busy += 1
+        if queued:
+            self.wake.set()
+        else:
+            self._busy(item)
 
     def take(self) -> IncomingQuery | None:
         """The oldest query waiting to be served, or None."""

@@ -4,7 +4,7 @@ Takes queries off the command inbox, decodes and checks them (limits, link, powe
 lease, lifetime, in-flight limit), assigns seqs, registers them in flight (under the agent's
 lock, before any write, so no ack can arrive unmatched) and writes them through the arm's
 writer, now or at a synchronized start. Replies are sent by whichever thread completes the
-command (see ``EdgeAgent``). Queries the inbox could not queue are answered 3205 "busy" first.
+command (see ``EdgeAgent``). Queries the inbox could not queue are answered 3205 "busy" (``busy``).
 """
 
 from __future__ import annotations
@@ -65,9 +65,6 @@ class CommandService:
     def run(self) -> None:
         """The ``commands`` thread: serve queries until the agent stops."""
         while not self._stopping.is_set():
-            for item in self._inbox.take_busy():
-                why = "the agent is busy (its command queue is full); retry later"
-                self._refuse(item, ErrorCode.REJECTED, f"arm {item.arm!r}: {why}", time.monotonic())
             item = self._inbox.take()
             if item is None:
                 self._inbox.wake.wait(0.2)
@@ -244,6 +241,11 @@ class CommandService:
             error=error,
         )
         self._flush(Outbox(replies=[(item.query, reply)]))
+
+    def busy(self, item: IncomingQuery) -> None:
+        """Answer a query the inbox could not queue (called on the Zenoh thread)."""
+        why = f"arm {item.arm!r}: the agent is busy (its command queue is full); retry later"
+        self._refuse(item, ErrorCode.REJECTED, why, time.monotonic())
 
     def _refuse(self, item: IncomingQuery, code: ErrorCode, message: str, started: float) -> None:
         self._reply_now(item, started, ErrorInfo(int(code), message[:1000]))

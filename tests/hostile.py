@@ -22,12 +22,13 @@ NEST = 1000
 """msgspec raises RecursionError (not DecodeError) for JSON nested this deep."""
 
 
-def nested(head: bytes = b"") -> bytes:
-    """A JSON object whose unknown field ``junk`` is nested NEST deep (~2 KB)."""
-    return b"{" + head + b'"junk":' + b"[" * NEST + b"]" * NEST + b"}"
+def nested(tail: bytes = b"") -> bytes:
+    """A JSON object whose unknown field ``junk``, nested NEST deep (~2 KB), comes first: msgspec
+    skips it (recursively) before it finds the fields after it, a tagged union's ``op`` too."""
+    return b'{"junk":' + b"[" * NEST + b"]" * NEST + (b"," + tail if tail else b"") + b"}"
 
 
-STOP_HEAD = b'"stamp_ns":1,"source":"x","stop_id":"y",'
+STOP_HEAD = b'"stamp_ns":1,"source":"x","stop_id":"y"'
 POISONS: dict[str, bytes] = {
     "nested": nested(STOP_HEAD),
     "bad-utf8": b'{"stamp_ns":1,"source":"\xff\xfe","stop_id":"y"}',

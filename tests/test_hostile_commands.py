@@ -11,13 +11,17 @@ import time
 from pathlib import Path
 
 import msgspec
+from cyclonedds.sub import DataReader
+from cyclonedds.topic import Topic
 
 from fleet.client import FleetClient
+from fleet.d1 import dds
+from fleet.d1 import protocol as p
 from fleet.wire import keys
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode
 from tests.harness import FleetHarness, wait_until
-from tests.hostile import assert_fleet_stops_and_serves, statuses, threads_of
+from tests.hostile import assert_fleet_stops_and_serves, statuses, threads_of, wait_reset
 
 FLEET_CLI = ("-m", "fleet.cli.main")
 
@@ -168,3 +172,39 @@ def test_a_takeover_from_a_running_player_is_not_undone(
     wait_until(lambda: h.processes["play"].poll() is not None, 15.0)
     time.sleep(1.0)  # the aborted player's hold, if it were accepted, lands by now
     assert abs(_j0(client) - -20.0) < 2.0, f"the takeover was undone: j0 = {_j0(client):.1f}"
+
+
+def test_nothing_is_written_after_a_stop_under_a_burst_of_power_on(tmp_path: Path) -> None:
+    """Rounds of 40 power-on commands racing a power-off stop, watched on the arm's own command
+    topic: once the stop's power-off is on the wire, no power-on may follow it (the arm writer
+    serializes each arm's writes and checks the latch at the moment of writing)."""
+    with FleetHarness(tmp_path, arms=0, extra=POWER_OFF_ARM) as h:
+        client = _fleet(h)
+        channel = dds.DdsChannel(h.domain, "lo")
+        try:
+            topic = Topic(channel.participant, dds.command_topic("_1"), dds.ArmString_)
+            reader = DataReader(channel.participant, topic, qos=dds.COMMAND_READER_QOS)
+            key = client.keys.arm("a1", keys.CMD)
+            for round_ in range(8):
+                wait_reset(client, ["a1"])
+                assert client.command("a1", m.Power(on=True)).ok
+                reader.take(N=1000)  # forget what was written before this round
+                burst = [
+                    client.session.get(key, payload=m.encode(m.Power(on=True))) for _ in range(40)
+                ]
+                time.sleep(0.002 * round_)  # the stop lands at a different point each round
+                client.put_stop(client.stop_request(source="hostile-suite"), "a1")
+                for handler in burst:
+                    list(handler)
+                time.sleep(0.3)
+                written = [
+                    p.decode_command(s.data_)[1]
+                    for s in reader.take(N=1000)
+                    if getattr(s, "data_", None) is not None
+                ]
+                powers = [c.on for c in written if isinstance(c, p.SetPower)]
+                assert False in powers, f"round {round_}: the stop's power off was not seen"
+                after_stop = powers[powers.index(False) :]
+                assert True not in after_stop, f"round {round_}: power on after the stop: {powers}"
+        finally:
+            channel.close()

@@ -81,7 +81,7 @@ def test_a_poison_fault_request_is_refused_and_the_simulator_goes_on(
     h = fleet_harness
     client = h.start_fleet()
     key = client.keys.arm("a1", keys.SIM_FAULT)
-    for payload in (nested(b'"op":"stall",'), b"\xff\xfe", b"[" * 100_000):
+    for payload in (nested(b'"op":"stall","joint":1,"angle_deg":5'), b"\xff\xfe", b"[" * 100_000):
         replies = [r.ok.payload.to_bytes() for r in client.session.get(key, payload=payload)]
         assert replies and b'"ok":false' in replies[0], replies
     before = _joints_seq(client)

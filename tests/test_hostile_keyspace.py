@@ -26,7 +26,6 @@ from tests.hostile import (
     assert_fleet_stops_and_serves,
     decode,
     latest,
-    nested,
     put,
     rss_mb,
     statuses,
@@ -40,7 +39,10 @@ ARMS = ["a1", "a2"]
 def fleet(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[FleetHarness, FleetClient]]:
     """Router, simulator, one agent per arm and a coordinator, shared by this module's tests
     (each test ends by proving the fleet healthy, so the next starts from a working fleet)."""
-    with FleetHarness(tmp_path_factory.mktemp("hostile"), arms=2) as harness:
+    # a2 detects no contact: a stalled joint then waits for its target instead of being
+    # force-limited (the long-request test needs requests that really take long).
+    no_contact = "[arms.a2.contact]\nenabled = false\n"
+    with FleetHarness(tmp_path_factory.mktemp("hostile"), arms=2, extra=no_contact) as harness:
         harness.start_router()
         harness.start_sim()
         harness.start_agent("a1", name="agent1")
@@ -145,13 +147,17 @@ def test_a_heartbeat_flood_never_delays_a_stop_or_grows_memory(
     sent = [0]
 
     def flood() -> None:
-        # Distinct sources (a table per source) and repeats of one (a queue per sample).
+        # A few sources, each beat repeating fresh stops for our arms: a latch (a DDS write,
+        # acks, status) per beat if every beat were acted on; only the newest per source is.
         with open_client(client.inventory.endpoints) as s:
             publisher = s.declare_publisher(client.keys.heartbeat)
             deadline = time.monotonic() + 6.0
             while not flooding.is_set() and time.monotonic() < deadline:
                 n = sent[0]
-                beat = m.Heartbeat(time.time_ns(), f"flood-{n % 5000}", n, 0.1)
+                stops = {
+                    arm: m.StopRequest(time.time_ns(), "flood", f"flood-{arm}-{n}") for arm in ARMS
+                }
+                beat = m.Heartbeat(time.time_ns(), f"flood-{n % 8}", n, 0.1, stops)
                 publisher.put(m.encode(beat))
                 sent[0] += 1
 
@@ -215,8 +221,9 @@ def test_a_query_flood_is_answered_busy_never_dropped(
     harness, client = fleet
     wait_reset(client, ARMS)
     key = client.keys.arm("a1", keys.CMD)
+    # Valid holds: each is written and waits for the arm's acks, so the queue fills.
     handlers = [
-        client.session.get(key, payload=nested(b'"op":"hold",'), timeout=10.0) for _ in range(600)
+        client.session.get(key, payload=m.encode(m.Hold()), timeout=10.0) for _ in range(1000)
     ]
     answered = 0
     codes: dict[int, int] = {}
@@ -227,9 +234,9 @@ def test_a_query_flood_is_answered_busy_never_dropped(
                 got = decode(m.CommandReply, reply.ok.payload.to_bytes())
                 code = got.error.code if got.error else 0  # type: ignore[attr-defined]
                 codes[code] = codes.get(code, 0) + 1
-    print(f"600 queries at once: {answered} answered, codes {codes}")
-    assert answered == 600, codes
-    assert set(codes) <= {ErrorCode.PARAMETER, ErrorCode.REJECTED}, codes
+    print(f"1000 queries at once: {answered} answered, codes {codes}")
+    assert answered == 1000, codes
+    assert set(codes) <= {0, ErrorCode.REJECTED}, codes
     assert_fleet_stops_and_serves(harness, client)
 
 
@@ -247,13 +254,13 @@ def test_long_multi_arm_requests_never_queue_without_bound(
 ) -> None:
     harness, client = fleet
     wait_reset(client, ARMS)
-    fault = client.keys.arm("a1", keys.SIM_FAULT)
+    fault = client.keys.arm("a2", keys.SIM_FAULT)
     stall = b'{"op":"stall","joint":0,"angle_deg":0.0}'
     assert [r for r in client.session.get(fault, payload=stall) if r.ok is not None]
     try:
         # Each request waits (up to 4 s) for a target the stalled joint never reaches.
         blocked = m.MoveJoint(joint=0, angle_deg=30.0, wait_reached=True, timeout_s=4.0)
-        request = m.encode(m.MultiArmRequest(target="a1", command=blocked))
+        request = m.encode(m.MultiArmRequest(target="a2", command=blocked))
         started = time.monotonic()
         arrived: list[tuple[float, bytes]] = []
 
@@ -274,5 +281,5 @@ def test_long_multi_arm_requests_never_queue_without_bound(
     finally:
         unstall = b'{"op":"clear"}'
         assert [r for r in client.session.get(fault, payload=unstall) if r.ok is not None]
-    client.command("a1", m.Release(owner=_state(client).coordinator))  # type: ignore[union-attr]
+    client.command("a2", m.Release(owner=_state(client).coordinator))  # type: ignore[union-attr]
     assert_fleet_stops_and_serves(harness, client)

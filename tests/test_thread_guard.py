@@ -20,7 +20,6 @@ from typing import Any
 import pytest
 
 import edge_agent.__main__ as agent_main
-from edge_agent.agent import EdgeAgent
 from edge_agent.inbox import SafetyInbox
 from edge_agent.serving import CommandService
 from edge_agent.stops import SafetyLoop
@@ -123,7 +122,7 @@ class _Seen:
 INJECTIONS: dict[str, tuple[type, str, int]] = {
     "dds-feedback": (ArmTracker, "on_feedback", 40),
     "safety": (SafetyLoop, "_tick", 40),
-    "housekeeping": (EdgeAgent, "_diag", 3),
+    "housekeeping": (ArmTracker, "diag", 3),
     "commands": (CommandService, "_handle", 1),
     "zenoh-callback": (SafetyInbox, "on_heartbeat", 1),
 }

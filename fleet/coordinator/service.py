@@ -16,7 +16,6 @@ import os
 import socket
 import threading
 import time
-from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 
 import msgspec
@@ -25,6 +24,7 @@ import zenoh
 from fleet.client import STOP_QOS, FleetClient
 from fleet.coordinator.contact_actions import perform
 from fleet.coordinator.contact_policy import Action, ContactPolicy
+from fleet.coordinator.desk import RequestDesk, error_reply
 from fleet.coordinator.intake import Control, CoordinatorIntake
 from fleet.coordinator.state import FleetStateTracker
 from fleet.coordinator.stops import FLEET, StopBook
@@ -32,22 +32,13 @@ from fleet.guard import ThreadGuard
 from fleet.inventory import Inventory, InventoryError
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
-from fleet.wire.messages import ErrorCode, ErrorInfo, encode
+from fleet.wire.messages import ErrorCode, encode
 from fleet.wire.session import open_client
 
 log = logging.getLogger("fleet.coordinator")
 JSON = zenoh.Encoding.APPLICATION_JSON
 
 
-def _error(code: ErrorCode, why: str) -> ErrorInfo:
-    return ErrorInfo(int(code), why[:1000])
-
-
-MAX_ACTIVE_REQUESTS = 4
-"""Multi-arm requests served at once; one more is answered 3205 "busy" at once (a request that
-waits for its arms to reach their targets can take minutes)."""
-QUERY_DEPTH = 64
-"""Requests waiting for the multi-arm thread; beyond it they are answered "busy"."""
 MAX_PENDING_ACTIONS = 64
 """Contact-policy actions waiting for a worker; more are dropped (counted): a flood of forged
 contact events must not queue commands without bound."""
@@ -76,12 +67,7 @@ class Coordinator:
         self.failed = self.guard.failed
         self.intake = CoordinatorIntake(self.keys, frozenset(arms))
         self.undecodable_stops = 0  # guarded by lock
-        self._queries: deque[zenoh.Query] = deque()
-        self._busy: deque[zenoh.Query] = deque()
-        self._query_lock = threading.Lock()
-        self._query_wake = threading.Event()
-        self.requests_active = 0  # guarded by _query_lock
-        self.busy = self.dropped_queries = 0
+        self.desk = RequestDesk(self.keys.coordinator_cmd, self._serve, self.guard)
         self._pending_actions = 0  # guarded by lock
         self.session = open_client(inventory.endpoints)
         self.client = FleetClient(inventory, self.session)
@@ -94,16 +80,12 @@ class Coordinator:
         self._report_pub = self.session.declare_publisher(self.keys.stop_report, encoding=JSON)
         self._diag_pub = self.session.declare_publisher(self.keys.coordinator_diag, encoding=JSON)
         self._pool = ThreadPoolExecutor(max_workers=16, thread_name_prefix="fan-out")
-        # Multi-arm requests are served side by side: one that waits for its arms to reach
-        # their targets must not hold up the next. A pool of its own: a request fans out on
-        # _pool, and sharing one pool could starve it of workers.
-        self._requests = ThreadPoolExecutor(
-            max_workers=MAX_ACTIVE_REQUESTS, thread_name_prefix="multi-arm"
-        )
+        # (the desk serves requests on a pool of its own: a request fans out on _pool, and
+        # sharing one pool could starve it of workers)
         self._threads = [
             self.guard.thread(self._beat, "heartbeat"),
             self.guard.thread(self._drain_events, "events"),
-            self.guard.thread(self._serve_queries, "multi-arm"),
+            self.guard.thread(lambda: self.desk.run(self.stopping), "multi-arm"),
         ]
 
     def _declare(self) -> None:
@@ -121,21 +103,9 @@ class Coordinator:
             sub(self.keys.all_arms(keys.ESTOP_ACK), wrap(intake.on_report, "estop-ack")),
             sub(self.keys.all_arms(keys.CONTACT), wrap(intake.on_report, "contact")),
             self.session.declare_queryable(
-                self.keys.coordinator_cmd, wrap(self._on_query, "coordinator-cmd")
+                self.keys.coordinator_cmd, wrap(self.desk.on_query, "coordinator-cmd")
             ),
         ]
-
-    def _on_query(self, query: zenoh.Query) -> None:
-        """Zenoh thread: queue the request; if full, queue it for a "busy" answer."""
-        with self._query_lock:
-            if len(self._queries) < QUERY_DEPTH:
-                self._queries.append(query)
-            elif len(self._busy) < QUERY_DEPTH:
-                self._busy.append(query)
-            else:
-                self.dropped_queries += 1  # dropping the query ends it: no reply, at once
-                return
-        self._query_wake.set()
 
     # ------------------------------------------------------------------ threads
 
@@ -163,8 +133,7 @@ class Coordinator:
     def diag(self, stamp_ns: int) -> m.CoordinatorDiag:
         """The coordinator's counters."""
         counters = self.intake.counters
-        with self._query_lock:
-            busy, dropped, active = self.busy, self.dropped_queries, self.requests_active
+        busy, active = self.desk.counters()
         return m.CoordinatorDiag(
             stamp_ns=stamp_ns,
             coordinator=self.id,
@@ -173,7 +142,6 @@ class Coordinator:
             undecodable_stops=self.undecodable_stops,
             dropped_events=counters.dropped_events,
             busy=busy,
-            dropped_queries=dropped,
             requests_active=active,
         )
 
@@ -237,49 +205,12 @@ class Coordinator:
 
     # ------------------------------------------------------------------ multi-arm commands
 
-    def _serve_queries(self) -> None:
-        while not self.stopping.is_set():
-            self._query_wake.wait(0.2)
-            with self._query_lock:
-                busy = list(self._busy)
-                self._busy.clear()
-                self.busy += len(busy)
-                query = self._queries.popleft() if self._queries else None
-                if query is not None and self.requests_active >= MAX_ACTIVE_REQUESTS:
-                    busy.append(query)
-                    self.busy += 1
-                    query = None
-                elif query is not None:
-                    self.requests_active += 1
-                if not self._queries and not self._busy:
-                    self._query_wake.clear()
-            for waiting in busy:
-                why = (
-                    f"the coordinator is busy ({MAX_ACTIVE_REQUESTS} requests in progress); "
-                    "retry when one finishes"
-                )
-                self._reply(
-                    waiting, m.MultiArmReply(False, {}, None, _error(ErrorCode.REJECTED, why))
-                )
-            if query is not None:
-                self._requests.submit(self.guard.wrap(self._answer, "multi-arm request"), query)
-
-    def _answer(self, query: zenoh.Query) -> None:
+    def _serve(self, payload: bytes) -> m.MultiArmReply:
+        """One ``coordinator/cmd`` request (on a desk worker)."""
         try:
-            payload = query.payload.to_bytes() if query.payload is not None else b""
-            try:
-                reply = self.command(payloads.MULTI_REQUEST.decode(payload))
-            except (payloads.PayloadError, InventoryError) as exc:
-                reply = m.MultiArmReply(False, {}, None, _error(ErrorCode.PARAMETER, str(exc)))
-            self._reply(query, reply)
-        finally:
-            with self._query_lock:
-                self.requests_active -= 1
-            self._query_wake.set()
-
-    def _reply(self, query: zenoh.Query, reply: m.MultiArmReply) -> None:
-        query.reply(self.keys.coordinator_cmd, encode(reply), encoding=JSON)
-        query.drop()
+            return self.command(payloads.MULTI_REQUEST.decode(payload))
+        except (payloads.PayloadError, InventoryError) as exc:
+            return error_reply(ErrorCode.PARAMETER, str(exc))
 
     def command(self, request: m.MultiArmRequest) -> m.MultiArmReply:
         """Send one command to every arm of ``request.target`` as this coordinator (the owner);
@@ -324,9 +255,7 @@ class Coordinator:
                             "deg, where it met an obstacle repeatedly (collision memory; it "
                             "expires, or clear it after a workspace change)"
                         )
-                        return m.MultiArmReply(
-                            False, {}, None, ErrorInfo(int(ErrorCode.REJECTED), why)
-                        )
+                        return error_reply(ErrorCode.REJECTED, why)
         return None
 
     # ------------------------------------------------------------------ lifecycle
@@ -348,7 +277,7 @@ class Coordinator:
         for thread in self._threads:
             if thread.is_alive() and thread is not threading.current_thread():
                 thread.join(timeout=2.0)
-        self._requests.shutdown(wait=False, cancel_futures=True)
+        self.desk.close()
         self._pool.shutdown(wait=False, cancel_futures=True)
         for entity in self._declared:
             entity.undeclare()

@@ -113,9 +113,7 @@ class Diag(Struct, frozen=True):
     undecodable_stops: Count = 0
     """Of those, stops: each still stopped the arms (anyone may stop)."""
     busy: Count = 0
-    """Commands answered 3205 "busy": a queue or the in-flight limit was full."""
-    dropped_queries: Count = 0
-    """Commands dropped unanswered because even the busy-reply queue was full."""
+    """Commands answered 3205 "busy" at once because the agent's command queue was full."""
     dropped_events: Count = 0
     """Resets and heartbeat sources dropped at a full queue (a flood); stops are never dropped."""
     write_failures: Count = 0
@@ -339,9 +337,7 @@ class CoordinatorDiag(Struct, frozen=True):
     dropped_events: Count
     """Events dropped at a full queue (a flood); stops are never dropped."""
     busy: Count
-    """Multi-arm requests answered 3205 "busy" (every worker occupied)."""
-    dropped_queries: Count
-    """Multi-arm requests dropped unanswered (even the busy-reply queue was full)."""
+    """Multi-arm requests answered 3205 "busy" (the queue full, or every worker occupied)."""
     requests_active: Count
     """Multi-arm requests being served now."""
 
