@@ -12,6 +12,7 @@ from msgspec import Struct
 
 from fleet.sim.model import Faults
 from fleet.sim.obstacles import Obstacle
+from fleet.wire.messages import Text
 from fleet.wire.payloads import PayloadKind, payload_kind
 
 
@@ -132,7 +133,7 @@ class FaultReply(Struct, frozen=True):
     """The simulator's answer to a fault request."""
 
     ok: bool
-    error: str | None = None
+    error: Text | None = None
 
 
 def apply_fault(faults: Faults, fault: Fault) -> None:
