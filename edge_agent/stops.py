@@ -152,8 +152,9 @@ class SafetyLoop:
         self._reack(repeats)
         if not latched:
             return
+        later: list[Callable[[], None]] = []  # mirrors and observers, after every DDS write
         for arm in latched:
-            self._write_stop(arm, request.stop_id)
+            self._write_stop(arm, request.stop_id, later)
         acks = Outbox()
         with self._lock:
             for arm in latched:
@@ -165,6 +166,8 @@ class SafetyLoop:
                 out.puts.append((pubs.status, encode(slot.tracker.status(now, now_ns))))
         self._flush(acks)
         self._flush(out)
+        for tell in later:
+            tell()
         with self._lock:
             actions = {self._slots[a].tracker.config.stop_action for a in latched}
         log.warning(
@@ -180,7 +183,9 @@ class SafetyLoop:
                     out.puts.append((self._relay.publishers[arm].stop_ack, encode(ack)))
         self._flush(out)
 
-    def _write_stop(self, arm: str, stop_id: str | None) -> bool:
+    def _write_stop(
+        self, arm: str, stop_id: str | None, later: list[Callable[[], None]] | None = None
+    ) -> bool:
         """Write the stop action of the stop latched on ``arm`` (``stop_id``; None: whichever
         is latched), composed at the moment of writing. True if it is this stop's first write
         (a hold without a fresh pose is written by a later repeat)."""
@@ -194,7 +199,7 @@ class SafetyLoop:
             stop.detail = NO_FRESH_POSE if command is None else None
             return None if command is None else (command, transient_seq(slot))
 
-        written = self._writer.write(arm, compose)
+        written = self._writer.write(arm, compose, later)
         if written is None or not written.ok:
             return False
         with self._lock:

@@ -57,8 +57,12 @@ class ArmWriter:
         self._arm_locks = {arm: threading.Lock() for arm in slots}
         self.observers: list[Observer] = []
 
-    def write(self, arm: str, compose: Compose) -> Written | None:
-        """Compose and write one command to ``arm``; None if ``compose`` chose nothing."""
+    def write(
+        self, arm: str, compose: Compose, later: list[Callable[[], None]] | None = None
+    ) -> Written | None:
+        """Compose and write one command to ``arm``; None if ``compose`` chose nothing. With
+        ``later``, the Zenoh mirror and the observers are appended there for the caller to run
+        (a stop writes every arm's command to DDS before any Zenoh traffic)."""
         with self._arm_locks[arm]:
             now = time.monotonic()
             with self._lock:
@@ -69,9 +73,16 @@ class ArmWriter:
             text = p.encode_command(command, seq)
             ok = self._link.write(arm, text)
             written = Written(ok, time.time_ns(), command, text)
-        self._mirror(arm, text)
-        for observer in self.observers:
-            observer(arm, command, now)
+
+        def tell() -> None:
+            self._mirror(arm, text)
+            for observer in self.observers:
+                observer(arm, command, now)
+
+        if later is None:
+            tell()
+        else:
+            later.append(tell)
         return written
 
     def write_now(self, arm: str, command: p.Command) -> Written | None:
