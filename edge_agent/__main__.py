@@ -8,7 +8,7 @@ import sys
 
 from edge_agent.agent import EdgeAgent
 from fleet.guard import EXIT_THREAD_FAILED
-from fleet.inventory import InventoryError
+from fleet.inventory import Inventory, InventoryError
 from fleet.runtime import (
     add_inventory_options,
     inventory_from_args,
@@ -29,6 +29,18 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     return parser.parse_args(argv)
 
 
+def agent_principal(inventory: Inventory, arms: list[str]) -> str:
+    """The principal of an agent serving ``arms``: their ``agent`` (one certificate per
+    process, so with security on every arm it serves must name the same agent)."""
+    names = sorted({inventory.arm(a).agent for a in arms})
+    if len(names) > 1 and inventory.security.enabled:
+        raise InventoryError(
+            f"{inventory.path}: arms {', '.join(arms)} name different agents ({', '.join(names)}); "
+            "one agent process has one identity: give them the same `agent`"
+        )
+    return names[0]
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run until SIGINT/SIGTERM. Exit 0 on a clean stop, 2 on a configuration error."""
     args = parse_args(argv)
@@ -39,6 +51,7 @@ def main(argv: list[str] | None = None) -> int:
         arms = args.arm or [a.id for a in inventory.arms.values() if a.interface == args.interface]
         if not arms:
             raise InventoryError(f"{inventory.path}: no arm uses interface {args.interface!r}")
+        inventory = inventory.with_principal(args.principal or agent_principal(inventory, arms))
         agent = EdgeAgent(inventory, arms)
     except (InventoryError, RouterUnreachable, ValueError) as exc:
         print(f"edge-agent: {exc}", file=sys.stderr)

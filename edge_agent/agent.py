@@ -29,7 +29,7 @@ from edge_agent.contact_edge import ContactEdge
 from edge_agent.holds import hold_command
 from edge_agent.inbox import CommandInbox, InboxCounters, SafetyInbox
 from edge_agent.link import DdsLink
-from edge_agent.relay import JSON, ZenohRelay
+from edge_agent.relay import JSON, ZenohRelay, principal_of
 from edge_agent.safety import ArmSafety
 from edge_agent.scheduler import StartScheduler
 from edge_agent.serving import CommandService
@@ -40,7 +40,6 @@ from edge_agent.writer import ArmWriter, transient_seq
 from fleet.d1 import protocol as p
 from fleet.guard import ThreadGuard
 from fleet.inventory import Inventory
-from fleet.wire import keys
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, encode
 
@@ -67,17 +66,15 @@ class EdgeAgent:
         self.failed = self.guard.failed
         self.counters = InboxCounters()
         self.safety_inbox = SafetyInbox(self.counters)
-        self.command_inbox = CommandInbox(self.counters, lambda item: self.commands.busy(item))
+        self.command_inbox = CommandInbox(
+            self.counters, lambda item: self.commands.busy(item), principal_of
+        )
         suffixes = {a: inventory.arm(a).suffix for a in arm_ids}
         # DDS first: if the interface is wrong we fail before announcing anything on Zenoh.
         self.link = DdsLink(domain_id, interface, peers, suffixes, self._on_feedback, self.guard)
         try:
             self.relay = ZenohRelay(
-                inventory.fleet,
-                arm_ids,
-                inventory.endpoints,
-                (self.safety_inbox, self.command_inbox),
-                self.guard,
+                inventory, arm_ids, (self.safety_inbox, self.command_inbox), self.guard
             )
         except BaseException:
             self.link.close()
@@ -105,6 +102,7 @@ class EdgeAgent:
             (self.collect_finished, self.flush),
             self.safety_loop.last_heartbeat_s,
             self.stopping,
+            inventory,
         )
         self._threads = [
             self.safety_loop.thread,
@@ -233,9 +231,11 @@ class EdgeAgent:
         for publisher, payload in out.puts:
             publisher.put(payload)
         for query, reply in out.replies:
-            # On the arm's own key, not the query's: a wildcard query (arm/*/cmd) gets one
-            # reply per arm, which consolidation would merge if they shared the wildcard key.
-            query.reply(self.relay.keys.arm(reply.arm, keys.CMD), encode(reply), encoding=JSON)
+            # On the arm's own key, not the query's: a wildcard query (arm/*/cmd/<principal>)
+            # gets one reply per arm, which consolidation would merge on one wildcard key.
+            principal = principal_of(query.key_expr) or "unknown"
+            key = self.relay.keys.command(reply.arm, principal)
+            query.reply(key, encode(reply), encoding=JSON)
             query.drop()
 
     # ------------------------------------------------------------------ state access

@@ -78,7 +78,7 @@ class SafetyInbox:
         self._lock = threading.Lock()
         self._control: deque[ControlEvent] = deque()
         self._flooded: dict[str | None, None] = {}  # targets of stops that found the FIFO full
-        self._beats: dict[str, tuple[m.Heartbeat, float]] = {}
+        self._beats: dict[str, tuple[str, m.Heartbeat, float]] = {}
         self._keep: frozenset[str] = frozenset()
 
     def on_stop(self, arm: str | None, data: bytes) -> None:
@@ -114,8 +114,10 @@ class SafetyInbox:
                 return
         self.wake.set()
 
-    def on_heartbeat(self, data: bytes) -> None:
-        """A sample on ``heartbeat`` (Zenoh thread): keep the newest per source."""
+    def on_heartbeat(self, principal: str | None, data: bytes) -> None:
+        """A sample on ``heartbeat/<principal>`` (Zenoh thread): keep the newest per source.
+        The source is ``<principal>/<coordinator>``: the principal comes from the key (the
+        router lets only it publish there), the payload only names one of its commanders."""
         arrived = time.monotonic()
         try:
             beat = payloads.HEARTBEAT.decode(data)
@@ -123,8 +125,10 @@ class SafetyInbox:
             with self._lock:
                 self.counters.bad_payloads += 1
             return
+        if principal is None:
+            return  # not a heartbeat key (cannot happen on heartbeat/*)
         with self._lock:
-            source = beat.coordinator
+            source = owner_of(principal, beat.coordinator)
             if (
                 source not in self._beats
                 and len(self._beats) >= MAX_BEAT_SOURCES
@@ -132,15 +136,15 @@ class SafetyInbox:
             ):
                 self.counters.dropped_events += 1
                 return
-            self._beats[source] = (beat, arrived)
+            self._beats[source] = (source, beat, arrived)
 
     def keep_sources(self, sources: frozenset[str]) -> None:
         """Sources whose heartbeats are never dropped (they watch an arm)."""
         self._keep = sources
 
-    def take(self) -> tuple[list[ControlEvent], list[tuple[m.Heartbeat, float]]]:
+    def take(self) -> tuple[list[ControlEvent], list[tuple[str, m.Heartbeat, float]]]:
         """Everything pending: stops and resets in arrival order (then the stops that found
-        the FIFO full), and the newest heartbeat of each source with its arrival time."""
+        the FIFO full), and the newest heartbeat of each source (source, beat, arrival)."""
         with self._lock:
             control = list(self._control)
             self._control.clear()
@@ -154,20 +158,34 @@ class SafetyInbox:
         return control, beats
 
 
+def owner_of(principal: str, name: str) -> str:
+    """A lease owner or heartbeat source: the authenticated ``principal``, then the name the
+    payload gives (one principal may run several commanders: a player, a mirror, a CLI)."""
+    return f"{principal}/{name}"
+
+
 @dataclass(frozen=True)
 class IncomingQuery:
-    """A command query handed from a Zenoh thread to the agent's command thread."""
+    """A command query handed from a Zenoh thread to the agent's command thread.
+    ``principal``: from the query's key (None: the key named none)."""
 
     arm: str
     query: zenoh.Query
     payload: bytes
+    principal: str | None = None
 
 
 class CommandInbox:
     """Command queries for the commands thread; ``busy`` answers those it cannot queue."""
 
-    def __init__(self, counters: InboxCounters, busy: Callable[[IncomingQuery], None]) -> None:
+    def __init__(
+        self,
+        counters: InboxCounters,
+        busy: Callable[[IncomingQuery], None],
+        principal_of: Callable[[object], str | None],
+    ) -> None:
         self.counters = counters
+        self._principal_of = principal_of
         self.wake = threading.Event()
         self._busy = busy
         self._lock = threading.Lock()
@@ -176,7 +194,7 @@ class CommandInbox:
     def on_query(self, arm: str, query: zenoh.Query) -> None:
         """A query on ``arm/<arm>/cmd`` (Zenoh thread)."""
         payload = query.payload.to_bytes() if query.payload is not None else b""
-        item = IncomingQuery(arm, query, payload)
+        item = IncomingQuery(arm, query, payload, self._principal_of(query.key_expr))
         with self._lock:
             queued = len(self._queries) < COMMAND_DEPTH
             if queued:

@@ -18,8 +18,9 @@ import zenoh
 
 from edge_agent.inbox import CommandInbox, SafetyInbox
 from fleet.guard import ThreadGuard
+from fleet.inventory import Inventory
+from fleet.security.session import open_session
 from fleet.wire import keys
-from fleet.wire.session import open_client
 
 JSON = zenoh.Encoding.APPLICATION_JSON
 
@@ -47,19 +48,25 @@ class ArmPublishers:
         )
 
 
+def principal_of(key: object) -> str | None:
+    """The principal a heartbeat or command key ends with (the router lets only that principal
+    use the key); None when the last chunk is not a name (a wildcard query)."""
+    chunk = str(key).rpartition("/")[2]
+    return chunk if keys.is_name(chunk) else None
+
+
 class ZenohRelay:
     """Declares everything an agent needs on the key space, for the arms it serves."""
 
     def __init__(
         self,
-        fleet: str,
+        inventory: Inventory,
         arm_ids: list[str],
-        endpoints: list[str],
         inboxes: tuple[SafetyInbox, CommandInbox],
         guard: ThreadGuard,
     ) -> None:
-        self.keys = keys.KeySpace(fleet)
-        self.session = open_client(endpoints)
+        self.keys = keys.KeySpace(inventory.fleet)
+        self.session = open_session(inventory)
         safety, commands = inboxes
         wrap = guard.wrap
 
@@ -78,7 +85,12 @@ class ZenohRelay:
             sub(self.keys.reset, on_reset(None)),
             sub(
                 self.keys.heartbeat,
-                wrap(lambda sample: safety.on_heartbeat(sample.payload.to_bytes()), "heartbeat"),
+                wrap(
+                    lambda sample: safety.on_heartbeat(
+                        principal_of(sample.key_expr), sample.payload.to_bytes()
+                    ),
+                    "heartbeat",
+                ),
             ),
         ]
         for arm in arm_ids:
@@ -90,7 +102,7 @@ class ZenohRelay:
         for arm in arm_ids:
             self.publishers[arm] = self._declare_publishers(arm)
             self._queryables.append(
-                self.session.declare_queryable(self.keys.arm(arm, keys.CMD), on_query(arm))
+                self.session.declare_queryable(self.keys.commands(arm), on_query(arm))
             )
         # Tokens last: an agent is announced only once it can serve its arms.
         for arm in arm_ids:

@@ -104,6 +104,7 @@ class ArmSafety:
     standstill: Standstill = field(default_factory=Standstill)
     lease: Lease | None = None
     watched_by: str | None = None
+    watched_since_s: float = 0.0
     last_reason: str | None = None
 
     # ------------------------------------------------------------------ stop latch
@@ -192,13 +193,14 @@ class ArmSafety:
 
     # ------------------------------------------------------------------ watchdog
 
-    def watch(self, coordinator: str) -> None:
+    def watch(self, coordinator: str, now_s: float) -> None:
         """The arm moves under ``coordinator``'s command: arm the watchdog. The watch lasts
         while the owner keeps commanding the arm (its lease is fresh) or the arm still moves,
         and ends when the owner releases the arm, another owner takes it, or a stop latches.
         So a streaming player that dies mid-script gets its arms held and latched, while an
         owner that finished (released, or silent for ``lease_s`` with the arm still) does not."""
         self.watched_by = coordinator
+        self.watched_since_s = now_s
         self.standstill.clear()
 
     def _owner_quiet(self, now_s: float) -> bool:
@@ -206,7 +208,10 @@ class ArmSafety:
         return lease is None or lease.owner != self.watched_by or lease.expires_s <= now_s
 
     def watchdog_expired(self, last_heartbeat_s: float | None, now_s: float) -> bool:
-        """True when the arm moves under a coordinator whose heartbeat is older than allowed."""
+        """True when the arm moves under a coordinator whose heartbeat is older than allowed.
+        The watch's start counts as a beat: an agent that has not heard the commander yet (it
+        just started) gives it ``watchdog_s`` to be heard, not zero."""
         if self.watched_by is None or self.latched:
             return False
-        return last_heartbeat_s is None or now_s - last_heartbeat_s > self.watchdog_s
+        heard_s = max(self.watched_since_s, last_heartbeat_s or self.watched_since_s)
+        return now_s - heard_s > self.watchdog_s

@@ -16,13 +16,15 @@ from collections.abc import Callable
 
 from edge_agent.commands import InFlight, Plan, Refused, plan
 from edge_agent.holds import NO_FRESH_POSE, allowed_while_latched, hold_command
-from edge_agent.inbox import CommandInbox, IncomingQuery
+from edge_agent.inbox import CommandInbox, IncomingQuery, owner_of
 from edge_agent.safety import LeaseRefused
 from edge_agent.scheduler import SchedulerFull, StartScheduler
 from edge_agent.slots import ArmSlot, Outbox
 from edge_agent.writer import ArmWriter
 from fleet.d1 import protocol as p
 from fleet.d1.seq import SeqExhausted
+from fleet.inventory import Inventory
+from fleet.security.config import COMMANDERS
 from fleet.wire import messages as m
 from fleet.wire import payloads
 from fleet.wire.messages import ErrorCode, ErrorInfo
@@ -52,6 +54,7 @@ class CommandService:
         hooks: tuple[Collect, Flush],
         heartbeats: dict[str, float],
         stopping: threading.Event,
+        inventory: Inventory,
     ) -> None:
         self._lock = lock
         self._slots = slots
@@ -61,6 +64,7 @@ class CommandService:
         self._collect, self._flush = hooks
         self._heartbeats = heartbeats  # coordinator -> last heartbeat (guarded by lock)
         self._stopping = stopping
+        self._inventory = inventory
 
     def run(self) -> None:
         """The ``commands`` thread: serve queries until the agent stops."""
@@ -121,8 +125,12 @@ class CommandService:
     ) -> tuple[Plan, InFlight | None, float]:
         """Check, plan and register one command (caller holds the lock); raises Refused."""
         safety = slot.safety
+        principal = self._check_principal(item)
+        # The lease owner is the authenticated principal (from the key), then the commander
+        # the payload names: nobody can act as another principal's owner.
+        owner = None if command.owner is None else owner_of(principal, command.owner)
         if isinstance(command, m.Release):
-            if command.owner is None or not safety.release(command.owner):
+            if owner is None or not safety.release(owner):
                 holder = safety.lease.owner if safety.lease else "nobody"
                 raise Refused(ErrorCode.LEASE_INVALID, f"arm {item.arm!r} is held by {holder}")
             return Plan((), {}), None, 0.0
@@ -137,7 +145,7 @@ class CommandService:
         planned = plan(command, slot.tracker, now)
         if not (isinstance(command, m.Hold) and safety.latched):  # a stop ended every lease
             try:
-                safety.check_owner(command.owner, command.takeover, now)
+                safety.check_owner(owner, command.takeover, now)
             except LeaseRefused as exc:
                 raise Refused(ErrorCode.LEASE_EXISTS, f"arm {item.arm!r} is {exc}") from None
         delay_s = 0.0
@@ -160,8 +168,12 @@ class CommandService:
             seqs = tuple(slot.seqs.allocate() for _ in planned.commands)
         except SeqExhausted as exc:  # cannot happen under MAX_IN_FLIGHT; never a crash
             raise Refused(ErrorCode.REJECTED, f"arm {item.arm!r} is busy: {exc}") from None
-        if isinstance(command, m.MOTION_OPS) and command.owner in self._heartbeats:
-            safety.watch(command.owner)
+        if (
+            isinstance(command, m.MOTION_OPS)
+            and owner is not None
+            and self._watched(principal, owner)
+        ):
+            safety.watch(owner, now)
         config = slot.tracker.config
         start = now + max(0.0, delay_s)
         flight = InFlight(
@@ -177,6 +189,29 @@ class CommandService:
         for seq in seqs:
             slot.in_flight[seq] = (flight, item.query)
         return planned, flight, delay_s
+
+    def _watched(self, principal: str, owner: str) -> bool:
+        """Motion by this owner is watched: it publishes heartbeats (a player, a mirror), or it
+        is a coordinator (watched even before this agent heard its first beat)."""
+        return owner in self._heartbeats or self._inventory.role_of(principal) == "coordinator"
+
+    def _check_principal(self, item: IncomingQuery) -> str:
+        """The principal of a command; raises Refused when it names none or, with security on,
+        when its role may not command arms (the router refuses those first)."""
+        principal = item.principal
+        if principal is None:
+            raise Refused(
+                ErrorCode.PARAMETER,
+                f"send commands to arm/{item.arm}/cmd/<principal>, not to a wildcard principal",
+            )
+        if self._inventory.security.enabled:
+            role = self._inventory.role_of(principal)
+            if role not in COMMANDERS:
+                raise Refused(
+                    ErrorCode.REJECTED,
+                    f"principal {principal!r} (role {role}) may not command arms",
+                )
+        return principal
 
     def _write_all(self, arm: str, command: m.ArmCommand, planned: Plan, flight: InFlight) -> None:
         """Write a command's D1 commands (now, or at its synchronized start), each composed at

@@ -79,8 +79,8 @@ class SafetyLoop:
                     self._on_stop(event)
                 else:
                     self._on_reset(event)
-            for beat, arrived_s in beats:
-                self._on_heartbeat(beat, arrived_s)
+            for source, beat, arrived_s in beats:
+                self._on_heartbeat(source, beat, arrived_s)
             self._tick()
 
     # ------------------------------------------------------------------ events
@@ -111,9 +111,9 @@ class SafetyLoop:
         for arm in self._targets(event.arm):
             self.reset(arm, event.request.source)
 
-    def _on_heartbeat(self, beat: m.Heartbeat, arrived_s: float) -> None:
+    def _on_heartbeat(self, source: str, beat: m.Heartbeat, arrived_s: float) -> None:
         with self._lock:
-            self.last_heartbeat_s[beat.coordinator] = arrived_s
+            self.last_heartbeat_s[source] = arrived_s
         for target, request in beat.stops.items():
             if target == "*":
                 arms = list(self._slots)

@@ -15,10 +15,10 @@ from collections.abc import Iterable
 import zenoh
 
 from fleet.inventory import Inventory
+from fleet.security.session import open_session
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, ErrorInfo, encode
-from fleet.wire.session import open_client
 
 JSON = zenoh.Encoding.APPLICATION_JSON
 REPLY_MARGIN_S = 2.0
@@ -57,7 +57,8 @@ class FleetClient:
         self.inventory = inventory
         self.keys = keys.KeySpace(inventory.fleet)
         self._own_session = session is None
-        self.session = session if session is not None else open_client(inventory.endpoints)
+        self.principal = inventory.principal
+        self.session = session if session is not None else open_session(inventory)
 
     # ------------------------------------------------------------------ commands
 
@@ -66,7 +67,7 @@ class FleetClient:
         self.inventory.arm(arm)  # unknown arm: InventoryError with the known ones
         timeout = (command.timeout_s if command.wait_reached else 3.0) + REPLY_MARGIN_S
         replies = self.session.get(
-            self.keys.arm(arm, keys.CMD), payload=encode(command), encoding=JSON, timeout=timeout
+            self.command_key(arm), payload=encode(command), encoding=JSON, timeout=timeout
         )
         for reply in replies:
             if reply.ok is None:
@@ -89,20 +90,20 @@ class FleetClient:
         self.inventory.resolve(target)
         request = m.MultiArmRequest(target=target, command=command, sync=sync, lead_s=lead_s)
         timeout = (command.timeout_s if command.wait_reached else 3.0) + 2 * REPLY_MARGIN_S
-        for reply in self.session.get(
-            self.keys.coordinator_cmd, payload=encode(request), encoding=JSON, timeout=timeout
-        ):
+        key = self.keys.coordinator_command(self.principal)
+        for reply in self.session.get(key, payload=encode(request), encoding=JSON, timeout=timeout):
             if reply.ok is not None:
                 try:
                     return payloads.MULTI_REPLY.decode(reply.ok.payload.to_bytes())
                 except payloads.PayloadError as exc:
                     why = f"unreadable reply from the coordinator: {exc}"
                     return m.MultiArmReply(False, {}, None, ErrorInfo(int(ErrorCode.UNKNOWN), why))
-        why = (
-            f"no coordinator answered on {self.keys.coordinator_cmd}; "
-            "is `fleet coordinator` running?"
-        )
+        why = f"no coordinator answered on {key}; is `fleet coordinator` running?"
         return m.MultiArmReply(False, {}, None, ErrorInfo(int(ErrorCode.NOT_REGISTERED), why))
+
+    def command_key(self, arm: str) -> str:
+        """Where this client's commands to ``arm`` go (``arm/<arm>/cmd/<principal>``)."""
+        return self.keys.command(arm, self.principal)
 
     # ------------------------------------------------------------------ protective stop
 

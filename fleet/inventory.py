@@ -17,6 +17,14 @@ from msgspec import Struct
 
 from fleet.contact.config import ContactConfig, check_config
 from fleet.d1.limits import JOINT_COUNT
+from fleet.security.config import (
+    DEFAULT_PRINCIPALS,
+    ROLES,
+    Role,
+    Security,
+    SecuritySection,
+    resolve,
+)
 from fleet.tomlfile import TomlError, brief, decode_toml, read_text
 from fleet.wire.keys import KeyError_, check_name
 
@@ -55,6 +63,9 @@ class ArmConfig(Struct, frozen=True, forbid_unknown_fields=True):
     """One arm: ``[defaults]`` merged with ``[arms.<id>]``."""
 
     id: str = ""
+    agent: str = ""
+    """The principal of the edge agent serving this arm (default ``agent-<id>``): with TLS, the
+    common name of its certificate; the router lets only it publish this arm's state."""
     suffix: str = ""
     interface: str = "lo"
     peers: list[str] | None = None
@@ -92,6 +103,19 @@ class Inventory(Struct, frozen=True):
     arms: dict[str, ArmConfig]
     groups: dict[str, list[str]]
     coordinator: CoordinatorSection = CoordinatorSection()
+    security: Security = Security()
+    principals: dict[str, Role] = {}
+    principal: str = "operator"
+    """Who this process acts as (``--principal``; each process has its default)."""
+
+    def role_of(self, principal: str) -> Role | None:
+        """The role of ``principal``; None for a principal the inventory does not know."""
+        return self.principals.get(principal)
+
+    def with_principal(self, principal: str) -> Inventory:
+        """A copy for a process acting as ``principal``."""
+        check_name("principal", principal)
+        return msgspec.structs.replace(self, principal=principal)
 
     def arm(self, arm_id: str) -> ArmConfig:
         """The arm ``arm_id``; raises InventoryError naming the known arms."""
@@ -171,6 +195,10 @@ def _check_arm(arm: ArmConfig, path: str) -> None:
     _check_finite(arm, path, where)
     if not _SUFFIX.match(arm.suffix):
         raise _fail(path, where, f"suffix {arm.suffix!r} must be empty or like '_1'")
+    try:
+        check_name("agent", arm.agent)
+    except KeyError_ as exc:
+        raise _fail(path, where, str(exc)) from None
     if len(arm.joint_sign) != JOINT_COUNT or any(s not in (1, -1) for s in arm.joint_sign):
         raise _fail(path, where, f"joint_sign must be {JOINT_COUNT} values of 1 or -1")
     if arm.domain_id is not None and not 0 <= arm.domain_id <= 232:
@@ -192,7 +220,17 @@ def parse_inventory(text: str, path: str = DEFAULT_INVENTORY) -> Inventory:
         raw = decode_toml(text)
     except TomlError as exc:
         raise InventoryError(f"{path}: {exc}") from None
-    known = {"fleet", "zenoh", "dds", "coordinator", "defaults", "arms", "groups"}
+    known = {
+        "fleet",
+        "zenoh",
+        "dds",
+        "coordinator",
+        "defaults",
+        "arms",
+        "groups",
+        "security",
+        "principals",
+    }
     for key in raw:
         if key not in known:
             raise InventoryError(
@@ -238,6 +276,7 @@ def parse_inventory(text: str, path: str = DEFAULT_INVENTORY) -> Inventory:
         if "id" in arm_raw:
             raise InventoryError(f"{path}: {where}: the id is the table's name; remove 'id'")
         merged = {**defaults, **arm_raw, "id": arm_id}
+        merged.setdefault("agent", f"agent-{arm_id}")
         if isinstance(defaults.get("contact"), dict) and isinstance(arm_raw.get("contact"), dict):
             merged["contact"] = _merge(defaults["contact"], arm_raw["contact"])
         arm = _convert(merged, ArmConfig, path, where)
@@ -245,6 +284,8 @@ def parse_inventory(text: str, path: str = DEFAULT_INVENTORY) -> Inventory:
         arms[arm_id] = arm
     _check_unique_topics(arms, dds.domain_id, path)
     groups = _parse_groups(raw.get("groups", {}), arms, path)
+    security = _parse_security(raw.get("security", {}), zenoh.endpoints, path)
+    principals = _parse_principals(raw.get("principals", {}), arms, path)
     return Inventory(
         path=path,
         fleet=fleet.name,
@@ -254,7 +295,46 @@ def parse_inventory(text: str, path: str = DEFAULT_INVENTORY) -> Inventory:
         arms=arms,
         groups=groups,
         coordinator=coordinator,
+        security=security,
+        principals=principals,
     )
+
+
+def _parse_security(raw: Any, endpoints: list[str], path: str) -> Security:
+    section = _convert(raw, SecuritySection, path, "security")
+    try:
+        security = resolve(section, path)
+    except ValueError as exc:
+        raise InventoryError(f"{path}: security: {exc}") from None
+    plain = [e for e in endpoints if not e.startswith("tls/")]
+    if security.enabled and plain:
+        raise InventoryError(
+            f"{path}: security: mode {security.mode!r} needs tls/ endpoints in [zenoh] "
+            f"(not {', '.join(plain)}): credentials must never cross a plain link"
+        )
+    return security
+
+
+def _parse_principals(raw: Any, arms: dict[str, ArmConfig], path: str) -> dict[str, Role]:
+    """``[principals] name = "role"`` over the defaults, plus every arm's agent."""
+    given = _convert(raw, dict[str, str], path, "principals")
+    principals: dict[str, Role] = dict(DEFAULT_PRINCIPALS)
+    for arm in arms.values():
+        principals[arm.agent] = "agent"
+    for name, role in given.items():
+        if principals.get(name) == "agent" and role != "agent":
+            raise InventoryError(f"{path}: principals.{name}: it is an arm's agent")
+        if role not in ROLES:
+            raise InventoryError(
+                f"{path}: principals.{name}: role {role!r} is not one of {', '.join(ROLES)}"
+            )
+        principals[name] = role  # type: ignore[assignment]
+    for name in principals:
+        try:
+            check_name("principal", name)
+        except KeyError_ as exc:
+            raise InventoryError(f"{path}: principals: {exc}") from None
+    return principals
 
 
 def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:

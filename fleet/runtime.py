@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import signal
 import threading
 from types import FrameType
 
-from fleet.inventory import DEFAULT_INVENTORY, Inventory, load_inventory
+from fleet.inventory import DEFAULT_INVENTORY, Inventory, InventoryError, load_inventory
 
 
 def setup_logging(level: str = "INFO") -> None:
@@ -57,14 +58,30 @@ def add_inventory_options(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="override the inventory's Zenoh endpoints (repeatable), e.g. tcp/127.0.0.1:7447",
     )
+    parser.add_argument(
+        "--principal",
+        default=None,
+        help="who this process acts as (default: $D1_FLEET_PRINCIPAL, else the process's own: "
+        "operator for the CLI, coordinator, viewer, sim, router, the arms' agent)",
+    )
     parser.add_argument("--log-level", default="INFO")
 
 
-def inventory_from_args(args: argparse.Namespace) -> Inventory:
-    """Load the inventory and apply the command-line overrides."""
+PRINCIPAL_ENV = "D1_FLEET_PRINCIPAL"
+
+
+def inventory_from_args(args: argparse.Namespace, principal: str = "operator") -> Inventory:
+    """Load the inventory, apply the command-line overrides, and set who this process acts as:
+    ``--principal``, else $D1_FLEET_PRINCIPAL, else ``principal`` (the process's default)."""
     inventory = load_inventory(args.inventory)
     if args.domain is not None:
         inventory = inventory.with_domain(args.domain)
     if args.endpoint:
         inventory = inventory.with_endpoints(args.endpoint)
-    return inventory
+    # $D1_FLEET_PRINCIPAL is the user's identity: it never renames the fleet's own processes.
+    from_env = os.environ.get(PRINCIPAL_ENV) if principal == "operator" else None
+    chosen = getattr(args, "principal", None) or from_env or principal
+    try:
+        return inventory.with_principal(chosen)
+    except ValueError as exc:
+        raise InventoryError(f"--principal: {exc}") from None

@@ -43,9 +43,13 @@ def test_obstacle_contact_reaches_key_space_and_coordinator_stops_arm(
     request = m.MultiArmRequest(
         target="a1", command=m.MoveJoint(joint=1, angle_deg=45.0), phase="lift"
     )
-    wait_until(lambda: _coordinator_up(client.session, client.keys.coordinator_cmd), 10.0)
+    wait_until(
+        lambda: _coordinator_up(client.session, client.keys.coordinator_command(client.principal)),
+        10.0,
+    )
     reply = msgspec.json.decode(
-        _query(client.session, client.keys.coordinator_cmd, encode(request)), type=m.MultiArmReply
+        _query(client.session, client.keys.coordinator_command(client.principal), encode(request)),
+        type=m.MultiArmReply,
     )
     assert reply.ok, reply
 

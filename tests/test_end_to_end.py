@@ -308,7 +308,7 @@ def test_absurd_numbers_in_a_command_are_refused_and_the_agent_keeps_serving(
 ) -> None:
     client = fleet_harness.start_fleet()
     huge = b'{"op":"hold","stamp_ns":-' + b"9" * 400 + b',"lifetime_s":1}'
-    replies = list(client.session.get(client.keys.arm("a1", "cmd"), payload=huge, timeout=5.0))
+    replies = list(client.session.get(client.command_key("a1"), payload=huge, timeout=5.0))
     reply = payloads.REPLY.decode(replies[0].ok.payload.to_bytes())
     assert not reply.ok and reply.error is not None and reply.error.code == m.ErrorCode.PARAMETER
     assert "stamp_ns" in reply.error.message

@@ -45,7 +45,7 @@ def _j0(client: FleetClient, arm: str = "a1") -> float:
 
 def _fire(client: FleetClient, arm: str, commands: list[m.ArmCommand]) -> list[m.CommandReply]:
     """Send every command without waiting for the previous reply; collect all replies."""
-    key = client.keys.arm(arm, keys.CMD)
+    key = client.command_key(arm)
     handlers = [client.session.get(key, payload=m.encode(c), timeout=15.0) for c in commands]
     replies = []
     for handler in handlers:
@@ -115,7 +115,7 @@ def test_a_power_on_never_lands_after_a_power_off_stop(tmp_path: Path) -> None:
         assert client.command("a1", m.Power(on=True)).ok
         start = time.time_ns() + 1_000_000_000
         late_on = [m.Power(on=True, start_at_ns=start)]
-        key = client.keys.arm("a1", keys.CMD)
+        key = client.command_key("a1")
         pending = client.session.get(key, payload=m.encode(late_on[0]), timeout=5.0)
         time.sleep(0.2)
         acks = client.estop(arm="a1", timeout_s=5.0, wait_still=False)
@@ -184,7 +184,7 @@ def test_nothing_is_written_after_a_stop_under_a_burst_of_power_on(tmp_path: Pat
         try:
             topic = Topic(channel.participant, dds.command_topic("_1"), dds.ArmString_)
             reader = DataReader(channel.participant, topic, qos=dds.COMMAND_READER_QOS)
-            key = client.keys.arm("a1", keys.CMD)
+            key = client.command_key("a1")
             for round_ in range(8):
                 wait_reset(client, ["a1"])
                 assert client.command("a1", m.Power(on=True)).ok

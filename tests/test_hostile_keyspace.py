@@ -85,7 +85,8 @@ def test_poison_on_reset_and_heartbeat_changes_nothing(
     harness, client = fleet
     acks = client.estop(arm="a1", timeout_s=5.0)
     assert acks["a1"] is not None
-    for key in (client.keys.reset, client.keys.arm("a1", keys.RESET), client.keys.heartbeat):
+    heartbeat = client.keys.heartbeat_of(client.principal)
+    for key in (client.keys.reset, client.keys.arm("a1", keys.RESET), heartbeat):
         put(client, key, POISONS[poison])
     time.sleep(0.5)
     # A reset that does not decode releases nothing.
@@ -125,12 +126,12 @@ def test_a_poison_command_is_refused_and_no_agent_dies(
     fleet: tuple[FleetHarness, FleetClient],
 ) -> None:
     harness, client = fleet
-    everyone = client.keys.all_arms(keys.CMD)
+    everyone = client.keys.command("*", client.principal)
     for name, payload in POISONS.items():
         replies = _get_all(client, everyone, payload)
         assert sorted(r.arm for r in replies) == ARMS, (name, replies)
         assert all(r.error and r.error.code == ErrorCode.PARAMETER for r in replies), replies
-    (unknown,) = _get_all(client, client.keys.arm("a1", keys.CMD), b'{"op":"fly","to":"moon"}')
+    (unknown,) = _get_all(client, client.command_key("a1"), b'{"op":"fly","to":"moon"}')
     assert unknown.error is not None and unknown.error.code == ErrorCode.NOT_IMPLEMENTED
     assert "fly" in unknown.error.message
     assert_fleet_stops_and_serves(harness, client)
@@ -150,7 +151,7 @@ def test_a_heartbeat_flood_never_delays_a_stop_or_grows_memory(
         # A few sources, each beat repeating fresh stops for our arms: a latch (a DDS write,
         # acks, status) per beat if every beat were acted on; only the newest per source is.
         with open_client(client.inventory.endpoints) as s:
-            publisher = s.declare_publisher(client.keys.heartbeat)
+            publisher = s.declare_publisher(client.keys.heartbeat_of(client.principal))
             deadline = time.monotonic() + 6.0
             while not flooding.is_set() and time.monotonic() < deadline:
                 n = sent[0]
@@ -220,7 +221,7 @@ def test_a_query_flood_is_answered_busy_never_dropped(
 ) -> None:
     harness, client = fleet
     wait_reset(client, ARMS)
-    key = client.keys.arm("a1", keys.CMD)
+    key = client.command_key("a1")
     # Valid holds: each is written and waits for the arm's acks, so the queue fills.
     handlers = [
         client.session.get(key, payload=m.encode(m.Hold()), timeout=10.0) for _ in range(1000)
@@ -269,7 +270,12 @@ def test_long_multi_arm_requests_never_queue_without_bound(
                 arrived.append((time.monotonic() - started, reply.ok.payload.to_bytes()))
 
         for _ in range(10):
-            client.session.get(client.keys.coordinator_cmd, on_reply, payload=request, timeout=15.0)
+            client.session.get(
+                client.keys.coordinator_command(client.principal),
+                on_reply,
+                payload=request,
+                timeout=15.0,
+            )
         wait_until(lambda: len(arrived) == 10, 15.0)
         answers = [(t, decode(m.MultiArmReply, data)) for t, data in arrived]
         busy = [t for t, r in answers if r.error and "busy" in r.error.message]  # type: ignore[attr-defined]

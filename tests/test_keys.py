@@ -22,7 +22,12 @@ def test_builders_spell_the_documented_keys() -> None:
     assert ks.state == "fleet/lab/state"
     assert ks.estop == "fleet/lab/estop"
     assert ks.reset == "fleet/lab/reset"
-    assert ks.heartbeat == "fleet/lab/heartbeat"
+    assert ks.heartbeat == "fleet/lab/heartbeat/*"
+    assert ks.heartbeat_of("coordinator") == "fleet/lab/heartbeat/coordinator"
+    assert ks.command("a1", "ann") == "fleet/lab/arm/a1/cmd/ann"
+    assert ks.commands("a1") == "fleet/lab/arm/a1/cmd/*"
+    assert ks.principal_of("fleet/lab/arm/a1/cmd/ann") == "ann"
+    assert ks.principal_of("fleet/lab/heartbeat/coordinator") == "coordinator"
     assert ks.everything == "fleet/lab/**"
 
 

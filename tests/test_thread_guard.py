@@ -146,7 +146,7 @@ def test_a_failed_agent_thread_latches_every_arm_and_exits_1(
             client.command("a1", m.Hold())
         if thread == "zenoh-callback":
             beat = m.Heartbeat(time.time_ns(), "test", 1, 0.1)
-            client.session.put(client.keys.heartbeat, m.encode(beat))
+            client.session.put(client.keys.heartbeat_of(client.principal), m.encode(beat))
 
     threading.Thread(target=trigger, daemon=True).start()
     with _main_thread_signals(give_up_s=40.0):

@@ -16,7 +16,7 @@ import viser
 
 from fleet.guard import ThreadGuard
 from fleet.inventory import Inventory
-from fleet.wire.session import open_client
+from fleet.security.session import open_session
 from viewer.commands import Commander
 from viewer.kinematics import ArmModel, load_urdf
 from viewer.meshes import link_meshes
@@ -52,7 +52,7 @@ class Viewer:
         # viewer that shows a frozen fleet or a STOP ALL that confirms nothing; it exits instead.
         self.guard = ThreadGuard("viewer")
         self.failed = self.guard.failed
-        self.session = open_client(inventory.endpoints)
+        self.session = open_session(inventory)
         self.server = viser.ViserServer(
             host=host, port=port, label=f"d1-fleet · {inventory.fleet}", verbose=False
         )

@@ -113,7 +113,8 @@ class Player:
         try:
             poses = self._start_poses(watch, ready_s)
             check_motion(self.script, poses)
-            liveness = Liveness(self.client.session, self.client.keys, self.owner)
+            client = self.client
+            liveness = Liveness(client.session, client.keys, self.owner, client.principal)
             stop.wait(0.3)  # the agents hear a beat before the first move: the watchdog arms
             timeline = Timeline(self.script, poses)
             self._run(timeline, watch, stop)

@@ -3,7 +3,7 @@ and the heartbeat that makes the agents watch them.
 
 ``ArmWatch`` subscribes to the arms' joints, status and contact keys and keeps the latest of
 each (a Zenoh callback only decodes and stores under a lock: no I/O, no Zenoh call).
-``Liveness`` publishes a ``Heartbeat`` with the commander's id on ``KeySpace.heartbeat`` at
+``Liveness`` publishes a ``Heartbeat`` with the commander's id on ``heartbeat/<principal>`` at
 10 Hz on its own thread: agents treat any heartbeat publisher as a coordinator, so an arm moved
 by this commander is held by its agent when the commander dies.
 """
@@ -143,9 +143,12 @@ def _contact_of(data: bytes) -> bool | None:
 class Liveness:
     """A Heartbeat publisher for commander ``owner`` (10 Hz, own thread). A context manager."""
 
-    def __init__(self, session: zenoh.Session, space: keys.KeySpace, owner: str) -> None:
+    def __init__(
+        self, session: zenoh.Session, space: keys.KeySpace, owner: str, principal: str
+    ) -> None:
         self.owner = owner
-        self._pub = session.declare_publisher(space.heartbeat, encoding=JSON, **STOP_QOS)
+        key = space.heartbeat_of(principal)  # the router lets only `principal` publish it
+        self._pub = session.declare_publisher(key, encoding=JSON, **STOP_QOS)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="liveness", daemon=True)
         self._thread.start()

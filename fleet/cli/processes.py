@@ -12,11 +12,13 @@ import threading
 import time
 from collections.abc import Callable
 
+import zenoh
+
 from fleet.client import FleetClient
 from fleet.guard import EXIT_THREAD_FAILED
 from fleet.inventory import Inventory
 from fleet.runtime import inventory_from_args, shutdown_event, wait_for
-from fleet.wire.session import open_router
+from fleet.security.session import router_config
 
 log = logging.getLogger("fleet")
 
@@ -58,9 +60,9 @@ def register(
 
 def run_router(args: argparse.Namespace) -> int:
     """Serve as the fleet's Zenoh router until SIGINT/SIGTERM."""
-    inventory = inventory_from_args(args)
+    inventory = inventory_from_args(args, "router")
     stop = shutdown_event()
-    session = open_router(inventory.endpoints)
+    session = zenoh.open(router_config(inventory, inventory.endpoints))
     log.info("Zenoh router listening on %s", ", ".join(inventory.endpoints))
     try:
         wait_for(stop)
@@ -73,7 +75,7 @@ def run_sim(args: argparse.Namespace) -> int:
     """Run simulated arms until SIGINT/SIGTERM."""
     from fleet.sim.node import SimulatedArms  # DDS is only loaded by the commands that use it
 
-    inventory = inventory_from_args(args)
+    inventory = inventory_from_args(args, "sim")
     arms = args.arm or [a.id for a in inventory.arms.values() if a.simulated]
     if not arms:
         print("fleet sim: the inventory marks no arm as simulated", file=sys.stderr)
@@ -97,7 +99,7 @@ def run_coordinator(args: argparse.Namespace) -> int:
     """Run the coordinator until SIGINT/SIGTERM."""
     from fleet.coordinator.service import Coordinator
 
-    inventory = inventory_from_args(args)
+    inventory = inventory_from_args(args, "coordinator")
     stop = shutdown_event()
     with Coordinator(inventory) as coordinator:
         coordinator.start()

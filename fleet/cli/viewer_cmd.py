@@ -36,7 +36,7 @@ def run_viewer(args: argparse.Namespace) -> int:
     """Serve the viewer until SIGINT/SIGTERM."""
     from viewer.app import Viewer  # viser and numpy load only for this command
 
-    inventory = inventory_from_args(args)
+    inventory = inventory_from_args(args, "viewer")
     stop = shutdown_event()
     with Viewer(inventory, host=args.host, port=args.port, rate_hz=args.rate_hz) as viewer:
         if viewer.port != args.port:

@@ -17,6 +17,7 @@ from concurrent.futures import ThreadPoolExecutor
 import zenoh
 
 from fleet.guard import ThreadGuard
+from fleet.wire import keys
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, ErrorInfo, encode
 
@@ -29,7 +30,13 @@ BUSY_WHY = (
     f"the coordinator is busy ({MAX_ACTIVE_REQUESTS} requests in progress); retry when one finishes"
 )
 
-Serve = Callable[[bytes], m.MultiArmReply]
+Serve = Callable[[bytes, str | None], m.MultiArmReply]
+"""(payload, the requester's principal from the key, or None) -> the reply."""
+
+
+def _principal(query: zenoh.Query) -> str | None:
+    chunk = str(query.key_expr).rpartition("/")[2]
+    return chunk if keys.is_name(chunk) else None
 
 
 def error_reply(code: ErrorCode, why: str) -> m.MultiArmReply:
@@ -40,8 +47,8 @@ def error_reply(code: ErrorCode, why: str) -> m.MultiArmReply:
 class RequestDesk:
     """Queues ``coordinator/cmd`` queries and serves them with ``serve`` on a bounded pool."""
 
-    def __init__(self, reply_key: str, serve: Serve, guard: ThreadGuard) -> None:
-        self._reply_key = reply_key
+    def __init__(self, space: keys.KeySpace, serve: Serve, guard: ThreadGuard) -> None:
+        self._space = space
         self._serve = serve
         self._guard = guard
         self._lock = threading.Lock()
@@ -93,14 +100,16 @@ class RequestDesk:
     def _answer(self, query: zenoh.Query) -> None:
         try:
             payload = query.payload.to_bytes() if query.payload is not None else b""
-            self._reply(query, self._serve(payload))
+            self._reply(query, self._serve(payload, _principal(query)))
         finally:
             with self._lock:
                 self.active -= 1
             self._wake.set()
 
     def _reply(self, query: zenoh.Query, reply: m.MultiArmReply) -> None:
-        query.reply(self._reply_key, encode(reply), encoding=JSON)
+        # On the requester's own key (a concrete key that intersects the query's).
+        key = self._space.coordinator_command(_principal(query) or "unknown")
+        query.reply(key, encode(reply), encoding=JSON)
         query.drop()
 
     def close(self) -> None:

@@ -30,10 +30,11 @@ from fleet.coordinator.state import FleetStateTracker
 from fleet.coordinator.stops import FLEET, StopBook
 from fleet.guard import ThreadGuard
 from fleet.inventory import Inventory, InventoryError
+from fleet.security.config import COMMANDERS
+from fleet.security.session import open_session
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, encode
-from fleet.wire.session import open_client
 
 log = logging.getLogger("fleet.coordinator")
 JSON = zenoh.Encoding.APPLICATION_JSON
@@ -67,14 +68,14 @@ class Coordinator:
         self.failed = self.guard.failed
         self.intake = CoordinatorIntake(self.keys, frozenset(arms))
         self.undecodable_stops = 0  # guarded by lock
-        self.desk = RequestDesk(self.keys.coordinator_cmd, self._serve, self.guard)
+        self.desk = RequestDesk(self.keys, self._serve, self.guard)
         self._pending_actions = 0  # guarded by lock
-        self.session = open_client(inventory.endpoints)
+        self.session = open_session(inventory)
         self.client = FleetClient(inventory, self.session)
         self._declared: list[zenoh.Subscriber[None] | zenoh.Queryable[None]] = []
         self._declare()
         self._heartbeat_pub = self.session.declare_publisher(
-            self.keys.heartbeat, encoding=JSON, **STOP_QOS
+            self.keys.heartbeat_of(inventory.principal), encoding=JSON, **STOP_QOS
         )
         self._state_pub = self.session.declare_publisher(self.keys.state, encoding=JSON)
         self._report_pub = self.session.declare_publisher(self.keys.stop_report, encoding=JSON)
@@ -205,8 +206,16 @@ class Coordinator:
 
     # ------------------------------------------------------------------ multi-arm commands
 
-    def _serve(self, payload: bytes) -> m.MultiArmReply:
-        """One ``coordinator/cmd`` request (on a desk worker)."""
+    def _serve(self, payload: bytes, principal: str | None) -> m.MultiArmReply:
+        """One ``coordinator/cmd/<principal>`` request (on a desk worker). The coordinator
+        commands the arms as itself; with security on, only a commander may ask it."""
+        if principal is None:
+            why = "send multi-arm requests to coordinator/cmd/<principal>"
+            return error_reply(ErrorCode.PARAMETER, why)
+        role = self.inventory.role_of(principal)
+        if self.inventory.security.enabled and role not in COMMANDERS:
+            why = f"principal {principal!r} (role {role}) may not command arms"
+            return error_reply(ErrorCode.REJECTED, why)
         try:
             return self.command(payloads.MULTI_REQUEST.decode(payload))
         except (payloads.PayloadError, InventoryError) as exc:

@@ -33,11 +33,11 @@ from fleet.d1 import dds
 from fleet.d1.protocol import encode_message
 from fleet.guard import ThreadGuard
 from fleet.inventory import ArmConfig, Inventory
+from fleet.security.session import open_session
 from fleet.sim.faults import FAULT, FaultReply, apply_fault
 from fleet.sim.model import SimArmModel
 from fleet.wire import keys
 from fleet.wire.messages import encode
-from fleet.wire.session import open_client
 
 log = logging.getLogger("fleet.sim")
 
@@ -88,7 +88,7 @@ class SimulatedArms:
         self._session: zenoh.Session | None = None
         self._queryables: list[zenoh.Queryable[None]] = []
         self._keys = keys.KeySpace(inventory.fleet)
-        self._endpoints = inventory.endpoints
+        self._inventory = inventory
         self.guard = ThreadGuard("fleet sim")
         self._thread = self.guard.thread(self._run, "sim-arms")
 
@@ -98,7 +98,7 @@ class SimulatedArms:
     def start(self, with_zenoh: bool = True) -> SimulatedArms:
         """Start serving; with_zenoh also serves fault injection on the key space."""
         if with_zenoh:
-            self._session = open_client(self._endpoints)
+            self._session = open_session(self._inventory)
             for arm_id in self._arms:
                 key = self._keys.arm(arm_id, keys.SIM_FAULT)
                 self._queryables.append(

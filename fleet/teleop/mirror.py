@@ -96,7 +96,8 @@ class Mirror:
         watch = ArmWatch(
             self.client.session, self.client.keys, [self.leader, *self.followers], self._on_joints
         )
-        liveness = Liveness(self.client.session, self.client.keys, self.owner)
+        client = self.client
+        liveness = Liveness(client.session, client.keys, self.owner, client.principal)
         deadline = None if for_s is None else time.monotonic() + for_s
         try:
             stop.wait(0.3)  # the agents hear a beat first: followers are watched from move one

@@ -48,6 +48,11 @@ class KeyError_(ValueError):  # noqa: N801 - not the builtin KeyError: a bad key
     """A fleet or arm name that cannot be part of a key, or a key outside the key space."""
 
 
+def is_name(text: str) -> bool:
+    """True for a usable fleet, arm or principal name."""
+    return bool(_NAME.match(text))
+
+
 def check_name(kind: str, name: str) -> str:
     """Fleet and arm names: letters, digits, ``_`` and ``-``; no ``/``, ``*``, ``$`` or spaces."""
     if not _NAME.match(name):
@@ -102,13 +107,30 @@ class KeySpace:
 
     @property
     def heartbeat(self) -> str:
-        """The coordinator's heartbeat."""
-        return f"{self.prefix}/heartbeat"
+        """Every commander's heartbeat (``heartbeat/*``: subscribe to this)."""
+        return f"{self.prefix}/heartbeat/*"
+
+    def heartbeat_of(self, principal: str) -> str:
+        """``principal``'s heartbeat: the router lets only ``principal`` publish it, so the
+        agents take the commander's identity from the key, never from the payload."""
+        return f"{self.prefix}/heartbeat/{check_name('principal', principal)}"
+
+    def command(self, arm: str, principal: str) -> str:
+        """``arm/<arm>/cmd/<principal>``: ``principal``'s commands (``arm`` may be ``*``)."""
+        return f"{self.arm(arm, CMD)}/{check_name('principal', principal)}"
+
+    def commands(self, arm: str) -> str:
+        """Every principal's commands to ``arm`` (the agent's queryable)."""
+        return f"{self.arm(arm, CMD)}/*"
 
     @property
     def coordinator_cmd(self) -> str:
-        """Multi-arm commands served by the coordinator."""
-        return f"{self.prefix}/coordinator/cmd"
+        """Multi-arm commands of every principal (the coordinator's queryable)."""
+        return f"{self.prefix}/coordinator/cmd/*"
+
+    def coordinator_command(self, principal: str) -> str:
+        """``principal``'s multi-arm commands."""
+        return f"{self.prefix}/coordinator/cmd/{check_name('principal', principal)}"
 
     @property
     def coordinator_diag(self) -> str:
@@ -124,6 +146,20 @@ class KeySpace:
     def everything(self) -> str:
         """Every key of this fleet (for recorders and debugging)."""
         return f"{self.prefix}/**"
+
+    def principal_of(self, key: str) -> str:
+        """The principal a heartbeat or command key ends with; raises KeyError_ otherwise."""
+        principal = key.rpartition("/")[2]
+        for base in ("/heartbeat/", "/coordinator/cmd/"):
+            if key == f"{self.prefix}{base}{principal}" and _NAME.match(principal):
+                return principal
+        try:
+            arm_key = self.parse_arm_key(key.rpartition("/")[0])
+        except KeyError_:
+            arm_key = None
+        if arm_key is None or arm_key.channel != CMD or not _NAME.match(principal):
+            raise KeyError_(f"{key!r} names no principal of fleet {self.fleet!r}")
+        return principal
 
     def parse_arm_key(self, key: str) -> ArmKey:
         """Split ``fleet/<fleet>/arm/<arm>/<channel>``; raises KeyError_ for anything else."""

@@ -8,11 +8,50 @@ so no process binds to a network we did not choose.
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from typing import Literal
 
 import zenoh
 
 Mode = Literal["router", "peer", "client"]
+
+
+@dataclass(frozen=True)
+class Credentials:
+    """How a session proves who it is, and whom it trusts (``fleet/security`` builds them from
+    the inventory). ``ca``: the authority that signed the other side's certificate; ``cert`` and
+    ``key``: ours (mutual TLS); ``user``/``password``: Zenoh's user-password authentication (on
+    a TLS link, so the password is never sent in clear); ``dictionary``: the router's file of
+    ``user:password`` lines."""
+
+    ca: str | None = None
+    cert: str | None = None
+    key: str | None = None
+    mtls: bool = False
+    user: str | None = None
+    password: str | None = None
+    dictionary: str | None = None
+
+
+def _apply(config: zenoh.Config, mode: Mode, credentials: Credentials) -> None:
+    tls = "transport/link/tls"
+    if credentials.ca is not None:
+        config.insert_json5(f"{tls}/root_ca_certificate", json.dumps(credentials.ca))
+    if credentials.mtls:
+        config.insert_json5(f"{tls}/enable_mtls", "true")
+    if credentials.cert is not None and credentials.key is not None:
+        # A router presents its certificate to clients, and to the routers it connects to.
+        sides = ("listen", "connect") if mode == "router" else ("connect",)
+        for side in sides:
+            config.insert_json5(f"{tls}/{side}_certificate", json.dumps(credentials.cert))
+            config.insert_json5(f"{tls}/{side}_private_key", json.dumps(credentials.key))
+    usrpwd = "transport/auth/usrpwd"
+    if credentials.user is not None and credentials.password is not None:
+        config.insert_json5(f"{usrpwd}/user", json.dumps(credentials.user))
+        config.insert_json5(f"{usrpwd}/password", json.dumps(credentials.password))
+    if credentials.dictionary is not None:
+        config.insert_json5(f"{usrpwd}/dictionary_file", json.dumps(credentials.dictionary))
+
 
 LEASE_S = 3.0
 """Zenoh transport lease. The default (10 s) would let a dead agent look alive for 10 s; 3 s
@@ -25,6 +64,7 @@ def zenoh_config(
     connect: list[str] | tuple[str, ...] = (),
     listen: list[str] | tuple[str, ...] = (),
     connect_timeout_s: float = 10.0,
+    credentials: Credentials | None = None,
 ) -> zenoh.Config:
     """A Zenoh config with multicast scouting off and only the given endpoints."""
     config: zenoh.Config = zenoh.Config()
@@ -38,6 +78,8 @@ def zenoh_config(
     if mode == "client":
         # Keep trying the router for a while: the router may be starting at the same time.
         config.insert_json5("connect/timeout_ms", json.dumps(int(connect_timeout_s * 1000)))
+    if credentials is not None:
+        _apply(config, mode, credentials)
     return config
 
 
@@ -46,10 +88,15 @@ class RouterUnreachable(ConnectionError):
 
 
 def open_client(
-    endpoints: list[str] | tuple[str, ...], connect_timeout_s: float = 10.0
+    endpoints: list[str] | tuple[str, ...],
+    connect_timeout_s: float = 10.0,
+    credentials: Credentials | None = None,
 ) -> zenoh.Session:
-    """A client session connected to the fleet's router(s); RouterUnreachable if none answers."""
-    config = zenoh_config("client", connect=endpoints, connect_timeout_s=connect_timeout_s)
+    """A client session connected to the fleet's router(s); RouterUnreachable if none answers
+    (or none accepts our credentials)."""
+    config = zenoh_config(
+        "client", connect=endpoints, connect_timeout_s=connect_timeout_s, credentials=credentials
+    )
     try:
         return zenoh.open(config)
     except zenoh.ZError as exc:

@@ -1,0 +1,177 @@
+"""The router's access control, generated from the inventory. Pure: inventory -> JSON config.
+
+Deny by default. Every principal of the inventory is a Zenoh ACL subject (matched by the common
+name of its client certificate, or its user name), with rules that follow from its role:
+
+- ``agent``: publishes only its own arms' state, serves only their ``cmd/*`` and holds only
+  their liveliness tokens; hears stops, resets and heartbeats;
+- ``coordinator``: its own heartbeat, the fleet state, stop reports and diag, commands under its
+  own name, the multi-arm queryable; hears the agents' state, stops, resets, acks and contacts;
+- ``operator``: commands and heartbeats under its own name, stops, resets, multi-arm requests;
+  reads everything;
+- ``maintainer``: an operator who may also inject simulator faults;
+- ``observer`` (the viewer by default): reads everything, may stop, may not reset or command;
+- ``simulator``: serves ``sim/fault`` of the simulated arms;
+- ``router``: another router of the fleet (a site router joined to a central one): everything.
+
+Identity is in the keys: ``heartbeat/<principal>`` and ``arm/<arm>/cmd/<principal>`` are allowed
+to that principal only, so a lease owner or a watched commander cannot be forged. Payloads over
+``max_payload_bytes`` (4 KiB on command, stop and reset keys) are dropped at the router.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fleet.inventory import Inventory
+from fleet.security.config import Role
+from fleet.wire.payloads import KIB
+
+PUT = ["put", "delete"]
+ARM_STATE = ("joints", "status", "diag", "raw/feedback", "raw/command", "estop/ack", "contact")
+SMALL_PAYLOAD_BYTES = 4 * KIB
+
+
+def _rule(rule_id: str, messages: list[str], flow: str, keys: list[str]) -> dict[str, Any]:
+    return {
+        "id": rule_id,
+        "messages": messages,
+        "flows": [flow],
+        "permission": "allow",
+        "key_exprs": sorted(set(keys)),
+    }
+
+
+class _Grants:
+    """What one principal may send (ingress) and receive (egress), by message kind."""
+
+    def __init__(self) -> None:
+        self.put: list[str] = []
+        self.query: list[str] = []
+        self.queryable: list[str] = []
+        self.token: list[str] = []
+        self.read: list[str] = []
+        self.liveliness: list[str] = []
+
+    def rules(self, name: str, fleet: str) -> list[dict[str, Any]]:
+        everything = f"fleet/{fleet}/**"
+        out = []
+        if self.put:
+            out.append(_rule(f"{name}-put", PUT, "ingress", self.put))
+        if self.query:
+            out.append(_rule(f"{name}-query", ["query"], "ingress", self.query))
+            out.append(_rule(f"{name}-replies", ["reply"], "egress", self.query))
+        if self.queryable:
+            out.append(
+                _rule(f"{name}-serve", ["declare_queryable", "reply"], "ingress", self.queryable)
+            )
+            out.append(_rule(f"{name}-queries", ["query"], "egress", self.queryable))
+        if self.token:
+            out.append(_rule(f"{name}-token", ["liveliness_token"], "ingress", self.token))
+        if self.read:
+            out.append(_rule(f"{name}-subscribe", ["declare_subscriber"], "ingress", self.read))
+            out.append(_rule(f"{name}-read", PUT, "egress", self.read))
+        if self.liveliness:
+            live = ["declare_liveliness_subscriber", "liveliness_query"]
+            out.append(_rule(f"{name}-liveliness", live, "ingress", self.liveliness))
+            out.append(_rule(f"{name}-tokens", ["liveliness_token"], "egress", self.liveliness))
+        # Knowing who subscribes or serves is harmless, and publishers and queriers need it.
+        declarations = ["declare_subscriber", "declare_queryable"]
+        out.append(_rule(f"{name}-declarations", declarations, "egress", [everything]))
+        return out
+
+
+def _grants(inventory: Inventory, principal: str, role: Role) -> _Grants:
+    f = f"fleet/{inventory.fleet}"
+    g = _Grants()
+    stops = [f"{f}/estop", f"{f}/arm/*/estop"]
+    resets = [f"{f}/reset", f"{f}/arm/*/reset"]
+    agents = [f"{f}/arm/*/agent"]
+    if role == "router":
+        g.put = g.query = g.queryable = g.token = g.read = g.liveliness = [f"{f}/**"]
+    elif role == "agent":
+        arms = [a.id for a in inventory.arms.values() if a.agent == principal]
+        g.put = [f"{f}/arm/{a}/{channel}" for a in arms for channel in ARM_STATE]
+        g.queryable = [f"{f}/arm/{a}/cmd/*" for a in arms]
+        g.token = [f"{f}/arm/{a}/agent" for a in arms]
+        g.read = [f"{f}/estop", f"{f}/reset", f"{f}/heartbeat/*"]
+        g.read += [f"{f}/arm/{a}/{channel}" for a in arms for channel in ("estop", "reset")]
+    elif role == "coordinator":
+        g.put = [
+            f"{f}/heartbeat/{principal}",
+            f"{f}/state",
+            f"{f}/estop/report",
+            f"{f}/coordinator/diag",
+            *stops,  # a contact policy may stop an arm
+        ]
+        g.query = [f"{f}/arm/*/cmd/{principal}"]
+        g.queryable = [f"{f}/coordinator/cmd/*"]
+        channels = ("status", "estop", "reset", "estop/ack", "contact")
+        g.read = [f"{f}/arm/*/{c}" for c in channels] + [f"{f}/estop", f"{f}/reset"]
+        g.liveliness = agents
+    elif role in ("operator", "maintainer"):
+        g.put = [*stops, *resets, f"{f}/heartbeat/{principal}"]
+        g.query = [f"{f}/arm/*/cmd/{principal}", f"{f}/coordinator/cmd/{principal}"]
+        if role == "maintainer":
+            g.query.append(f"{f}/arm/*/sim/fault")
+        g.read = [f"{f}/**"]
+        g.liveliness = agents
+    elif role == "observer":
+        g.put = stops
+        g.read = [f"{f}/**"]
+        g.liveliness = agents
+    elif role == "simulator":
+        simulated = [a.id for a in inventory.arms.values() if a.simulated]
+        g.queryable = [f"{f}/arm/{a}/sim/fault" for a in simulated]
+    return g
+
+
+def access_control(inventory: Inventory) -> dict[str, Any]:
+    """The router's ``access_control`` section for ``inventory``."""
+    field = "cert_common_names" if inventory.security.mode == "mtls" else "usernames"
+    rules: list[dict[str, Any]] = []
+    subjects: list[dict[str, Any]] = []
+    policies: list[dict[str, Any]] = []
+    for principal, role in sorted(inventory.principals.items()):
+        own = _grants(inventory, principal, role).rules(principal, inventory.fleet)
+        rules += own
+        subjects.append({"id": principal, field: [principal]})
+        policies.append(
+            {"id": f"{principal}-policy", "rules": [r["id"] for r in own], "subjects": [principal]}
+        )
+    return {
+        "enabled": True,
+        "default_permission": "deny",
+        "rules": rules,
+        "subjects": subjects,
+        "policies": policies,
+    }
+
+
+def payload_limits(inventory: Inventory) -> list[dict[str, Any]]:
+    """The router's ``low_pass_filter``: small messages on command, stop and reset keys, and
+    ``max_payload_bytes`` on everything else."""
+    f = f"fleet/{inventory.fleet}"
+    small = [
+        f"{f}/arm/*/cmd/**",
+        f"{f}/coordinator/cmd/**",
+        f"{f}/estop",
+        f"{f}/arm/*/estop",
+        f"{f}/reset",
+        f"{f}/arm/*/reset",
+    ]
+    messages = ["put", "delete", "query", "reply"]
+    return [
+        {
+            "id": "commands",
+            "messages": messages,
+            "key_exprs": small,
+            "size_limit": SMALL_PAYLOAD_BYTES,
+        },
+        {
+            "id": "everything",
+            "messages": messages,
+            "key_exprs": ["**"],
+            "size_limit": inventory.security.max_payload_bytes,
+        },
+    ]

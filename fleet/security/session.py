@@ -1,0 +1,98 @@
+"""Zenoh sessions with the inventory's security: every process opens its session here.
+
+``mode = "none"``: plain links, nothing authenticated (the loopback demo). ``mtls``: each side
+presents a certificate signed by the fleet's CA; the client's common name is its principal.
+``password``: the router presents its certificate (the link is encrypted and the client knows
+it talks to the right router), the client a user name and password.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import zenoh
+
+from fleet.inventory import Inventory, InventoryError
+from fleet.security.acl import access_control, payload_limits
+from fleet.wire.session import Credentials, RouterUnreachable, open_client, zenoh_config
+
+ROUTER_PRINCIPAL = "router"
+PASSWORD_ENV = "D1_FLEET_PASSWORD"
+
+
+def _password_of(inventory: Inventory, principal: str) -> str:
+    """The password of ``principal``: $D1_FLEET_PASSWORD, else its line in the passwords file
+    (on a real site each host keeps only its own line)."""
+    import os
+
+    given = os.environ.get(PASSWORD_ENV)
+    if given:
+        return given
+    path = Path(inventory.security.passwords)
+    try:
+        lines = path.read_text(encoding="utf-8").splitlines()
+    except OSError as exc:
+        raise InventoryError(f"{inventory.path}: security.passwords: {exc}") from None
+    for line in lines:
+        user, _, password = line.partition(":")
+        if user == principal and password:
+            return password
+    raise InventoryError(
+        f"{inventory.path}: no password for {principal!r} in {path} (or set ${PASSWORD_ENV})"
+    )
+
+
+def credentials(inventory: Inventory, principal: str, router: bool = False) -> Credentials | None:
+    """What a session of ``principal`` presents (None: plain links)."""
+    security = inventory.security
+    if not security.enabled:
+        return None
+    for needed in (security.ca, *security.cert(principal)) if security.mode == "mtls" else ():
+        if not Path(needed).is_file():
+            raise InventoryError(
+                f"{inventory.path}: {needed} is missing: run `fleet certs` for the inventory "
+                f"(or copy {principal!r}'s certificate and key there)"
+            )
+    cert, key = security.cert(principal)
+    if security.mode == "mtls":
+        return Credentials(ca=security.ca, cert=cert, key=key, mtls=True)
+    if router:
+        return Credentials(ca=security.ca, cert=cert, key=key, dictionary=security.passwords)
+    return Credentials(ca=security.ca, user=principal, password=_password_of(inventory, principal))
+
+
+def open_session(inventory: Inventory, connect_timeout_s: float = 10.0) -> zenoh.Session:
+    """A client session to the fleet's routers as ``inventory.principal``."""
+    try:
+        return open_client(
+            inventory.endpoints,
+            connect_timeout_s=connect_timeout_s,
+            credentials=credentials(inventory, inventory.principal),
+        )
+    except RouterUnreachable as exc:
+        if inventory.security.enabled:
+            raise RouterUnreachable(
+                f"{exc} (as principal {inventory.principal!r}: is its certificate or password "
+                "accepted by the router?)"
+            ) from None
+        raise
+
+
+def router_config(
+    inventory: Inventory, listen: list[str], connect: list[str] | None = None
+) -> zenoh.Config:
+    """A router for ``inventory``: its TLS and, when security is on, the access control and the
+    payload limits generated from the inventory."""
+    config = zenoh_config(
+        "router",
+        listen=listen,
+        connect=connect or [],
+        credentials=credentials(inventory, ROUTER_PRINCIPAL, router=True),
+    )
+    if inventory.security.enabled:
+        config.insert_json5("access_control", json.dumps(access_control(inventory)))
+        config.insert_json5("low_pass_filter", json.dumps(payload_limits(inventory)))
+        max_message = str(inventory.security.max_payload_bytes * 2)
+        config.insert_json5("transport/link/rx/max_message_size", max_message)
+    return config
