@@ -76,11 +76,18 @@ class FleetClient:
                 return payloads.REPLY.decode(reply.ok.payload.to_bytes())
             except payloads.PayloadError as exc:
                 return _no_reply(arm, f"arm {arm!r}: unreadable reply from its agent: {exc}")
-        return _no_reply(
-            arm,
+        why = (
             f"arm {arm!r}: no reply from its agent within {timeout:g} s "
-            f"(no token on {self.keys.arm(arm, keys.AGENT)}?); is its edge-agent running?",
+            f"(no token on {self.keys.arm(arm, keys.AGENT)}?); is its edge-agent running?"
         )
+        if self.inventory.security.enabled:
+            role = self.inventory.role_of(self.principal)
+            why += (
+                f" Or the router's access control refused the command: principal "
+                f"{self.principal!r} (role {role}) may command arms only as an operator, "
+                "maintainer or coordinator"
+            )
+        return _no_reply(arm, why)
 
     def multi(
         self, target: str, command: m.ArmCommand, sync: bool = True, lead_s: float | None = None

@@ -92,13 +92,20 @@ def wait_until(predicate: Callable[[], T], timeout_s: float, interval_s: float =
         time.sleep(interval_s)
 
 
-def inventory_text(fleet: str, port: int, domain: int, arms: int = 1, extra: str = "") -> str:
-    """An inventory of ``arms`` simulated arms (a1.. with suffixes _1..) on loopback."""
+def inventory_text(
+    fleet: str, port: int, domain: int, arms: int = 1, extra: str = "", security: str = "none"
+) -> str:
+    """An inventory of ``arms`` simulated arms (a1.. with suffixes _1..) on loopback; with
+    ``security`` ``mtls`` or ``password``, TLS endpoints and certificates in ``certs/``."""
+    scheme = "tcp" if security == "none" else "tls"
     lines = [
         f'[fleet]\nname = "{fleet}"\n',
-        f'[zenoh]\nendpoints = ["tcp/127.0.0.1:{port}"]\n',
+        f'[zenoh]\nendpoints = ["{scheme}/127.0.0.1:{port}"]\n',
+        f'[security]\nmode = "{security}"\n',
         f'[dds]\ndomain_id = {domain}\npeers = ["127.0.0.1"]\n',
-        '[defaults]\ninterface = "lo"\nsimulated = true\n',
+        '[defaults]\ninterface = "lo"\nsimulated = true\n'
+        # One agent process serves every arm in tests: one identity for all of them.
+        + ('agent = "agent-lo"\n' if security != "none" else ""),
     ]
     for i in range(1, arms + 1):
         lines.append(f'[arms.a{i}]\nsuffix = "_{i}"\nbase_xyz = [0.0, {0.6 * (i - 1):.1f}, 0.0]\n')
@@ -109,16 +116,24 @@ def inventory_text(fleet: str, port: int, domain: int, arms: int = 1, extra: str
 class FleetHarness:
     """Processes of one test's fleet. Use as a context manager (the fixture does)."""
 
-    def __init__(self, tmp_path: Path, arms: int = 1, extra: str = "") -> None:
+    def __init__(
+        self, tmp_path: Path, arms: int = 1, extra: str = "", security: str = "none"
+    ) -> None:
         self.tmp_path = tmp_path
         self.port = free_port()
         self.domain, self._domain_lock = claim_domain()
-        self.endpoint = f"tcp/127.0.0.1:{self.port}"
+        scheme = "tcp" if security == "none" else "tls"
+        self.endpoint = f"{scheme}/127.0.0.1:{self.port}"
         self.inventory_path = tmp_path / "inventory.toml"
         self.inventory_path.write_text(
-            inventory_text("test", self.port, self.domain, arms, extra), encoding="utf-8"
+            inventory_text("test", self.port, self.domain, arms, extra, security),
+            encoding="utf-8",
         )
         self.inventory: Inventory = load_inventory(self.inventory_path)
+        if security != "none":
+            from fleet.security.certs import make_certs
+
+            make_certs(self.inventory, self.inventory.security.certs, days=2)
         self.processes: dict[str, subprocess.Popen[bytes]] = {}
         self._logs: dict[str, Path] = {}
         self._clients: list[FleetClient] = []
@@ -191,9 +206,9 @@ class FleetHarness:
             lines.append(f"--- {name} (exit code {process.poll()}):\n{self.log(name)[-3000:]}")
         return "\n".join(lines)
 
-    def client(self) -> FleetClient:
-        """A FleetClient on this fleet (closed at teardown)."""
-        client = FleetClient(self.inventory)
+    def client(self, principal: str = "operator") -> FleetClient:
+        """A FleetClient on this fleet acting as ``principal`` (closed at teardown)."""
+        client = FleetClient(self.inventory.with_principal(principal))
         self._clients.append(client)
         return client
 

@@ -15,6 +15,7 @@ from fleet.cli import (
     processes,
     record_cmds,
     safety_cmds,
+    security_cmds,
     status,
     viewer_cmd,
 )
@@ -39,6 +40,7 @@ def build_parser() -> argparse.ArgumentParser:
         viewer_cmd,
         choreo_cmds,
         record_cmds,
+        security_cmds,
     ):
         module.register(sub, add_inventory_options)
     return parser
