@@ -159,9 +159,9 @@ class FleetHarness:
         self.processes[name] = process
         return process
 
-    def start_router(self) -> subprocess.Popen[bytes]:
-        """``fleet router``; returns once the port accepts connections."""
-        process = self.start("router", ["-m", "fleet.cli.main", "router"])
+    def start_router(self, *options: str) -> subprocess.Popen[bytes]:
+        """``fleet router [options]``; returns once the port accepts connections."""
+        process = self.start("router", ["-m", "fleet.cli.main", "router", *options])
         wait_until(lambda: self._port_open() or process.poll() is not None, 15.0)
         assert process.poll() is None, self.log("router")
         return process

@@ -21,6 +21,7 @@ from fleet.runtime import inventory_from_args, shutdown_event, wait_for
 from fleet.security.session import router_config
 
 log = logging.getLogger("fleet")
+ACL_LOG = "zenoh::net::routing::interceptor::access_control"
 
 
 def register(
@@ -29,6 +30,12 @@ def register(
     """Add the process commands to the ``fleet`` parser."""
     router = sub.add_parser("router", help="run a Zenoh router on the inventory's endpoints")
     add_common(router)
+    router.add_argument(
+        "--audit",
+        action="store_true",
+        help="log the access control's decisions (each 'is unauthorized to ...' names the "
+        "principal, the message and the key), once per key and session",
+    )
     router.set_defaults(run=run_router)
 
     sim = sub.add_parser("sim", help="run the inventory's simulated arms on DDS")
@@ -62,6 +69,8 @@ def run_router(args: argparse.Namespace) -> int:
     """Serve as the fleet's Zenoh router until SIGINT/SIGTERM."""
     inventory = inventory_from_args(args, "router")
     stop = shutdown_event()
+    if args.audit:
+        zenoh.init_log_from_env_or(f"{ACL_LOG}=trace,error")
     session = zenoh.open(router_config(inventory, inventory.endpoints))
     log.info("Zenoh router listening on %s", ", ".join(inventory.endpoints))
     try:

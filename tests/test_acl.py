@@ -1,0 +1,109 @@
+"""The router's access control generated from an inventory (pure: no router)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from fleet.inventory import Inventory, parse_inventory
+from fleet.security.acl import access_control, payload_limits
+
+INVENTORY = """
+[fleet]
+name = "lab"
+[zenoh]
+endpoints = ["tls/10.0.0.5:7447"]
+[security]
+mode = "mtls"
+[defaults]
+simulated = true
+[arms.a1]
+suffix = "_1"
+[arms.a2]
+suffix = "_2"
+agent = "agent-cell2"
+[arms.a3]
+suffix = "_3"
+agent = "agent-cell2"
+simulated = false
+[principals]
+ann = "operator"
+kiosk = "observer"
+"""
+
+
+def _inventory(tmp_path: Path) -> Inventory:
+    return parse_inventory(INVENTORY, str(tmp_path / "inventory.toml"))
+
+
+def _allowed(acl: dict, principal: str, message: str, flow: str) -> set[str]:  # type: ignore[type-arg]
+    policy = next(p for p in acl["policies"] if p["subjects"] == [principal])
+    rules = {r["id"]: r for r in acl["rules"]}
+    return {
+        key
+        for rule_id in policy["rules"]
+        for key in rules[rule_id]["key_exprs"]
+        if message in rules[rule_id]["messages"] and flow in rules[rule_id]["flows"]
+    }
+
+
+def test_deny_by_default_and_every_principal_is_a_subject(tmp_path: Path) -> None:
+    acl = access_control(_inventory(tmp_path))
+    assert acl["enabled"] and acl["default_permission"] == "deny"
+    names = {s["id"]: s["cert_common_names"] for s in acl["subjects"]}
+    assert names["ann"] == ["ann"] and names["agent-cell2"] == ["agent-cell2"]
+    assert {"coordinator", "viewer", "kiosk", "agent-a1", "router"} <= set(names)
+
+
+def test_an_agent_publishes_and_serves_only_its_own_arms(tmp_path: Path) -> None:
+    acl = access_control(_inventory(tmp_path))
+    puts = _allowed(acl, "agent-cell2", "put", "ingress")
+    assert "fleet/lab/arm/a2/joints" in puts and "fleet/lab/arm/a3/contact" in puts
+    assert not any("/a1/" in key for key in puts)
+    served = _allowed(acl, "agent-cell2", "declare_queryable", "ingress")
+    assert served == {"fleet/lab/arm/a2/cmd/*", "fleet/lab/arm/a3/cmd/*"}
+
+
+def test_identity_keys_belong_to_their_principal(tmp_path: Path) -> None:
+    acl = access_control(_inventory(tmp_path))
+    assert "fleet/lab/heartbeat/ann" in _allowed(acl, "ann", "put", "ingress")
+    assert "fleet/lab/heartbeat/coordinator" not in _allowed(acl, "ann", "put", "ingress")
+    assert _allowed(acl, "ann", "query", "ingress") == {
+        "fleet/lab/arm/*/cmd/ann",
+        "fleet/lab/coordinator/cmd/ann",
+    }
+
+
+def test_observers_stop_but_never_reset_or_command(tmp_path: Path) -> None:
+    acl = access_control(_inventory(tmp_path))
+    for observer in ("viewer", "kiosk"):
+        puts = _allowed(acl, observer, "put", "ingress")
+        assert puts == {"fleet/lab/estop", "fleet/lab/arm/*/estop"}
+        assert not _allowed(acl, observer, "query", "ingress")
+
+
+def test_only_maintainers_inject_faults_into_simulated_arms(tmp_path: Path) -> None:
+    acl = access_control(_inventory(tmp_path))
+    assert "fleet/lab/arm/*/sim/fault" in _allowed(acl, "maintainer", "query", "ingress")
+    assert "fleet/lab/arm/*/sim/fault" not in _allowed(acl, "ann", "query", "ingress")
+    served = _allowed(acl, "sim", "declare_queryable", "ingress")
+    assert served == {"fleet/lab/arm/a1/sim/fault", "fleet/lab/arm/a2/sim/fault"}  # a3: real
+
+
+def test_payload_limits(tmp_path: Path) -> None:
+    small, everything = payload_limits(_inventory(tmp_path))
+    assert small["size_limit"] == 4096 and "fleet/lab/estop" in small["key_exprs"]
+    assert everything["size_limit"] == 1 << 20 and everything["key_exprs"] == ["**"]
+
+
+def test_security_needs_tls_endpoints_and_known_roles(tmp_path: Path) -> None:
+    import pytest
+
+    from fleet.inventory import InventoryError
+
+    plain = INVENTORY.replace("tls/10.0.0.5", "tcp/10.0.0.5")
+    with pytest.raises(InventoryError, match="tls/ endpoints"):
+        parse_inventory(plain, str(tmp_path / "inventory.toml"))
+    with pytest.raises(InventoryError, match="role 'admin'"):
+        parse_inventory(INVENTORY + 'root = "admin"\n', str(tmp_path / "inventory.toml"))
+    with pytest.raises(InventoryError, match="an arm's agent"):
+        parse_inventory(INVENTORY + 'agent-a1 = "operator"\n', str(tmp_path / "inventory.toml"))
