@@ -284,7 +284,7 @@ def parse_inventory(text: str, path: str = DEFAULT_INVENTORY) -> Inventory:
         arms[arm_id] = arm
     _check_unique_topics(arms, dds.domain_id, path)
     groups = _parse_groups(raw.get("groups", {}), arms, path)
-    security = _parse_security(raw.get("security", {}), zenoh.endpoints, path)
+    security = _parse_security(raw.get("security", {}), path)
     principals = _parse_principals(raw.get("principals", {}), arms, path)
     return Inventory(
         path=path,
@@ -300,18 +300,12 @@ def parse_inventory(text: str, path: str = DEFAULT_INVENTORY) -> Inventory:
     )
 
 
-def _parse_security(raw: Any, endpoints: list[str], path: str) -> Security:
+def _parse_security(raw: Any, path: str) -> Security:
     section = _convert(raw, SecuritySection, path, "security")
     try:
         security = resolve(section, path)
     except ValueError as exc:
         raise InventoryError(f"{path}: security: {exc}") from None
-    plain = [e for e in endpoints if not e.startswith("tls/")]
-    if security.enabled and plain:
-        raise InventoryError(
-            f"{path}: security: mode {security.mode!r} needs tls/ endpoints in [zenoh] "
-            f"(not {', '.join(plain)}): credentials must never cross a plain link"
-        )
     return security
 
 

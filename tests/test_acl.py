@@ -99,10 +99,11 @@ def test_security_needs_tls_endpoints_and_known_roles(tmp_path: Path) -> None:
     import pytest
 
     from fleet.inventory import InventoryError
+    from fleet.security.session import credentials
 
-    plain = INVENTORY.replace("tls/10.0.0.5", "tcp/10.0.0.5")
+    plain = parse_inventory(INVENTORY.replace("tls/10.0.0.5", "tcp/10.0.0.5"), str(tmp_path / "i"))
     with pytest.raises(InventoryError, match="tls/ endpoints"):
-        parse_inventory(plain, str(tmp_path / "inventory.toml"))
+        credentials(plain, "operator")
     with pytest.raises(InventoryError, match="role 'admin'"):
         parse_inventory(INVENTORY + 'root = "admin"\n', str(tmp_path / "inventory.toml"))
     with pytest.raises(InventoryError, match="an arm's agent"):

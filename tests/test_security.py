@@ -9,6 +9,8 @@ own puts to itself locally, whatever the router decides).
 
 from __future__ import annotations
 
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -24,7 +26,7 @@ from fleet.wire import keys
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode
 from fleet.wire.session import Credentials, RouterUnreachable, open_client
-from tests.harness import FleetHarness, wait_until
+from tests.harness import FleetHarness, free_port, unique_domain, wait_until
 
 
 @pytest.fixture(scope="module")
@@ -218,3 +220,22 @@ def test_password_mode_authenticates_users(tmp_path: Path) -> None:
         wrong = Credentials(ca=h.inventory.security.ca, user="operator", password="guess")
         with pytest.raises(RouterUnreachable):
             open_client([h.endpoint], connect_timeout_s=2.0, credentials=wrong)
+
+
+def test_the_secure_demo_runs_end_to_end(tmp_path: Path) -> None:
+    port, domain = free_port(), unique_domain()
+    demo = subprocess.run(
+        [sys.executable, "-m", "fleet.cli.main", "demo", "--secure", "--no-viewer"]
+        + ["--for-s", "12", "--domain", str(domain), "--endpoint", f"tcp/127.0.0.1:{port}"]
+        + ["--inventory", str(Path(__file__).parent.parent / "inventory.toml")],
+        capture_output=True,
+        text=True,
+        timeout=90,
+    )
+    assert demo.returncode == 0, demo.stdout[-2000:] + demo.stderr[-2000:]
+    assert f"tls/127.0.0.1:{port}" in demo.stdout
+    last = demo.stdout.rsplit("arm      agent", 1)[-1]
+    rows = [line.split() for line in last.splitlines()[1:4]]
+    assert [r[:3] for r in rows] == [["a1", "up", "ok"], ["a2", "up", "ok"], ["a3", "up", "ok"]], (
+        last
+    )

@@ -8,12 +8,15 @@ import random
 import socket
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 import zenoh
 
+from fleet.cli.demo_secure import secure_demo_inventory
 from fleet.client import FleetClient
 from fleet.guard import EXIT_THREAD_FAILED
 from fleet.inventory import Inventory
@@ -62,6 +65,11 @@ def register(
         "--no-dance", action="store_true", help="do not play the default choreography"
     )
     demo.add_argument("--dance", default="choreo/demo.toml", help="the choreography the demo loops")
+    demo.add_argument(
+        "--secure",
+        action="store_true",
+        help="mutual TLS and the inventory's access control (certificates made for the run)",
+    )
     demo.set_defaults(run=run_demo)
 
 
@@ -126,7 +134,7 @@ def run_coordinator(args: argparse.Namespace) -> int:
 
 
 def _port_free(endpoint: str) -> bool:
-    host, _, port = endpoint.removeprefix("tcp/").rpartition(":")
+    host, _, port = endpoint.split("/", 1)[-1].rpartition(":")
     with socket.socket() as probe:
         try:
             probe.bind((host, int(port)))
@@ -152,6 +160,17 @@ def run_demo(args: argparse.Namespace) -> int:
     if args.domain is None:
         # A domain of its own, so two demos (or a demo and a test run) never cross-talk.
         inventory = inventory.with_domain(random.randint(1, 99))
+    workdir = tempfile.TemporaryDirectory(prefix="d1-fleet-demo-") if args.secure else None
+    if workdir is not None:
+        inventory = secure_demo_inventory(args, inventory, Path(workdir.name))
+    try:
+        return _run_demo(args, inventory)
+    finally:
+        if workdir is not None:
+            workdir.cleanup()
+
+
+def _run_demo(args: argparse.Namespace, inventory: Inventory) -> int:
     busy = [e for e in inventory.endpoints if not _port_free(e)]
     if busy:
         print(
@@ -180,7 +199,9 @@ def run_demo(args: argparse.Namespace) -> int:
             children.append(dancer)
         url = "not started (--no-viewer)"
         if not args.no_viewer:
+            # The person at the demo is its operator: the viewer gets every control.
             viewer_argv = ["-m", "fleet.cli.main", "viewer", "--port", str(args.port), *common]
+            viewer_argv += ["--principal", "operator"]
             viewer = subprocess.Popen(
                 [sys.executable, *viewer_argv], stdout=subprocess.PIPE, text=True
             )

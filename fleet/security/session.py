@@ -48,6 +48,12 @@ def credentials(inventory: Inventory, principal: str, router: bool = False) -> C
     security = inventory.security
     if not security.enabled:
         return None
+    plain = [e for e in inventory.endpoints if not e.startswith("tls/")]
+    if plain:
+        raise InventoryError(
+            f"{inventory.path}: security mode {security.mode!r} needs tls/ endpoints "
+            f"(not {', '.join(plain)}): credentials must never cross a plain link"
+        )
     for needed in (security.ca, *security.cert(principal)) if security.mode == "mtls" else ():
         if not Path(needed).is_file():
             raise InventoryError(
