@@ -55,7 +55,12 @@ class Worker:
             stdin=subprocess.PIPE if piped else subprocess.DEVNULL,
             stdout=subprocess.PIPE if piped else self._log,
             stderr=self._log,
-            env={**os.environ, "PYTHONUNBUFFERED": "1", "PYTHONPATH": str(REPO)},
+            env={
+                **os.environ,
+                "PYTHONUNBUFFERED": "1",
+                "PYTHONPATH": str(REPO),
+                "D1_FLEET_STATE_DIR": str(log_dir / "state"),  # latches stay in the run
+            },
             cwd=REPO,
             text=True,
         )

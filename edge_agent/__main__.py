@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+from pathlib import Path
 
 from edge_agent.agent import EdgeAgent
 from fleet.guard import EXIT_THREAD_FAILED
@@ -26,6 +27,13 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     which = parser.add_mutually_exclusive_group(required=True)
     which.add_argument("--arm", action="append", help="arm id to serve (repeatable)")
     which.add_argument("--interface", help="serve every arm of the inventory on this interface")
+    parser.add_argument(
+        "--state-dir",
+        type=Path,
+        default=None,
+        help="where latched stops are kept across restarts (default $D1_FLEET_STATE_DIR, "
+        "else ~/.local/state/d1-fleet)",
+    )
     return parser.parse_args(argv)
 
 
@@ -52,7 +60,7 @@ def main(argv: list[str] | None = None) -> int:
         if not arms:
             raise InventoryError(f"{inventory.path}: no arm uses interface {args.interface!r}")
         inventory = inventory.with_principal(args.principal or agent_principal(inventory, arms))
-        agent = EdgeAgent(inventory, arms)
+        agent = EdgeAgent(inventory, arms, args.state_dir)
     except (InventoryError, RouterUnreachable, ValueError) as exc:
         print(f"edge-agent: {exc}", file=sys.stderr)
         return 2

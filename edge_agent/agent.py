@@ -20,6 +20,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from pathlib import Path
 
 import msgspec
 import zenoh
@@ -28,6 +29,7 @@ from edge_agent.commands import InFlight
 from edge_agent.contact_edge import ContactEdge
 from edge_agent.holds import hold_command
 from edge_agent.inbox import CommandInbox, InboxCounters, SafetyInbox
+from edge_agent.latches import LatchStore, default_state_dir
 from edge_agent.link import DdsLink
 from edge_agent.relay import JSON, ZenohRelay, principal_of
 from edge_agent.safety import ArmSafety
@@ -55,7 +57,9 @@ DIAG_PERIOD_S = 1.0
 class EdgeAgent:
     """Serves the arms ``arm_ids`` of ``inventory``. A context manager."""
 
-    def __init__(self, inventory: Inventory, arm_ids: list[str]) -> None:
+    def __init__(
+        self, inventory: Inventory, arm_ids: list[str], state_dir: Path | None = None
+    ) -> None:
         domain_id, interface, peers = inventory.network_of(arm_ids)
         self.inventory = inventory
         self.lock = threading.Lock()
@@ -80,6 +84,7 @@ class EdgeAgent:
             self.link.close()
             raise
         self.writer = ArmWriter(self.lock, self.slots, self.link, self.relay.mirror_command)
+        self.latches = LatchStore(state_dir or default_state_dir(), inventory.fleet)
         self.safety_loop = SafetyLoop(
             self.lock,
             self.slots,
@@ -89,7 +94,13 @@ class EdgeAgent:
             (self.cancel_in_flight, self.flush),
             self.stopping,
             self.guard,
+            self.latches,
         )
+        # Stops latched before a restart, before any command can be served.
+        for arm in arm_ids:
+            request = self.latches.load(arm)
+            if request is not None:
+                self.safety_loop.restore(arm, request)
         configs = {a: inventory.arm(a) for a in arm_ids}
         self.contact = ContactEdge(configs, self.relay, self.lock, self.writer)
         self.scheduler = StartScheduler(self.guard, self.stopping)
@@ -149,6 +160,10 @@ class EdgeAgent:
                         flight.on_angles(message.angles_deg)
                     if slot.safety.on_angles(message.angles_deg, stamp_ns, now):
                         self.safety_loop.on_still(arm, slot, out)
+                elif isinstance(message, p.ArmStatus):
+                    status_changed = True
+                    if slot.safety.on_status(message.enabled, message.powered, stamp_ns):
+                        self.safety_loop.on_still(arm, slot, out)  # acknowledged as confirmed
                 elif isinstance(message, (p.ReceiveAck, p.ExecuteAck)):
                     entry = slot.in_flight.get(message.seq)
                     if entry is not None:

@@ -66,11 +66,22 @@ class ActiveStop:
     reason: str
     received_ns: int
     received_s: float
+    action: str = "hold"
     dds_written_ns: int | None = None
     still_ns: int | None = None
+    confirmed_ns: int | None = None
+    """``unload``/``power_off``: when the arm's own status showed it unloaded / unpowered (the
+    D1 is reported to acknowledge ``power=0`` and ignore it: only its status confirms)."""
     last_sent_s: float = 0.0
     detail: str | None = None
     """Why the stop's command was not written (a hold with no fresh pose), for its ack."""
+
+    @property
+    def done(self) -> bool:
+        """Confirmed by feedback: still, and for unload/power_off also by the arm's status."""
+        return self.still_ns is not None and (
+            self.action == "hold" or self.confirmed_ns is not None
+        )
 
 
 @dataclass
@@ -118,7 +129,15 @@ class ArmSafety:
         """True when ``stop_id`` is the stop latched now (its repeat deserves a fresh ack)."""
         return self.stop is not None and self.stop.stop_id == stop_id
 
-    def latch(self, stop_id: str, source: str, reason: str, now_s: float, now_ns: int) -> bool:
+    def latch(
+        self,
+        stop_id: str,
+        source: str,
+        reason: str,
+        now_s: float,
+        now_ns: int,
+        action: str = "hold",
+    ) -> bool:
         """Latch a stop; False if this stop is already latched or was reset (a repeat)."""
         if (
             stop_id in self.reset_stop_ids
@@ -131,18 +150,29 @@ class ArmSafety:
         else:
             self.superseded_ids.append(self.stop.stop_id)  # reset releases it too
             del self.superseded_ids[:-SUPERSEDED_IDS_KEPT]
-        self.stop = ActiveStop(stop_id, source, reason, now_ns, now_s)
+        self.stop = ActiveStop(stop_id, source, reason, now_ns, now_s, action)
         self.last_reason = (f"stopped by {source}" + (f": {reason}" if reason else ""))[:1000]
         self.watched_by = None
         self.lease = None  # a stop ends every ownership: whoever resets decides who goes next
         return True
 
     def needs_resend(self, now_s: float) -> bool:
-        """The stop should be written again: not yet seen still and the repeat period passed."""
+        """The stop should be written again: not yet confirmed by feedback (``done``) and the
+        repeat period passed."""
         stop = self.stop
-        return (
-            stop is not None and stop.still_ns is None and now_s - stop.last_sent_s >= STOP_REPEAT_S
-        )
+        return stop is not None and not stop.done and now_s - stop.last_sent_s >= STOP_REPEAT_S
+
+    def on_status(self, enabled: bool, powered: bool, now_ns: int) -> bool:
+        """Feed the arm's status; True when it has just confirmed an unload / power-off stop."""
+        stop = self.stop
+        if stop is None or stop.confirmed_ns is not None:
+            return False
+        if (stop.action == "unload" and not enabled) or (
+            stop.action == "power_off" and not powered
+        ):
+            stop.confirmed_ns = now_ns
+            return True
+        return False
 
     def on_angles(self, angles_deg: tuple[float, ...], now_ns: int, now_s: float) -> bool:
         """Feed one angle report; True when a latched stop has just been confirmed still."""

@@ -24,6 +24,7 @@ from itertools import count
 
 from edge_agent.holds import NO_FRESH_POSE, hold_command, stop_command
 from edge_agent.inbox import ResetEvent, SafetyInbox, StopEvent
+from edge_agent.latches import LatchStore
 from edge_agent.relay import ZenohRelay
 from edge_agent.slots import ArmSlot, Outbox
 from edge_agent.writer import ArmWriter, transient_seq
@@ -57,6 +58,7 @@ class SafetyLoop:
         hooks: tuple[CancelInFlight, Flush],
         stopping: threading.Event,
         guard: ThreadGuard,
+        latches: LatchStore,
     ) -> None:
         self._lock = lock
         self._slots = slots
@@ -65,6 +67,7 @@ class SafetyLoop:
         self._inbox = inbox
         self._cancel_in_flight, self._flush = hooks
         self._stopping = stopping
+        self._latches = latches
         self.last_heartbeat_s: dict[str, float] = {}  # guarded by lock (read by commands)
         self._undecodable_ids = count(1)
         self.thread = guard.thread(self._run, "safety")
@@ -143,7 +146,10 @@ class SafetyLoop:
                     if reack:
                         repeats.append(arm)  # the first ack may have been lost
                     continue
-                if not safety.latch(request.stop_id, request.source, request.reason, now, now_ns):
+                action = slot.tracker.config.stop_action
+                if not safety.latch(
+                    request.stop_id, request.source, request.reason, now, now_ns, action
+                ):
                     continue
                 slot.tracker.estopped = True
                 slot.tracker.stop_reason = safety.last_reason
@@ -168,6 +174,8 @@ class SafetyLoop:
         self._flush(out)
         for tell in later:
             tell()
+        for arm in latched:  # after every arm's stop is written: a file sync takes milliseconds
+            self._latches.save(arm, request)
         with self._lock:
             actions = {self._slots[a].tracker.config.stop_action for a in latched}
         log.warning(
@@ -220,6 +228,7 @@ class SafetyLoop:
             received_ns=stop.received_ns,
             dds_written_ns=stop.dds_written_ns,
             still_ns=stop.still_ns,
+            confirmed_ns=stop.confirmed_ns,
             detail=stop.detail,
         )
 
@@ -233,6 +242,8 @@ class SafetyLoop:
                 return
             slot.tracker.estopped = False
             slot.safety.last_reason = f"reset by {source[:128]}"
+        self._latches.clear(arm)
+        with self._lock:
             status = encode(slot.tracker.status(now, now_ns))
 
         def hold_unless_off(slot: ArmSlot, now: float) -> tuple[p.Command, int] | None:
@@ -292,6 +303,23 @@ class SafetyLoop:
         ack = self._ack(arm, slot)
         if ack is not None:
             out.puts.append((self._relay.publishers[arm].stop_ack, encode(ack)))
+
+    def restore(self, arm: str, request: m.StopRequest) -> None:
+        """Latch ``arm`` with the stop it had before the agent restarted (at start-up, before
+        any command is served); the stop's action is written once its feedback is fresh."""
+        now, now_ns = time.monotonic(), time.time_ns()
+        with self._lock:
+            slot = self._slots[arm]
+            action = slot.tracker.config.stop_action
+            slot.safety.latch(request.stop_id, request.source, request.reason, now, now_ns, action)
+            slot.safety.last_reason = (
+                f"stopped before the agent restarted, by {request.source}: {request.reason}"
+            )[:1000]
+            slot.tracker.estopped = True
+            slot.tracker.stop_reason = slot.safety.last_reason
+        log.warning(
+            "arm %s: restored the stop latched before the restart (%s)", arm, request.stop_id
+        )
 
     def latch_all(self, reason: str) -> None:
         """A thread of the agent failed: latch and stop every arm before the process exits."""

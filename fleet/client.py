@@ -149,10 +149,7 @@ class FleetClient:
 
         def complete() -> bool:
             with lock:
-                return all(
-                    a is not None and (a.still_ns is not None or not wait_still)
-                    for a in acks.values()
-                )
+                return all(a is not None and (a.done or not wait_still) for a in acks.values())
 
         subscriber = self.session.declare_subscriber(self.keys.all_arms(keys.ESTOP_ACK), on_ack)
         deadline = time.monotonic() + timeout_s

@@ -154,7 +154,12 @@ class FleetHarness:
                 [*prefix, sys.executable, *argv, *extra],
                 stdout=log,
                 stderr=subprocess.STDOUT,
-                env={**os.environ, "PYTHONUNBUFFERED": "1"},
+                # Latched stops persist per test, never in the user's state directory.
+                env={
+                    **os.environ,
+                    "PYTHONUNBUFFERED": "1",
+                    "D1_FLEET_STATE_DIR": str(self.tmp_path / "state"),
+                },
             )
         self.processes[name] = process
         return process

@@ -139,6 +139,7 @@ def test_a_failed_agent_thread_latches_every_arm_and_exits_1(
     seen = _Seen(client)
     owner, name, calls = INJECTIONS[thread]
     monkeypatch.setattr(owner, name, _after(calls, getattr(owner, name)))
+    monkeypatch.setenv("D1_FLEET_STATE_DIR", str(h.tmp_path / "state"))
 
     def trigger() -> None:  # what makes the patched method run, for the event-driven ones
         wait_until(lambda: any(s.link == "ok" for s in seen.statuses), 20.0)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import random
 import socket
 import subprocess
@@ -160,14 +161,16 @@ def run_demo(args: argparse.Namespace) -> int:
     if args.domain is None:
         # A domain of its own, so two demos (or a demo and a test run) never cross-talk.
         inventory = inventory.with_domain(random.randint(1, 99))
-    workdir = tempfile.TemporaryDirectory(prefix="d1-fleet-demo-") if args.secure else None
-    if workdir is not None:
+    # A directory of the run's own: certificates (--secure), and the agents' latched stops (the
+    # simulated arms start over at every demo, so must their latches).
+    workdir = tempfile.TemporaryDirectory(prefix="d1-fleet-demo-")
+    os.environ["D1_FLEET_STATE_DIR"] = str(Path(workdir.name) / "state")
+    if args.secure:
         inventory = secure_demo_inventory(args, inventory, Path(workdir.name))
     try:
         return _run_demo(args, inventory)
     finally:
-        if workdir is not None:
-            workdir.cleanup()
+        workdir.cleanup()
 
 
 def _run_demo(args: argparse.Namespace, inventory: Inventory) -> int:

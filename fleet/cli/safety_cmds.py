@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from collections.abc import Callable
 
@@ -34,6 +35,15 @@ def _ms(later: int | None, earlier: int) -> str:
 def run_estop(args: argparse.Namespace) -> int:
     """Stop, then print per arm the times to receipt, DDS write and standstill."""
     inventory = inventory_from_args(args)
+    targets = [args.arm] if args.arm else list(inventory.arms)
+    for arm in targets:
+        action = inventory.arm(arm).stop_action
+        if action != "hold":
+            print(
+                f"WARNING: {arm}'s stop action is {action}: an unloaded or unpowered D1 drops "
+                "under gravity (README, Safety); make sure nothing is under it",
+                file=sys.stderr,
+            )
     with FleetClient(inventory) as client:
         sent_ns = time.time_ns()
         acks = client.estop(args.arm, reason=args.reason, timeout_s=args.timeout)
@@ -42,13 +52,18 @@ def run_estop(args: argparse.Namespace) -> int:
         if ack is None:
             print(f"{arm}: NO ACK: is its edge-agent running? (its arm was not confirmed stopped)")
             continue
+        confirmed = ""
+        if ack.action != "hold":
+            state = "unloaded" if ack.action == "unload" else "unpowered"
+            confirmed = f", {state} {_ms(ack.confirmed_ns, sent_ns)}"
         print(
             f"{arm}: stopped ({ack.action}): received {_ms(ack.received_ns, sent_ns)}, "
             f"DDS written {_ms(ack.dds_written_ns, sent_ns)}, still {_ms(ack.still_ns, sent_ns)}"
+            + confirmed
         )
     if missing:
         return 3
-    return 0 if all(a is not None and a.still_ns is not None for a in acks.values()) else 1
+    return 0 if all(a is not None and a.done for a in acks.values()) else 1
 
 
 def run_reset(args: argparse.Namespace) -> int:

@@ -252,6 +252,15 @@ class StopAck(Struct, frozen=True):
     dds_written_ns: StampNs | None
     still_ns: StampNs | None = None
     detail: Text | None = None
+    confirmed_ns: StampNs | None = None
+    """``unload``/``power_off`` stops: when the arm's status showed it unloaded / unpowered."""
+
+    @property
+    def done(self) -> bool:
+        """Confirmed by feedback: still, and unloaded / unpowered for those actions."""
+        return self.still_ns is not None and (
+            self.action == "hold" or self.confirmed_ns is not None
+        )
 
 
 class Heartbeat(Struct, frozen=True):
