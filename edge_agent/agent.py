@@ -84,7 +84,7 @@ class EdgeAgent:
             self.link.close()
             raise
         self.writer = ArmWriter(self.lock, self.slots, self.link, self.relay.mirror_command)
-        self.latches = LatchStore(state_dir or default_state_dir(), inventory.fleet)
+        self.latches = LatchStore(state_dir or default_state_dir(), inventory.fleet, self.guard)
         self.safety_loop = SafetyLoop(
             self.lock,
             self.slots,
@@ -119,6 +119,7 @@ class EdgeAgent:
             self.safety_loop.thread,
             self.guard.thread(self.commands.run, "commands"),
             self.scheduler.thread,
+            self.latches.thread,
             self.guard.thread(self._housekeeping_loop, "housekeeping"),
         ]
 
@@ -275,6 +276,7 @@ class EdgeAgent:
         for thread in self._threads:
             if thread.is_alive() and thread is not threading.current_thread():
                 thread.join(timeout=2.0)
+        self.latches.close()  # the latches of the last stops, written before the process ends
         self.link.close()
         self.relay.close()
 

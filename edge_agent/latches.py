@@ -8,7 +8,10 @@ latches every arm that has a file *before* it serves any command; the stop's act
 as soon as the arm's feedback is fresh. A file that cannot be read still latches its arm (fail
 safe), with a reason that says so.
 
-The state directory: ``--state-dir``, else ``$D1_FLEET_STATE_DIR``, else
+Writing happens on a ``latches`` thread of its own (a synced write takes milliseconds, and a
+flood of stops must not make the safety thread wait on the disk): ``remember``/``forget`` only
+record the newest state per arm (latest wins), the thread writes it, and ``close`` writes what
+is left. The state directory: ``--state-dir``, else ``$D1_FLEET_STATE_DIR``, else
 ``$XDG_STATE_HOME/d1-fleet`` (``~/.local/state/d1-fleet``).
 """
 
@@ -16,9 +19,11 @@ from __future__ import annotations
 
 import logging
 import os
+import threading
 import time
 from pathlib import Path
 
+from fleet.guard import ThreadGuard
 from fleet.wire import messages as m
 from fleet.wire import payloads
 
@@ -39,9 +44,49 @@ def default_state_dir() -> Path:
 class LatchStore:
     """The latched stops of one fleet's arms on disk."""
 
-    def __init__(self, directory: Path, fleet: str) -> None:
+    def __init__(self, directory: Path, fleet: str, guard: ThreadGuard) -> None:
         self.directory = directory / fleet
         self.directory.mkdir(parents=True, exist_ok=True)
+        self._lock = threading.Lock()
+        self._pending: dict[str, m.StopRequest | None] = {}  # arm -> latched stop, None: reset
+        self._wake = threading.Event()
+        self._closing = threading.Event()
+        self.thread = guard.thread(self._run, "latches")
+
+    def remember(self, arm: str, request: m.StopRequest) -> None:
+        """``request`` is latched on ``arm`` (written soon, on the latches thread)."""
+        with self._lock:
+            self._pending[arm] = request
+        self._wake.set()
+
+    def forget(self, arm: str) -> None:
+        """``arm`` was reset."""
+        with self._lock:
+            self._pending[arm] = None
+        self._wake.set()
+
+    def _run(self) -> None:
+        while not self._closing.is_set():
+            self._wake.wait(0.5)
+            self._wake.clear()
+            self._write_pending()
+
+    def _write_pending(self) -> None:
+        with self._lock:
+            pending, self._pending = self._pending, {}
+        for arm, request in pending.items():
+            if request is None:
+                self.clear(arm)
+            else:
+                self.save(arm, request)
+
+    def close(self) -> None:
+        """Stop the thread and write what is left (idempotent)."""
+        self._closing.set()
+        self._wake.set()
+        if self.thread.is_alive() and self.thread is not threading.current_thread():
+            self.thread.join(timeout=2.0)
+        self._write_pending()
 
     def _path(self, arm: str) -> Path:
         return self.directory / f"{arm}.stop.json"

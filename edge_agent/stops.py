@@ -175,7 +175,7 @@ class SafetyLoop:
         for tell in later:
             tell()
         for arm in latched:  # after every arm's stop is written: a file sync takes milliseconds
-            self._latches.save(arm, request)
+            self._latches.remember(arm, request)
         with self._lock:
             actions = {self._slots[a].tracker.config.stop_action for a in latched}
         log.warning(
@@ -242,7 +242,7 @@ class SafetyLoop:
                 return
             slot.tracker.estopped = False
             slot.safety.last_reason = f"reset by {source[:128]}"
-        self._latches.clear(arm)
+        self._latches.forget(arm)
         with self._lock:
             status = encode(slot.tracker.status(now, now_ns))
 
