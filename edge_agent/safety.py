@@ -156,6 +156,14 @@ class ArmSafety:
         self.lease = None  # a stop ends every ownership: whoever resets decides who goes next
         return True
 
+    def note_also_stopped_by(self, stop_id: str) -> None:
+        """While latched, ``stop_id`` (repeated by a heartbeat) also asks for this stop: the
+        reset releases it with the latched one, so its repeats do not latch again."""
+        if stop_id in self.reset_stop_ids or stop_id in self.superseded_ids:
+            return
+        self.superseded_ids.append(stop_id)
+        del self.superseded_ids[:-SUPERSEDED_IDS_KEPT]
+
     def needs_resend(self, now_s: float) -> bool:
         """The stop should be written again: not yet confirmed by feedback (``done``) and the
         repeat period passed."""

@@ -134,6 +134,9 @@ class CommandService:
                 holder = safety.lease.owner if safety.lease else "nobody"
                 raise Refused(ErrorCode.LEASE_INVALID, f"arm {item.arm!r} is held by {holder}")
             return Plan((), {}), None, 0.0
+        refusal = slot.order.refusal(principal, owner, command.stamp_ns)
+        if refusal is not None:
+            raise Refused(ErrorCode.TIMEOUT, f"arm {item.arm!r}: {refusal}")
         if command.lifetime_s is not None and command.stamp_ns is not None:
             age_s = (time.time_ns() - command.stamp_ns) / 1e9
             if age_s > command.lifetime_s:
@@ -188,6 +191,7 @@ class CommandService:
         )
         for seq in seqs:
             slot.in_flight[seq] = (flight, item.query)
+        slot.order.record(principal, owner, command.stamp_ns)
         return planned, flight, delay_s
 
     def _watched(self, principal: str, owner: str) -> bool:

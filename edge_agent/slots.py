@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 import zenoh
 
 from edge_agent.commands import InFlight
+from edge_agent.ordering import CommandOrder
 from edge_agent.safety import ArmSafety
 from edge_agent.tracker import ArmTracker
 from fleet.d1.seq import SeqAllocator
@@ -25,6 +26,7 @@ class ArmSlot:
     safety: ArmSafety
     seqs: SeqAllocator = field(default_factory=SeqAllocator)
     in_flight: dict[int, tuple[InFlight, zenoh.Query]] = field(default_factory=dict)
+    order: CommandOrder = field(default_factory=CommandOrder)
     joints_seq: int = 0
 
 

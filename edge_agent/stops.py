@@ -146,6 +146,16 @@ class SafetyLoop:
                     if reack:
                         repeats.append(arm)  # the first ack may have been lost
                     continue
+                if reack and request.stop_id in safety.superseded_ids:
+                    # Put directly by its sender, who waits for an ack: it becomes the latched
+                    # stop (once only heard from a heartbeat, or replaced by a newer one).
+                    safety.superseded_ids.remove(request.stop_id)
+                elif not reack and safety.latched:
+                    # A heartbeat repeating another stop of an arm already stopped: nothing to
+                    # do physically; remembered so that the reset releases it too (a flood of
+                    # such repeats must cost a list entry, not a stop write each).
+                    safety.note_also_stopped_by(request.stop_id)
+                    continue
                 action = slot.tracker.config.stop_action
                 if not safety.latch(
                     request.stop_id, request.source, request.reason, now, now_ns, action

@@ -12,6 +12,7 @@ import time
 import uuid
 from collections.abc import Iterable
 
+import msgspec
 import zenoh
 
 from fleet.inventory import Inventory
@@ -23,6 +24,10 @@ from fleet.wire.messages import ErrorCode, ErrorInfo, encode
 JSON = zenoh.Encoding.APPLICATION_JSON
 REPLY_MARGIN_S = 2.0
 """A command's query waits this much longer than the command's own timeout."""
+COMMAND_LIFETIME_S = 5.0
+"""A command that reaches its agent later than this after it was sent is refused (3104): a
+replay, or a network that held it, never executes it late. Hosts' clocks must agree to well
+within this (NTP); a streamed target sets its own, shorter lifetime."""
 
 
 def _no_reply(arm: str, why: str) -> m.CommandReply:
@@ -58,13 +63,30 @@ class FleetClient:
         self.keys = keys.KeySpace(inventory.fleet)
         self._own_session = session is None
         self.principal = inventory.principal
+        self._stamp_lock = threading.Lock()
+        self._last_stamp_ns = 0
         self.session = session if session is not None else open_session(inventory)
 
     # ------------------------------------------------------------------ commands
 
+    def stamp(self, command: m.ArmCommand) -> m.ArmCommand:
+        """``command`` with a ``stamp_ns`` (the agent serves each stamp once and, per owner, in
+        order) and a lifetime if it has none. A caller's own stamp is kept (a streamed target
+        is stamped when it was computed); otherwise this client's clock, strictly increasing."""
+        with self._stamp_lock:
+            if command.stamp_ns is not None:
+                stamp = command.stamp_ns
+                self._last_stamp_ns = max(self._last_stamp_ns, stamp)
+            else:
+                self._last_stamp_ns = max(time.time_ns(), self._last_stamp_ns + 1)
+                stamp = self._last_stamp_ns
+        lifetime = command.lifetime_s if command.lifetime_s is not None else COMMAND_LIFETIME_S
+        return msgspec.structs.replace(command, stamp_ns=stamp, lifetime_s=lifetime)
+
     def command(self, arm: str, command: m.ArmCommand) -> m.CommandReply:
-        """Send ``command`` to ``arm``'s agent and wait for its reply."""
+        """Send ``command`` to ``arm``'s agent (stamped, see ``stamp``) and wait for its reply."""
         self.inventory.arm(arm)  # unknown arm: InventoryError with the known ones
+        command = self.stamp(command)
         timeout = (command.timeout_s if command.wait_reached else 3.0) + REPLY_MARGIN_S
         replies = self.session.get(
             self.command_key(arm), payload=encode(command), encoding=JSON, timeout=timeout

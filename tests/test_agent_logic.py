@@ -493,3 +493,46 @@ def test_feedback_rate_is_measured_over_the_recent_window() -> None:
     for i in range(20):
         tracker.on_feedback(_feedback(), now=4.0 + i * 0.2)
     assert tracker.feedback_rate_hz() == pytest.approx(5.0)
+
+
+# ----------------------------------------------------------------------------- ArmSafety
+
+
+def test_a_stop_also_asked_by_a_heartbeat_is_released_with_the_latched_one() -> None:
+    from edge_agent.safety import ArmSafety
+
+    safety = ArmSafety(lease_s=3.0, watchdog_s=0.5)
+    assert safety.latch("s1", "ann", "", 0.0, 0)
+    safety.note_also_stopped_by("s2")  # a heartbeat repeats another stop: nothing to write
+    assert not safety.latch("s2", "bob", "", 0.1, 1)  # its repeats do not latch again
+    released = safety.reset()
+    assert released is not None and released.stop_id == "s1"
+    assert not safety.latch("s2", "bob", "", 0.2, 2)  # released with s1 by the reset
+    assert safety.latch("s3", "bob", "", 0.3, 3)
+
+
+def test_the_watchdog_counts_the_watch_start_as_a_beat() -> None:
+    from edge_agent.safety import ArmSafety
+
+    safety = ArmSafety(lease_s=3.0, watchdog_s=0.5)
+    safety.watch("coordinator/c", now_s=10.0)
+    assert not safety.watchdog_expired(None, 10.4)  # not heard yet, but only just watched
+    assert safety.watchdog_expired(None, 10.6)
+    assert not safety.watchdog_expired(10.5, 10.9)
+    assert safety.watchdog_expired(10.5, 11.1)
+    assert safety.latch("s", "x", "", 11.1, 0)
+    assert not safety.watchdog_expired(None, 20.0)  # a stop ends the watch
+
+
+def test_unload_and_power_off_stops_wait_for_the_arms_status() -> None:
+    from edge_agent.safety import ArmSafety
+
+    safety = ArmSafety(lease_s=3.0, watchdog_s=0.5)
+    assert safety.latch("s", "x", "", 0.0, 0, action="power_off")
+    for i in range(3):
+        safety.on_angles((0.0,) * 7, i, 0.1 * i)
+    assert safety.stop is not None and safety.stop.still_ns is not None
+    assert not safety.stop.done and safety.needs_resend(1.0)  # still, but not yet unpowered
+    assert not safety.on_status(enabled=True, powered=True, now_ns=5)
+    assert safety.on_status(enabled=True, powered=False, now_ns=6)
+    assert safety.stop.done and not safety.needs_resend(2.0)

@@ -228,7 +228,9 @@ class Coordinator:
         refused = self._avoided(arms, request)
         if refused is not None:
             return refused
-        changes: dict[str, object] = {"owner": self.id}
+        # Its own owner and its own stamps: requesters' clocks may disagree, and the agents
+        # serve one owner's commands in stamp order.
+        changes: dict[str, object] = {"owner": self.id, "stamp_ns": None}
         if request.sync and len(arms) > 1 and not isinstance(request.command, m.Hold):
             # (a hold takes the pose of the moment it is written: it has no start time)
             lead = (
