@@ -1,28 +1,35 @@
 """The viewer in a real headless Chromium (Debian's, driven by playwright; no browser downloads),
-against a fleet of real processes: the 3D canvas draws and moves, STOP ALL reaches the key space,
-a killed agent shows as offline. Screenshots are kept under artifacts/viewer/.
+against a fleet of real processes: the 3D canvas draws and moves, STOP ALL and the confirmed reset
+reach the key space, a killed agent shows as offline, the page needs the printed token, a page of
+another origin cannot open the viewer's WebSocket, and the page loads nothing from elsewhere.
+Screenshots are kept under artifacts/viewer/.
 """
 
 from __future__ import annotations
 
 import io
 import json
+import socket
 import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import numpy as np
 import pytest
 import zenoh
 from PIL import Image
 from playwright.sync_api import Page, sync_playwright
+from viser import _messages
+from websockets.sync.client import ClientConnection
 
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
 from fleet.wire.session import open_client
 from tests.harness import FleetHarness, free_port, wait_until
+from tests.test_viewer_access import loopback_only, ws
 
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMIUM_ARGS = [
@@ -44,14 +51,24 @@ class Browser:
         self.page = page
         self.frames = 0
         self.bytes = 0
+        self.requests: list[str] = []
+        """Every URL the page asked for (HTTP requests and WebSockets)."""
         page.on("websocket", self._on_websocket)
+        page.on("request", lambda request: self.requests.append(request.url))
 
-    def _on_websocket(self, ws: Any) -> None:
+    def _on_websocket(self, socket: Any) -> None:
         def on_frame(payload: str | bytes) -> None:
             self.frames += 1
             self.bytes += len(payload)
 
-        ws.on("framereceived", on_frame)
+        self.requests.append(socket.url)
+        socket.on("framereceived", on_frame)
+
+    def elsewhere(self, origin: str) -> list[str]:
+        """URLs the page asked for outside ``origin`` (inline data excepted)."""
+        ws_origin = origin.replace("http://", "ws://", 1)
+        own = (origin + "/", ws_origin + "/", "data:", "blob:")
+        return [url for url in self.requests if not url.startswith(own)]
 
     def canvas(self, name: str) -> np.ndarray:
         """A screenshot of the 3D canvas (kept as an artefact) as an RGB array."""
@@ -87,9 +104,11 @@ def browser(tmp_path: Path) -> Iterator[Browser]:
             context.close()
 
 
-def start_viewer(harness: FleetHarness) -> str:
-    """``fleet viewer`` as its own process; returns the URL it printed (the real port)."""
-    harness.start("viewer", ["-m", "fleet.cli.main", "viewer", "--port", str(free_port())])
+def start_viewer(harness: FleetHarness, *options: str) -> str:
+    """``fleet viewer`` as its own process; returns the URL it printed (the real port and this
+    run's token)."""
+    argv = ["-m", "fleet.cli.main", "viewer", "--port", str(free_port()), *options]
+    harness.start("viewer", argv)
     line = wait_until(
         lambda: (
             next(
@@ -105,8 +124,9 @@ def start_viewer(harness: FleetHarness) -> str:
 
 
 def open_viewer(browser: Browser, url: str, arms: list[str]) -> None:
-    assert url.startswith("http://127.0.0.1:")
+    assert url.startswith("http://127.0.0.1:") and "/?token=" in url
     browser.page.goto(url)
+    assert browser.page.url == url.split("?")[0]  # entered: the token left the address bar
     browser.page.locator("canvas").first.wait_for(timeout=30_000)
     wait_until(lambda: all(browser.arm_online(a) == "yes" for a in arms), 30.0)
     time.sleep(1.0)  # let the first frames render (swiftshader is slow); all asserts poll
@@ -131,7 +151,7 @@ def test_canvas_draws_the_fleet_moving_and_stop_all_reaches_the_key_space(
 ) -> None:
     harness = fleet3_harness
     client = harness.start_fleet()
-    url = start_viewer(harness)
+    url = start_viewer(harness, "--principal", "operator")  # may reset (and jog)
     stops: list[m.StopRequest] = []
     lock = threading.Lock()
 
@@ -177,7 +197,13 @@ def test_canvas_draws_the_fleet_moving_and_stop_all_reaches_the_key_space(
             assert j0 is not None and j1 is not None
             assert max(abs(a - b) for a, b in zip(j0.angles_deg, j1.angles_deg)) < 1.0, arm
         browser.save_page("04-page-after-stop")
+
+        # The reset: both steps of the dialog, then the agents release the latch.
+        browser.page.get_by_role("button", name="Reset stop…").click()
+        browser.page.get_by_role("button", name="Reset every arm").click()
+        wait_until(lambda: "STOPPED" not in browser.page.locator("#fleet-table").inner_text(), 10.0)
         subscriber.undeclare()
+    assert browser.elsewhere(url.split("/?")[0]) == []  # nothing loaded from elsewhere
 
     ARTIFACTS.mkdir(parents=True, exist_ok=True)
     (ARTIFACTS / "browser-stats.json").write_text(
@@ -219,3 +245,90 @@ def fleet_harness_with_two_agents(tmp_path: Path) -> FleetHarness:
         harness.close()
         raise
     return harness
+
+
+def evil_page(viewer_port: int) -> str:
+    """A page of another origin that tries to open the viewer's WebSocket (as viser's client
+    does) and writes the outcome into its title."""
+    return f"""<!doctype html><title>trying</title><script>
+    const socket = new WebSocket("ws://127.0.0.1:{viewer_port}/", ["viser-v{viser_version()}"]);
+    socket.onopen = () => {{ document.title = "open"; }};
+    socket.onclose = (event) => {{ document.title = "closed " + event.code; }};
+    </script>"""
+
+
+def viser_version() -> str:
+    import viser
+
+    return viser.__version__
+
+
+def start_evil_page(harness: FleetHarness, viewer_port: int) -> str:
+    """``python -m http.server`` on loopback serving ``evil.html``; returns its origin."""
+    root = harness.tmp_path / "evil"
+    root.mkdir()
+    (root / "evil.html").write_text(evil_page(viewer_port), encoding="utf-8")
+    port = free_port()
+    argv = ["-m", "http.server", "--bind", "127.0.0.1", "--directory", str(root), str(port)]
+    process = harness.start("evil-page", argv, inventory=False)
+
+    def serving() -> bool:
+        assert process.poll() is None, harness.log("evil-page")
+        with socket.socket() as probe:
+            return probe.connect_ex(("127.0.0.1", port)) == 0
+
+    wait_until(serving, 10.0)
+    return f"http://127.0.0.1:{port}"
+
+
+def test_the_page_needs_the_printed_token_and_other_origins_are_refused(
+    fleet_harness: FleetHarness, browser: Browser
+) -> None:
+    harness = fleet_harness
+    harness.start_router()
+    url = start_viewer(harness)  # the default principal 'viewer', an observer: read-only
+    base = url.split("?")[0]
+    port = int(base.rsplit(":", 1)[1].rstrip("/"))
+    page = browser.page
+
+    # Without the token (or with a wrong one): 403, a page saying what to open, no WebSocket.
+    for target in (base, base + "?token=not-this-runs-token-0123"):
+        response = page.goto(target)
+        assert response is not None and response.status == 403, target
+        assert "printed" in page.content()
+        assert page.locator("canvas").count() == 0
+    assert not [u for u in browser.requests if u.startswith("ws://")]
+    browser.save_page("06-page-without-token")
+
+    # With the printed URL: the viewer, over a WebSocket that carried the token (the cookie).
+    page.goto(url)
+    assert page.url == base
+    page.locator("canvas").first.wait_for(timeout=30_000)
+    # The GUI arrives over the WebSocket: its button shows the upgrade was accepted.
+    page.get_by_role("button", name="STOP ALL").wait_for(timeout=15_000)
+    page.get_by_text("Read-only viewer").wait_for(timeout=15_000)
+    assert page.get_by_role("button", name="Reset stop…").count() == 0
+    assert browser.elsewhere(base.rstrip("/")) == []
+    browser.save_page("07-page-read-only")
+
+    # A page of another origin in the same browser cannot open the viewer's WebSocket. It is
+    # served from loopback by a real server (Chrome blocks a page it cannot place from reaching
+    # loopback at all), so it is same-site with the viewer and its socket would carry the
+    # cookie: the Origin check is what refuses it.
+    evil = start_evil_page(harness, port)
+    page.goto(f"{evil}/evil.html")
+    wait_until(lambda: page.title() != "trying", 15.0)
+    assert page.title().startswith("closed"), page.title()
+    wait_until(lambda: f"Origin {evil!r} is not one of the viewer's" in harness.log("viewer"), 5)
+
+    # A client with the token asks for viser's public share tunnel: refused, nothing opened.
+    token = url.split("token=", 1)[1]
+    connection = ws(port, base.rstrip("/"), query=f"?token={token}")
+    assert isinstance(connection, ClientConnection)
+    with connection:
+        request = _messages.ShareUrlRequest().as_serializable_dict()
+        connection.send(msgspec.msgpack.encode(request))
+        wait_until(lambda: "public share URL" in harness.log("viewer"), 10.0)
+    viewer = harness.processes["viewer"]
+    assert viewer.poll() is None, harness.log("viewer")
+    assert loopback_only(viewer.pid) == []

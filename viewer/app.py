@@ -4,6 +4,10 @@ Threads: Zenoh's (callbacks store the newest sample and return), viser's event l
 callback pool, ``viewer-render`` (ours: snapshot -> scene at ``rate_hz``, panels at
 ``panel_rate_hz``), ``viewer-jog`` and ``viewer-stop`` (see viewer/commands.py). No lock is held
 across a viser update or a Zenoh put: the render thread works on a snapshot copy.
+
+Access: the web server answers only requests carrying this run's token, and WebSockets only
+from the viewer's own origins (viewer/access.py, installed by viewer/server.py). The viewer acts
+as ``inventory.principal``; it is read-only unless that principal's role may command.
 """
 
 from __future__ import annotations
@@ -11,17 +15,18 @@ from __future__ import annotations
 import logging
 import threading
 import time
-
-import viser
+from collections.abc import Sequence
 
 from fleet.guard import ThreadGuard
 from fleet.inventory import Inventory
 from fleet.security.session import open_session
+from viewer.access import AccessGuard, AccessPolicy, new_token, url_host
 from viewer.commands import Commander
 from viewer.kinematics import ArmModel, load_urdf
 from viewer.meshes import link_meshes
 from viewer.panels import FleetPanels
 from viewer.scene import FleetScene
+from viewer.server import start_server
 from viewer.state import FleetState
 
 log = logging.getLogger("viewer")
@@ -42,9 +47,19 @@ class Viewer:
         host: str = DEFAULT_HOST,
         port: int = DEFAULT_PORT,
         rate_hz: float = DEFAULT_RATE_HZ,
+        token: str | None = None,
+        allow_origins: Sequence[str] = (),
+        read_only: bool = False,
     ) -> None:
+        """``token``: the access token (a random one if None); ``allow_origins``: origins
+        besides the viewer's own whose pages may open its WebSocket; ``read_only``: STOP ALL
+        only (also the case when ``inventory.principal`` may not command). Raises ValueError
+        for a malformed token or origin."""
         self.inventory = inventory
         self.rate_hz = rate_hz
+        self.access = AccessGuard(
+            AccessPolicy(token=token or new_token(), host=host, allow_origins=tuple(allow_origins))
+        )
         urdf = load_urdf()
         model = ArmModel.from_urdf(urdf)
         meshes = link_meshes(urdf, model.links)
@@ -52,14 +67,19 @@ class Viewer:
         # viewer that shows a frozen fleet or a STOP ALL that confirms nothing; it exits instead.
         self.guard = ThreadGuard("viewer")
         self.failed = self.guard.failed
-        self.session = open_session(inventory)
-        self.server = viser.ViserServer(
-            host=host, port=port, label=f"d1-fleet · {inventory.fleet}", verbose=False
-        )
+        self.server = start_server(host, port, f"d1-fleet · {inventory.fleet}", self.access)
         self.host = host
         self.port = self.server.get_port()  # viser silently takes the next free port
+        try:
+            self.session = open_session(inventory)
+        except BaseException:
+            self.server.stop()
+            raise
         self.state = FleetState(inventory, self.session)
-        self.commander = Commander(inventory, self.session, notify=self._notify, guard=self.guard)
+        self.commander = Commander(
+            inventory, self.session, notify=self._notify, guard=self.guard, read_only=read_only
+        )
+        self.read_only = self.commander.read_only
         self.panels = FleetPanels(self.server, inventory, self.commander)
         self.scene = FleetScene(self.server, inventory, model, meshes)
         self.state.start(self.guard)
@@ -70,9 +90,14 @@ class Viewer:
         self._thread.start()
 
     @property
+    def base_url(self) -> str:
+        """The viewer's own origin and page, without the token (it answers 403 there)."""
+        return f"http://{url_host(self.host)}:{self.port}/"
+
+    @property
     def url(self) -> str:
-        """Where a browser finds the viewer."""
-        return f"http://{self.host}:{self.port}"
+        """Where a browser finds the viewer: the page with this run's token."""
+        return f"{self.base_url}?token={self.access.policy.token}"
 
     def _notify(self, title: str, body: str, is_error: bool) -> None:
         self.panels.notify(title, body, is_error)

@@ -7,6 +7,12 @@ viser callback thread, never a Zenoh one), with congestion control BLOCK and pri
 REAL_TIME; the ``viewer-stop`` thread then hands it to ``FleetClient.estop``, which re-puts it
 (same ``stop_id``: agents ignore repeats) until every arm acknowledged and was seen still, and
 the operator is told which arms did not confirm.
+
+Every command leaves through one ``FleetClient`` built on the viewer's inventory, so it acts as
+the viewer's principal (``inventory.principal``: ``viewer`` unless ``--principal`` says
+otherwise; jogs go to ``arm/<arm>/cmd/<principal>``). A *read-only* viewer (``--read-only``, or
+a principal whose role may not command: the default ``viewer`` is an ``observer``) may only
+stop: ``jog`` and ``reset_all`` refuse here, whatever the browser sends.
 """
 
 from __future__ import annotations
@@ -22,8 +28,10 @@ from fleet.client import FleetClient
 from fleet.d1.limits import JOINT_RANGE_DEG
 from fleet.guard import ThreadGuard
 from fleet.inventory import Inventory
+from fleet.security.config import COMMANDERS
 from fleet.wire import keys
 from fleet.wire import messages as m
+from viewer.refusals import Refusals
 
 log = logging.getLogger("viewer.commands")
 
@@ -32,6 +40,13 @@ STOP_CONFIRM_S = 3.0
 
 Notify = Callable[[str, str, bool], None]
 """``notify(title, body, is_error)``: show a notification in every connected browser."""
+
+
+def may_command(inventory: Inventory) -> bool:
+    """True when the inventory's principal has a role that may command arms and reset stops
+    (operator, maintainer, coordinator); an observer, or a principal the inventory does not
+    know, may only stop."""
+    return inventory.role_of(inventory.principal) in COMMANDERS
 
 
 def clamp_to_limits(joint: int, angle_deg: float) -> float:
@@ -49,9 +64,13 @@ class Commander:
         session: zenoh.Session,
         notify: Notify,
         guard: ThreadGuard | None = None,
+        read_only: bool = False,
     ) -> None:
         self.keys = keys.KeySpace(inventory.fleet)
         self.client = FleetClient(inventory, session=session)
+        self.principal = inventory.principal
+        self.read_only = read_only or not may_command(inventory)
+        self.refusals = Refusals(log)
         self._notify = notify
         self._lock = threading.Lock()  # guards _pending only
         self._pending: dict[tuple[str, int], float] = {}
@@ -81,10 +100,22 @@ class Commander:
         log.warning("STOP ALL sent (stop_id %s)", request.stop_id)
         return request
 
-    def reset_all(self) -> None:
-        """Put a fleet-wide ResetRequest (the operator confirmed it)."""
+    def reset_all(self) -> bool:
+        """Put a fleet-wide ResetRequest (the operator confirmed it); False, sending nothing,
+        when the viewer is read-only."""
+        if self._refused("reset"):
+            return False
         self.client.reset(source="viewer")
-        log.warning("reset sent to the whole fleet")
+        log.warning("reset sent to the whole fleet (principal %s)", self.principal)
+        return True
+
+    def _refused(self, what: str) -> bool:
+        if not self.read_only:
+            return False
+        self.refusals.refuse(
+            what, f"{what}: this viewer is read-only (principal {self.principal!r}): STOP only"
+        )
+        return True
 
     def _stop_loop(self) -> None:
         while True:
@@ -92,7 +123,7 @@ class Commander:
             if request is None or self._closing.is_set():
                 return
             acks = self.client.estop(request=request, timeout_s=STOP_CONFIRM_S)
-            unconfirmed = [a for a, ack in acks.items() if ack is None or ack.still_ns is None]
+            unconfirmed = [a for a, ack in acks.items() if ack is None or not ack.done]
             if unconfirmed:
                 self._notify(
                     "STOP not confirmed",
@@ -105,11 +136,15 @@ class Commander:
 
     # ------------------------------------------------------------------ jog
 
-    def jog(self, arm: str, joint: int, angle_deg: float) -> None:
-        """Ask for ``arm``'s ``joint`` at ``angle_deg`` (clamped); returns at once."""
+    def jog(self, arm: str, joint: int, angle_deg: float) -> bool:
+        """Ask for ``arm``'s ``joint`` at ``angle_deg`` (clamped); returns at once. False,
+        sending nothing, when the viewer is read-only."""
+        if self._refused("jog"):
+            return False
         with self._lock:
             self._pending[(arm, joint)] = clamp_to_limits(joint, angle_deg)
         self._wake.set()
+        return True
 
     def _jog_loop(self) -> None:
         while not self._closing.is_set():

@@ -3,11 +3,17 @@ live joint readouts, a plot of the last seconds and jog sliders.
 
 ``update(snapshot)`` runs on the viewer thread at the panel rate and only sends what changed.
 GUI callbacks run on viser's threads: they call ``Commander`` methods, which return at once.
+
+A read-only viewer (``commander.read_only``) shows STOP ALL, the table and the readouts, and
+builds no reset button and no sliders; the commander refuses resets and jogs anyway. The reset
+needs both steps on the server (viewer/confirm.py), not only the browser's dialog. The share
+button (a public tunnel) is hidden; viewer/server.py refuses the request behind it.
 """
 
 from __future__ import annotations
 
 import html
+import logging
 import time
 
 import numpy as np
@@ -18,6 +24,8 @@ from fleet.d1.limits import JOINT_COUNT, JOINT_RANGE_DEG
 from fleet.inventory import Inventory
 from fleet.wire import messages as m
 from viewer.commands import Commander
+from viewer.confirm import Confirmations
+from viewer.refusals import Refusals
 from viewer.state import Snapshot
 
 PLOT_WINDOW_S = 10.0
@@ -90,7 +98,9 @@ class FleetTable:
 class _ArmPanel:
     """The folder of one arm."""
 
-    def __init__(self, gui: viser.GuiApi, arm: str, commander: Commander, plot_on: bool) -> None:
+    def __init__(
+        self, gui: viser.GuiApi, arm: str, commander: Commander, plot_on: bool, jog: bool
+    ) -> None:
         self.arm = arm
         self.synced = False
         self.blocked: bool | None = None
@@ -114,14 +124,16 @@ class _ArmPanel:
             )
             self.show_plot.on_update(lambda _e: setattr(self.plot, "visible", self.show_plot.value))
             self.sliders = []
+            if not jog:
+                return  # read-only: no sliders at all (the commander would refuse them anyway)
             for joint, (low, high) in enumerate(JOINT_RANGE_DEG):
                 slider = gui.add_slider(
                     f"jog j{joint}", min=low, max=high, step=0.5, initial_value=0.0, disabled=True
                 )
                 slider.on_update(self._on_slide(commander, joint))
                 self.sliders.append(slider)
-            self.sync = gui.add_button("sliders to measured", hint="set the sliders to the arm")
-            self.sync.on_click(lambda _e: setattr(self, "synced", False))
+            sync = gui.add_button("sliders to measured", hint="set the sliders to the arm")
+            sync.on_click(lambda _e: setattr(self, "synced", False))
 
     def _on_slide(self, commander: Commander, joint: int):  # type: ignore[no-untyped-def]
         def on_update(event: viser.GuiEvent) -> None:
@@ -146,7 +158,7 @@ class _ArmPanel:
         if text != self.readout_text:
             self.readout_text = text
             self.readout.content = text
-        if not self.synced:
+        if not self.synced and self.sliders:
             self.synced = True
             for slider, angle in zip(self.sliders, angles.tolist(), strict=True):
                 slider.value = float(np.clip(round(angle * 2) / 2, slider.min, slider.max))
@@ -159,14 +171,25 @@ class FleetPanels:
         self.server = server
         self.commander = commander
         self.arms = tuple(inventory.arms)
+        self.read_only = commander.read_only
+        self.confirmations = Confirmations()
+        self.refusals = Refusals(logging.getLogger("viewer.panels"))
         gui = server.gui
-        gui.configure_theme(control_width="large")
+        # The share button would ask for a public tunnel to the viewer: never shown.
+        gui.configure_theme(control_width="large", show_share_button=False)
         self.stop_button = gui.add_button(
             "STOP ALL", color="red", icon=viser.Icon.HAND_STOP, hint="protective stop, every arm"
         )
         self.stop_button.on_click(lambda _e: self._on_stop())
-        self.reset_button = gui.add_button("Reset stop…", color="gray")
-        self.reset_button.on_click(self._on_reset)
+        self.reset_button: viser.GuiButtonHandle | None = None
+        if self.read_only:
+            gui.add_markdown(
+                f"Read-only viewer (principal `{commander.principal}`): STOP ALL only. "
+                "`fleet viewer --principal operator` gives reset and jog."
+            )
+        else:
+            self.reset_button = gui.add_button("Reset stop…", color="gray")
+            self.reset_button.on_click(self._on_reset)
         self.stop_info = gui.add_markdown("")
         self.table_html = ""
         self.fleet_table = FleetTable()
@@ -174,7 +197,9 @@ class FleetPanels:
         with gui.add_folder("Fleet"):
             self.table = gui.add_html("")
         plot_on = len(self.arms) <= PLOTS_ON_BY_DEFAULT_UP_TO
-        self.arm_panels = [_ArmPanel(gui, arm, commander, plot_on) for arm in self.arms]
+        self.arm_panels = [
+            _ArmPanel(gui, arm, commander, plot_on, jog=not self.read_only) for arm in self.arms
+        ]
         n = int(PLOT_WINDOW_S * PLOT_RATE_HZ)
         self._history = np.zeros((len(self.arms), n, JOINT_COUNT))
         self._history_t = np.linspace(-PLOT_WINDOW_S, 0.0, n)
@@ -186,8 +211,9 @@ class FleetPanels:
 
     def _on_reset(self, event: viser.GuiEvent) -> None:
         client = event.client
-        if client is None:
+        if client is None or self.read_only:
             return
+        nonce = self.confirmations.request(client.client_id)
         with client.gui.add_modal("Reset the fleet's stop?") as modal:
             client.gui.add_markdown(
                 "Releases the latched stop of **every** arm. Arms do not move: each holds its "
@@ -196,13 +222,36 @@ class FleetPanels:
             confirm = client.gui.add_button("Reset every arm", color="red")
             cancel = client.gui.add_button("Cancel")
 
-            def do_reset(_e: viser.GuiEvent) -> None:
+            def do_reset(e: viser.GuiEvent) -> None:
                 modal.close()
-                self.commander.reset_all()
-                self.stop_info.content = f"reset sent at {time.strftime('%H:%M:%S')}"
+                # The client that clicked, not the one the dialog was made for: they must match.
+                if not self.confirm_reset(-1 if e.client is None else e.client.client_id, nonce):
+                    client.add_notification(
+                        "Reset not sent",
+                        "the confirmation expired or was already used: press Reset again",
+                        color="red",
+                        auto_close_seconds=8.0,
+                    )
+
+            def do_cancel(_e: viser.GuiEvent) -> None:
+                modal.close()
+                self.confirmations.cancel(client.client_id)
 
             confirm.on_click(do_reset)
-            cancel.on_click(lambda _e: modal.close())
+            cancel.on_click(do_cancel)
+
+    def confirm_reset(self, client_id: int, nonce: str) -> bool:
+        """Step two of the reset: sends it only if ``client_id`` asked (step one, ``nonce``)
+        within the confirmation window and the viewer may reset."""
+        if not self.confirmations.confirm(client_id, nonce):
+            self.refusals.refuse(
+                "reset", f"a reset confirmation from client {client_id} with no pending request"
+            )
+            return False
+        if not self.commander.reset_all():
+            return False
+        self.stop_info.content = f"reset sent at {time.strftime('%H:%M:%S')}"
+        return True
 
     def record(self, snapshot: Snapshot, now: float) -> None:
         """Add a plot sample (at most PLOT_RATE_HZ; cheap: one array roll for all arms)."""

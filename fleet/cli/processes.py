@@ -202,9 +202,10 @@ def _run_demo(args: argparse.Namespace, inventory: Inventory) -> int:
             children.append(dancer)
         url = "not started (--no-viewer)"
         if not args.no_viewer:
-            # The person at the demo is its operator: the viewer gets every control.
-            viewer_argv = ["-m", "fleet.cli.main", "viewer", "--port", str(args.port), *common]
-            viewer_argv += ["--principal", "operator"]
+            # The person running the demo operates their own simulated fleet: the viewer acts
+            # as 'operator' (reset and jog), not as the read-only default principal 'viewer'.
+            viewer_argv = ["-m", "fleet.cli.main", "viewer", "--port", str(args.port)]
+            viewer_argv += ["--principal", "operator", *common]
             viewer = subprocess.Popen(
                 [sys.executable, *viewer_argv], stdout=subprocess.PIPE, text=True
             )
@@ -230,8 +231,9 @@ def _viewer_url(viewer: subprocess.Popen[str], timeout_s: float = 30.0) -> str:
     def read() -> None:
         assert viewer.stdout is not None
         for line in viewer.stdout:
-            if "http://" in line and not found:
-                found.append(line[line.index("http://") :].split()[0])
+            # The viewer's own line (viser prints its token-less address first).
+            if "d1-fleet viewer: http://" in line and not found:
+                found.append(line.split("d1-fleet viewer: ", 1)[1].split()[0])
             # keep draining so the viewer never blocks on a full pipe
 
     threading.Thread(target=read, name="viewer-stdout", daemon=True).start()

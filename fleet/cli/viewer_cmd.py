@@ -1,4 +1,9 @@
-"""``fleet viewer``: the live 3D fleet in the browser (viser), bound to 127.0.0.1 by default."""
+"""``fleet viewer``: the live 3D fleet in the browser (viser), bound to 127.0.0.1 by default.
+
+The page and its WebSocket need this run's token (printed in the URL) and WebSockets are
+accepted only from the viewer's own origins (viewer/access.py). The viewer acts as the principal
+``viewer`` (role observer: STOP ALL only) unless ``--principal`` names one that may command.
+"""
 
 from __future__ import annotations
 
@@ -11,6 +16,27 @@ from fleet.runtime import inventory_from_args, shutdown_event, wait_for
 
 log = logging.getLogger("fleet")
 
+VIEWER_PRINCIPAL = "viewer"
+"""Who the viewer acts as by default (an observer: it may stop, not reset or command)."""
+
+
+def _token(text: str) -> str:
+    from viewer.access import check_token
+
+    try:
+        return check_token(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _origin(text: str) -> str:
+    from viewer.access import check_origin
+
+    try:
+        return check_origin(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
 
 def register(
     sub: argparse._SubParsersAction, add_common: Callable[[argparse.ArgumentParser], None]
@@ -21,13 +47,36 @@ def register(
     viewer.add_argument(
         "--host",
         default="127.0.0.1",
-        help="address to bind (default 127.0.0.1; 0.0.0.0 exposes it to every network)",
+        help="address to bind (default 127.0.0.1; 0.0.0.0 exposes it to every network: "
+        "then pass --allow-origin for the name browsers use, and prefer an SSH tunnel)",
     )
     viewer.add_argument(
         "--port", type=int, default=8080, help="web port (default 8080; next free one if busy)"
     )
     viewer.add_argument(
         "--rate-hz", type=float, default=20.0, help="scene updates per second at most"
+    )
+    viewer.add_argument(
+        "--token",
+        type=_token,
+        default=None,
+        help="the access token (16-128 of A-Z a-z 0-9 - _) instead of a random one per run; "
+        "other users of this host can read it in the process list",
+    )
+    viewer.add_argument(
+        "--allow-origin",
+        action="append",
+        type=_origin,
+        default=[],
+        metavar="ORIGIN",
+        help="also accept WebSockets from pages of ORIGIN, e.g. http://robot-pc.lab:8080 "
+        "(repeatable; http://127.0.0.1:<port> and http://localhost:<port> always are)",
+    )
+    viewer.add_argument(
+        "--read-only",
+        action="store_true",
+        help="STOP ALL only: no reset, no jog (always so when the principal may not command, "
+        "as the default principal 'viewer', an observer)",
     )
     viewer.set_defaults(run=run_viewer)
 
@@ -36,13 +85,25 @@ def run_viewer(args: argparse.Namespace) -> int:
     """Serve the viewer until SIGINT/SIGTERM."""
     from viewer.app import Viewer  # viser and numpy load only for this command
 
-    inventory = inventory_from_args(args, "viewer")
+    inventory = inventory_from_args(args, VIEWER_PRINCIPAL)
     stop = shutdown_event()
-    with Viewer(inventory, host=args.host, port=args.port, rate_hz=args.rate_hz) as viewer:
+    with Viewer(
+        inventory,
+        host=args.host,
+        port=args.port,
+        rate_hz=args.rate_hz,
+        token=args.token,
+        allow_origins=args.allow_origin,
+        read_only=args.read_only,
+    ) as viewer:
         if viewer.port != args.port:
             log.warning("port %d was busy; the viewer took %d", args.port, viewer.port)
+        role = inventory.role_of(inventory.principal)
+        mode = "read-only: STOP ALL only" if viewer.read_only else "stop, reset and jog"
         print(
-            f"d1-fleet viewer: {viewer.url}  (fleet {inventory.fleet!r}; Ctrl-C stops)", flush=True
+            f"d1-fleet viewer: {viewer.url}  (fleet {inventory.fleet!r}; principal "
+            f"{inventory.principal!r}, role {role}: {mode}; Ctrl-C stops)",
+            flush=True,
         )
         failed = wait_for(stop, viewer.failed)
     if failed:
