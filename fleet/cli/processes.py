@@ -27,6 +27,12 @@ def register(
     """Add the process commands to the ``fleet`` parser."""
     router = sub.add_parser("router", help="run a Zenoh router on the inventory's endpoints")
     add_common(router)
+    router.add_argument(
+        "--listen", action="append", metavar="EP", help="listen here instead (repeatable)"
+    )
+    router.add_argument(
+        "--connect", action="append", metavar="EP", help="also join the router at EP (repeatable)"
+    )
     router.set_defaults(run=run_router)
 
     sim = sub.add_parser("sim", help="run the inventory's simulated arms on DDS")
@@ -60,8 +66,10 @@ def run_router(args: argparse.Namespace) -> int:
     """Serve as the fleet's Zenoh router until SIGINT/SIGTERM."""
     inventory = inventory_from_args(args)
     stop = shutdown_event()
-    session = open_router(inventory.endpoints)
-    log.info("Zenoh router listening on %s", ", ".join(inventory.endpoints))
+    listen, connect = args.listen or inventory.endpoints, args.connect or []
+    session = open_router(listen, connect)
+    joined = f", joined to {', '.join(connect)}" if connect else ""
+    log.info("Zenoh router listening on %s%s", ", ".join(listen), joined)
     try:
         wait_for(stop)
     finally:
