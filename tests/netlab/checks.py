@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import json
 import math
+from collections import Counter
 from typing import Any
 
+from fleet.d1 import protocol
 from tests.netlab.fleetlab import LabFleet, RemoteClient
 
 STILL_DEG = 0.5
@@ -75,3 +78,26 @@ def spread_deg(rows: list[tuple[int, int, list[float]]]) -> float:
     if not rows:
         return 0.0
     return max(max(r[2][j] for r in rows) - min(r[2][j] for r in rows) for j in range(7))
+
+
+def commands_seen(spy_log: str, since_ns: int = 0) -> list[tuple[int, int, object]]:
+    """(time, seq, typed command) of every D1 command a ddstool spy saw since ``since_ns``."""
+    seen = []
+    for line in spy_log.splitlines():
+        if not line.startswith('{"t_ns"'):
+            continue
+        row = json.loads(line)
+        if row["t_ns"] < since_ns:
+            continue
+        seq, command = protocol.decode_command(row["data"])
+        seen.append((row["t_ns"], seq, command))
+    return seen
+
+
+def joint_moves(seen: list[tuple[int, int, object]], joint: int) -> Counter[float]:
+    """How many times each ``move_joint`` angle of ``joint`` was written to the arm."""
+    return Counter(
+        round(c.angle_deg, 3)
+        for _t, _seq, c in seen
+        if isinstance(c, protocol.SetJointAngle) and c.joint == joint
+    )

@@ -192,8 +192,9 @@ class Daemon:
         return {}
 
     def stream_take(self, name: str, timeout_s: float = 30.0) -> dict[str, Any]:
-        """Wait for stream ``name`` to finish; its results."""
-        thread, _done, results = self._streams.pop(name)
+        """End stream ``name`` (the command under way completes); its results."""
+        thread, done, results = self._streams.pop(name)
+        done.set()
         thread.join(timeout_s)
         return {"finished": not thread.is_alive(), "results": results}
 

@@ -61,6 +61,9 @@ def spy(channel: dds.DdsChannel, topic_name: str, stop: threading.Event) -> None
     """Print every sample on ``topic_name`` until ``stop``."""
     topic = Topic(channel.participant, topic_name, dds.ArmString_)
     reader = DataReader(channel.participant, topic, qos=dds.COMMAND_READER_QOS)
+    # Ready once the agent's writer matched: commands written before that are not seen.
+    while reader.get_subscription_matched_status().current_count < 1 and not stop.is_set():
+        stop.wait(0.02)
     print(json.dumps({"ready": True}), flush=True)
     while not stop.is_set():
         for sample in reader.take(N=256):

@@ -138,12 +138,18 @@ class LabFleet:
         self.clients[name] = client
         return client
 
-    def start_dds_tool(self, name: str, arm: str, *args: str) -> subprocess.Popen[bytes]:
-        """``ddstool.py`` on ``arm``'s host, on that arm's DDS network."""
+    def start_dds_tool(
+        self, name: str, arm: str, *args: str, wait_ready: bool = True
+    ) -> subprocess.Popen[bytes]:
+        """``ddstool.py`` on ``arm``'s host, on that arm's DDS network; waits until it says it
+        is ready (a spy: matched with the agent's writer; a rogue: with the agent's reader)."""
         host = self.arms[arm]
         argv = ["-m", "tests.netlab.ddstool", *args, "--domain", str(self.lab.domain)]
         argv += ["--interface", host.interface, "--peer", host.ip]
         process = self.lab.harness.start(name, argv, prefix=self.lab.prefix(arm), inventory=False)
+        if wait_ready:
+            wait_until(lambda: '"ready"' in self.lab.log(name) or process.poll() is not None, 20.0)
+            assert process.poll() is None, self.lab.log(name)
         return process
 
     def diagnose(self) -> str:
