@@ -169,6 +169,31 @@ class Daemon:
         sub.undeclare()
         return {"diag": msgspec.json.decode(got[-1]) if got else None}
 
+    def load_start(self, rate_hz: float, size: int, for_s: float) -> dict[str, Any]:
+        """Publish ``size``-byte samples on the status key of an arm that does not exist
+        (``zz-load``) at ``rate_hz`` for ``for_s`` seconds, with the agents' status QoS (BLOCK,
+        DATA_HIGH): a large fleet's status traffic in one stream, for every status subscriber
+        (they drop it: too large for a status)."""
+        key = self.client.keys.arm("zz-load", keys.STATUS)
+        publisher = self.client.session.declare_publisher(
+            key,
+            congestion_control=zenoh.CongestionControl.BLOCK,
+            priority=zenoh.Priority.DATA_HIGH,
+        )
+        payload = b"x" * size
+
+        def run() -> None:
+            start = time.monotonic()
+            n = 0
+            while time.monotonic() - start < for_s:
+                publisher.put(payload)
+                n += 1
+                time.sleep(max(0.0, start + n / rate_hz - time.monotonic()))
+            publisher.undeclare()
+
+        threading.Thread(target=run, name="load", daemon=True).start()
+        return {}
+
     def stream_start(
         self, name: str, arm: str, joint: int, angles: list[float], period_s: float
     ) -> dict[str, Any]:

@@ -241,6 +241,10 @@ class NetLab:
         assert isinstance(links, dict)
         return links
 
+    def sysctl(self, host: str, setting: str) -> None:
+        """Set a per-namespace sysctl (``net.ipv4.tcp_rmem=4096 16384 65536``) on ``host``."""
+        _sysctl(self.hosts[host].ns, setting)
+
     # ------------------------------------------------------------------ processes
 
     def prefix(self, host: str) -> tuple[str, ...]:
@@ -331,7 +335,7 @@ def _sysctl(ns: str, setting: str) -> None:
     key, value = setting.split("=")
     path = "/proc/sys/" + key.replace(".", "/")
     subprocess.run(
-        ["ip", "netns", "exec", ns, "sh", "-c", f"echo {value} > {path}"],
+        ["ip", "netns", "exec", ns, "sh", "-c", f"echo '{value}' > {path}"],
         capture_output=True,
         timeout=10,
     )
