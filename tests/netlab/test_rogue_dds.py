@@ -81,7 +81,11 @@ def rogue_run(lab1: LabFleet) -> Iterator[dict[str, Any]]:
         if isinstance(c, protocol.SetAllAngles)
     ]
     run = {
-        "alive": {n: c for n, c in lab1.lab.alive().items() if n != "rogue-a1"},
+        "alive": {
+            n: c
+            for n, c in lab1.lab.alive().items()
+            if n.startswith(("sim-", "agent-", "router", "coordinator", "cable", "client"))
+        },
         "command": command,
         "ack": ack,
         "received_ms": (ack["received_ns"] - stop["stamp_ns"]) / 1e6 if ack else None,
