@@ -40,6 +40,12 @@ def register(
         help="log the access control's decisions (each 'is unauthorized to ...' names the "
         "principal, the message and the key), once per key and session",
     )
+    router.add_argument(
+        "--listen", action="append", metavar="EP", help="listen here instead (repeatable)"
+    )
+    router.add_argument(
+        "--connect", action="append", metavar="EP", help="also join the router at EP (repeatable)"
+    )
     router.set_defaults(run=run_router)
 
     sim = sub.add_parser("sim", help="run the inventory's simulated arms on DDS")
@@ -80,8 +86,10 @@ def run_router(args: argparse.Namespace) -> int:
     stop = shutdown_event()
     if args.audit:
         zenoh.init_log_from_env_or(f"{ACL_LOG}=trace,error")
-    session = zenoh.open(router_config(inventory, inventory.endpoints))
-    log.info("Zenoh router listening on %s", ", ".join(inventory.endpoints))
+    listen, connect = args.listen or inventory.endpoints, args.connect or []
+    session = zenoh.open(router_config(inventory, listen, connect))
+    joined = f", joined to {', '.join(connect)}" if connect else ""
+    log.info("Zenoh router listening on %s%s", ", ".join(listen), joined)
     try:
         wait_for(stop)
     finally:

@@ -1,0 +1,257 @@
+"""A fleet client that lives on a lab host: the test drives it with one JSON request per line
+on stdin and reads one JSON reply per line on stdout.
+
+Everything goes through FleetClient's public methods (estop, reset, command, multi, snapshot,
+agents_alive); ``watch`` records the joints and status samples it receives, with their
+arrival time, for the relay and standstill measurements; ``diag`` reads one arm's counters.
+
+``python -m tests.netlab.clientd INVENTORY`` (under ``ip netns exec``).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import threading
+import time
+from typing import Any
+
+import msgspec
+import zenoh
+
+from fleet.client import FleetClient
+from fleet.inventory import load_inventory
+from fleet.wire import keys, payloads
+from fleet.wire import messages as m
+
+MAX_WATCHED = 100_000
+"""Samples kept by ``watch`` between two takes (older ones are dropped and counted)."""
+
+
+class Watch:
+    """Joints and status samples of every arm, with the time each arrived here."""
+
+    def __init__(self, client: FleetClient) -> None:
+        self._lock = threading.Lock()
+        self.samples: list[tuple[int, str, str, Any]] = []
+        self.dropped = 0
+        self._subs = [
+            client.session.declare_subscriber(
+                client.keys.all_arms(channel), self._on_sample(client, channel)
+            )
+            for channel in (keys.JOINTS, keys.STATUS)
+        ]
+
+    def _on_sample(self, client: FleetClient, channel: str) -> Any:
+        kind = payloads.JOINTS if channel == keys.JOINTS else payloads.STATUS
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            now = time.time_ns()
+            try:
+                arm = client.keys.parse_arm_key(str(sample.key_expr)).arm
+                value = msgspec.to_builtins(kind.decode(sample.payload.to_bytes()))
+            except (keys.KeyError_, payloads.PayloadError):
+                return
+            with self._lock:
+                if len(self.samples) >= MAX_WATCHED:
+                    self.dropped += 1
+                    return
+                self.samples.append((now, arm, channel, value))
+
+        return on_sample
+
+    def take(self) -> dict[str, Any]:
+        """Every sample since the last take."""
+        with self._lock:
+            samples, self.samples = self.samples, []
+            dropped, self.dropped = self.dropped, 0
+        return {"samples": samples, "dropped": dropped}
+
+    def close(self) -> None:
+        """Undeclare the subscribers."""
+        for sub in self._subs:
+            sub.undeclare()
+
+
+class Daemon:
+    """The requests this client serves."""
+
+    def __init__(self, client: FleetClient) -> None:
+        self.client = client
+        self.watch: Watch | None = None
+        self._last_stop: m.StopRequest | None = None
+        self._streams: dict[str, tuple[threading.Thread, threading.Event, list[Any]]] = {}
+
+    def ready(self, timeout_s: float = 30.0) -> dict[str, Any]:
+        """Wait until every arm reports link ok and every agent's token is present."""
+        arms = list(self.client.inventory.arms)
+        deadline = time.monotonic() + timeout_s
+        while True:
+            snap = self.client.snapshot(arms, wait_s=1.0)
+            ok = all(s is not None and s.link == "ok" for s, _j in snap.values())
+            if ok and self.client.agents_alive() >= set(arms):
+                return {"ready": True}
+            if time.monotonic() > deadline:
+                return {"ready": False, "snapshot": _builtins(snap)}
+            time.sleep(0.2)
+
+    def estop(
+        self, arm: str | None = None, timeout_s: float = 5.0, reason: str = "", again: bool = False
+    ) -> dict[str, Any]:
+        """A protective stop, timed: the request's stamp, when estop() returned, the acks.
+        ``again``: the previous stop once more (same stop_id), e.g. after a partition."""
+        if again and self._last_stop is not None:
+            request = self._last_stop
+        else:
+            request = self._last_stop = self.client.stop_request(reason=reason, source="netlab")
+        acks = self.client.estop(arm=arm, timeout_s=timeout_s, request=request)
+        return {"stamp_ns": request.stamp_ns, "returned_ns": time.time_ns(), "acks": acks}
+
+    def reset(self, arm: str | None = None) -> dict[str, Any]:
+        """One reset put."""
+        self.client.reset(arm=arm, source="netlab")
+        return {}
+
+    def reset_wait(self, timeout_s: float = 10.0) -> dict[str, Any]:
+        """Reset every arm until none reports a latched stop."""
+        arms = list(self.client.inventory.arms)
+        deadline = time.monotonic() + timeout_s
+        while True:
+            self.client.reset(source="netlab")
+            snap = self.client.snapshot(arms, wait_s=1.0)
+            if all(s is not None and not s.estopped for s, _j in snap.values()):
+                return {"clear": True}
+            if time.monotonic() > deadline:
+                return {"clear": False, "snapshot": _builtins(snap)}
+
+    def command(self, arm: str, command: dict[str, Any]) -> dict[str, Any]:
+        """One command to one arm; the reply and how long it took."""
+        typed = msgspec.convert(command, m.ArmCommand)  # type: ignore[arg-type]
+        started = time.monotonic()
+        reply = self.client.command(arm, typed)
+        return {"reply": reply, "elapsed_s": time.monotonic() - started}
+
+    def multi(self, target: str, command: dict[str, Any], sync: bool = True) -> dict[str, Any]:
+        """One multi-arm request through the coordinator."""
+        typed = msgspec.convert(command, m.ArmCommand)  # type: ignore[arg-type]
+        started = time.monotonic()
+        reply = self.client.multi(target, typed, sync=sync)
+        return {"reply": reply, "elapsed_s": time.monotonic() - started}
+
+    def snapshot(self, arms: list[str] | None = None, wait_s: float = 1.5) -> dict[str, Any]:
+        """The latest status and joints per arm."""
+        return {"arms": self.client.snapshot(arms, wait_s=wait_s)}
+
+    def alive(self) -> dict[str, Any]:
+        """Arms whose agent token is present."""
+        return {"arms": sorted(self.client.agents_alive())}
+
+    def watch_start(self) -> dict[str, Any]:
+        """Start recording joints and status samples."""
+        if self.watch is None:
+            self.watch = Watch(self.client)
+        return {}
+
+    def watch_take(self) -> dict[str, Any]:
+        """The samples recorded since the last take."""
+        assert self.watch is not None, "watch_start first"
+        return self.watch.take()
+
+    def diag(self, arm: str, wait_s: float = 2.5) -> dict[str, Any]:
+        """The newest Diag of ``arm`` (1 Hz)."""
+        got: list[bytes] = []
+        sub = self.client.session.declare_subscriber(
+            self.client.keys.arm(arm, keys.DIAG), lambda s: got.append(s.payload.to_bytes())
+        )
+        deadline = time.monotonic() + wait_s
+        while time.monotonic() < deadline and not got:
+            time.sleep(0.05)
+        sub.undeclare()
+        return {"diag": msgspec.json.decode(got[-1]) if got else None}
+
+    def load_start(self, rate_hz: float, size: int, for_s: float) -> dict[str, Any]:
+        """Publish ``size``-byte samples on the status key of an arm that does not exist
+        (``zz-load``) at ``rate_hz`` for ``for_s`` seconds, with the agents' status QoS (BLOCK,
+        DATA_HIGH): a large fleet's status traffic in one stream, for every status subscriber
+        (they drop it: too large for a status)."""
+        key = self.client.keys.arm("zz-load", keys.STATUS)
+        publisher = self.client.session.declare_publisher(
+            key,
+            congestion_control=zenoh.CongestionControl.BLOCK,
+            priority=zenoh.Priority.DATA_HIGH,
+        )
+        payload = b"x" * size
+
+        def run() -> None:
+            start = time.monotonic()
+            n = 0
+            while time.monotonic() - start < for_s:
+                publisher.put(payload)
+                n += 1
+                time.sleep(max(0.0, start + n / rate_hz - time.monotonic()))
+            publisher.undeclare()
+
+        threading.Thread(target=run, name="load", daemon=True).start()
+        return {}
+
+    def stream_start(
+        self, name: str, arm: str, joint: int, angles: list[float], period_s: float
+    ) -> dict[str, Any]:
+        """Send ``move_joint`` commands with these angles, one every ``period_s``, on a thread
+        of their own; ``stream_take`` returns each command's reply."""
+        done = threading.Event()
+        results: list[Any] = []
+
+        def run() -> None:
+            for angle in angles:
+                if done.is_set():
+                    return
+                sent = time.time_ns()
+                reply = self.client.command(arm, m.MoveJoint(joint=joint, angle_deg=angle))
+                results.append({"angle_deg": angle, "sent_ns": sent, "reply": reply})
+                done.wait(period_s)
+
+        thread = threading.Thread(target=run, name=f"stream-{name}", daemon=True)
+        thread.start()
+        self._streams[name] = (thread, done, results)
+        return {}
+
+    def stream_take(self, name: str, timeout_s: float = 30.0) -> dict[str, Any]:
+        """End stream ``name`` (the command under way completes); its results."""
+        thread, done, results = self._streams.pop(name)
+        done.set()
+        thread.join(timeout_s)
+        return {"finished": not thread.is_alive(), "results": results}
+
+
+def _builtins(value: Any) -> Any:
+    return msgspec.to_builtins(value)
+
+
+def main() -> int:
+    """Serve requests until stdin closes."""
+    # Replies on a descriptor of their own; whatever a library prints goes to the log.
+    replies = os.fdopen(os.dup(1), "w")
+    os.dup2(2, 1)
+    zenoh.init_log_from_env_or("error")  # RUST_LOG=zenoh=info shows session losses
+    inventory = load_inventory(sys.argv[1])
+    encoder = msgspec.json.Encoder()
+    with FleetClient(inventory) as client:
+        daemon = Daemon(client)
+        for line in sys.stdin:
+            request = msgspec.json.decode(line)
+            rid, op = request.pop("id"), request.pop("op")
+            try:
+                result = getattr(daemon, op)(**request)
+                reply = {"id": rid, "ok": True, "result": result}
+            except Exception as exc:  # noqa: BLE001 - reported to the test, which fails on it
+                reply = {"id": rid, "ok": False, "error": f"{type(exc).__name__}: {exc}"}
+            replies.write(encoder.encode(reply).decode() + "\n")
+            replies.flush()
+        if daemon.watch is not None:
+            daemon.watch.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,35 @@
+"""Fixtures of the network lab: one lab of topology 1 shared by the package (built once, ~10 s;
+each test starts by putting it back in order), topology 2 built by its own module."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import pytest
+
+from tests.netlab.fleetlab import LabFleet, one_router
+from tests.netlab.lab import netem_available, why_no_lab
+
+WHY_NOT = why_no_lab()
+ARMS = 5
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Skip every lab test, with the reason, where namespaces cannot be made."""
+    if WHY_NOT is None:
+        return
+    for item in items:
+        if "netlab" in item.nodeid.split("::")[0]:
+            item.add_marker(pytest.mark.skip(reason=WHY_NOT))
+
+
+@pytest.fixture(scope="package")
+def lab1(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LabFleet]:
+    """Topology 1: one router, the coordinator, a client and five arm hosts, every link clean."""
+    if not netem_available():
+        print("\nnetlab: this kernel has no sch_netem; the links are userspace cables (cable.py)")
+    fleet = one_router(tmp_path_factory.mktemp("netlab1"), arms=ARMS)
+    try:
+        yield fleet
+    finally:
+        fleet.lab.close()

@@ -1,0 +1,55 @@
+"""A consumer of the fleet's state, like a viewer: subscribes to every arm's joints and status.
+
+``--slow-s S`` makes it slow (each sample takes S seconds in its callback, which holds up its
+Zenoh session's delivery); the test freezes another one with SIGSTOP.
+
+``python -m tests.netlab.consumer INVENTORY [--slow-s S]`` (under ``ip netns exec``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+import time
+
+import zenoh
+
+from fleet.inventory import load_inventory
+from fleet.wire import keys
+from fleet.wire.session import open_client
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Consume until SIGTERM; print how many samples arrived."""
+    parser = argparse.ArgumentParser(prog="consumer")
+    parser.add_argument("inventory")
+    parser.add_argument("--slow-s", type=float, default=0.0)
+    args = parser.parse_args(argv)
+    inventory = load_inventory(args.inventory)
+    space = keys.KeySpace(inventory.fleet)
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    count = [0]
+
+    def on_sample(_sample: zenoh.Sample) -> None:
+        count[0] += 1
+        if args.slow_s:
+            time.sleep(args.slow_s)
+
+    with open_client(inventory.endpoints) as session:
+        subs = [
+            session.declare_subscriber(space.all_arms(channel), on_sample)
+            for channel in (keys.JOINTS, keys.STATUS)
+        ]
+        print("ready", flush=True)
+        stop.wait()
+        for sub in subs:
+            sub.undeclare()
+    print(f"received {count[0]}", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
