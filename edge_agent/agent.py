@@ -142,14 +142,14 @@ class EdgeAgent:
 
     # ------------------------------------------------------------------ feedback (DDS thread)
 
-    def _on_feedback(self, arm: str, text: str, now: float) -> None:
+    def _on_feedback(self, arm: str, text: str, now: float, writer: int | None = None) -> None:
         stamp_ns = time.time_ns()
         pubs = self.relay.publishers[arm]
         out = Outbox()
         with self.lock:
             slot = self.slots[arm]
             tracker = slot.tracker
-            decoded = tracker.on_feedback(text, now)
+            decoded = tracker.on_feedback(text, now, writer)
             status_changed = tracker.update_link(now)
             if decoded is not None:
                 message = decoded.message

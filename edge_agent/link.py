@@ -31,8 +31,8 @@ log = logging.getLogger("edge_agent.link")
 TAKE_BATCH = 64
 SWEEP_PERIOD_S = 1.0
 
-FeedbackHandler = Callable[[str, str, float], None]
-"""(arm id, feedback text, monotonic receive time)."""
+FeedbackHandler = Callable[[str, str, float, "int | None"], None]
+"""(arm id, feedback text, monotonic receive time, the DDS writer's publication handle)."""
 
 
 class DdsLink:
@@ -106,7 +106,9 @@ class DdsLink:
         for sample in samples:
             text = getattr(sample, "data_", None)
             if text is not None:  # InvalidSample: a writer went away
-                self._on_feedback(arm, text, now)
+                info = getattr(sample, "sample_info", None)
+                writer = None if info is None else int(info.publication_handle)
+                self._on_feedback(arm, text, now, writer)
 
     def close(self) -> None:
         """Stop the thread, then delete the participant (idempotent)."""

@@ -3,7 +3,9 @@
 Publisher QoS, and why:
 - ``joints`` and ``raw/*``: congestion control DROP. They are latest-wins state at 10 Hz; a slow
   subscriber must never stall the relay of the next sample (the newest sample is what counts).
-- ``status`` and ``diag``: BLOCK, DATA_HIGH: rare and small, and a missed link change matters.
+- ``status`` and ``diag``: DROP, DATA_HIGH: both repeat (4 Hz, 1 Hz), so a lost sample is
+  replaced within 0.25 s; BLOCK let one subscriber that stopped reading (a frozen viewer) stall
+  the router for every other session (measured on the test bed: 5-10 s without joints).
 - ``estop/ack``: BLOCK, REAL_TIME: a stop's acknowledgment must arrive, and first.
 - command replies go back on the query itself.
 Callbacks run on Zenoh threads, under the agent's guard: they only decode and hand off to the
@@ -125,8 +127,8 @@ class ZenohRelay:
         data, high = zenoh.Priority.DATA, zenoh.Priority.DATA_HIGH
         return ArmPublishers(
             joints=pub(keys.JOINTS, drop, data),
-            status=pub(keys.STATUS, block, high),
-            diag=pub(keys.DIAG, block, data),
+            status=pub(keys.STATUS, drop, high),
+            diag=pub(keys.DIAG, drop, data),
             raw_feedback=pub(keys.RAW_FEEDBACK, drop, data),
             raw_command=pub(keys.RAW_COMMAND, block, data),
             stop_ack=pub(keys.ESTOP_ACK, block, zenoh.Priority.REAL_TIME),

@@ -16,6 +16,14 @@ from fleet.wire.messages import ArmStatus, Diag, LinkState
 
 RATE_WINDOW = 20
 """Feedback rate is measured over the last 20 angle reports (about 2 s)."""
+NOMINAL_PERIOD_S = 0.1
+"""The D1 reports its angles at about 10 Hz: two reports read together (one DDS take) are still
+about this far apart in the arm's time."""
+JUMP_MARGIN_DEG = 2.0
+"""Noise a report may add on top of the fastest plausible motion."""
+REANCHOR_REPORTS = 3
+"""Consecutive reports that agree with each other, but not with the pose before them, are a
+real jump (an unloaded arm that fell, a first report after a long gap): the pose follows them."""
 
 
 @dataclass
@@ -39,13 +47,24 @@ class ArmTracker:
     unknown_messages: int = 0
     unknown_fields: int = 0
     rejected: int = 0
+    foreign: int = 0
+    """Valid-looking reports from a second DDS writer on the arm's feedback topic (dropped)."""
+    implausible: int = 0
+    """Angle reports implying a motion faster than the arm can make (dropped: a sensor fault
+    or a forgery is never a pose to hold)."""
     commands: int = 0
     ack_timeouts: int = 0
     last_error: str | None = None
     _angle_times: deque[float] = field(default_factory=lambda: deque(maxlen=RATE_WINDOW))
+    _writer: int | None = None
+    _writer_s: float = 0.0
+    _jumps: list[tuple[tuple[float, ...], float]] = field(default_factory=list)
 
-    def on_feedback(self, text: str | bytes, now: float) -> p.Decoded | None:
-        """Decode one feedback string and update the state; None (and counted) if malformed."""
+    def on_feedback(
+        self, text: str | bytes, now: float, writer: int | None = None
+    ) -> p.Decoded | None:
+        """Decode one feedback string and update the state; None (and counted) if malformed,
+        from a second writer, or an implausible jump."""
         try:
             decoded = p.decode_message(text)
         except UnknownMessage as exc:
@@ -55,6 +74,11 @@ class ArmTracker:
         except MalformedMessage as exc:
             self.malformed += 1
             self.last_error = f"malformed feedback: {exc}"
+            return None
+        if not self._from_the_arm(writer, now):
+            return None
+        message = decoded.message
+        if isinstance(message, p.JointAngles) and not self._plausible(message.angles_deg, now):
             return None
         self.relayed += 1
         self.last_feedback_s = now
@@ -70,6 +94,50 @@ class ArmTracker:
         elif isinstance(message, p.MotorStatus):
             self.motors_ok = message.motors_ok
         return decoded
+
+    def _from_the_arm(self, writer: int | None, now: float) -> bool:
+        """The arm's feedback comes from one DDS writer: the first heard, kept while it speaks
+        (a rebooted arm's new writer takes over once the old one was silent for
+        ``link_lost_s``). Anything else on the topic is a rogue participant: counted, dropped."""
+        if writer is None:
+            return True
+        if self._writer is None or now - self._writer_s > self.config.link_lost_s:
+            self._writer = writer
+        if writer != self._writer:
+            self.foreign += 1
+            self.last_error = (
+                "feedback from a second DDS writer on the arm's topic was ignored (a rogue "
+                "participant on the arm's network?)"
+            )
+            return False
+        self._writer_s = now
+        return True
+
+    def _plausible(self, angles: tuple[float, ...], now: float) -> bool:
+        """False for a report that jumps further than ``max_speed_deg_s`` allows since the
+        last accepted one, unless REANCHOR_REPORTS such reports agree with each other."""
+        last, last_s = self.angles_deg, self.angles_s
+        if last is None or last_s is None:
+            return True
+        limit = self.config.max_speed_deg_s * max(now - last_s, NOMINAL_PERIOD_S)
+        if _jump(angles, last) <= limit + JUMP_MARGIN_DEG:
+            self._jumps.clear()
+            return True
+        if self._jumps:
+            previous, previous_s = self._jumps[-1]
+            step = self.config.max_speed_deg_s * max(now - previous_s, NOMINAL_PERIOD_S)
+            if _jump(angles, previous) > step + JUMP_MARGIN_DEG:
+                self._jumps.clear()
+        self._jumps.append((angles, now))
+        if len(self._jumps) >= REANCHOR_REPORTS:
+            self._jumps.clear()
+            return True
+        self.implausible += 1
+        self.last_error = (
+            f"an angle report jumped {_jump(angles, last):.0f} deg, faster than "
+            f"{self.config.max_speed_deg_s:g} deg/s: ignored (a sensor fault or a forgery)"
+        )
+        return False
 
     def update_link(self, now: float) -> bool:
         """Recompute the link state from the feedback age; True when it changed."""
@@ -121,9 +189,15 @@ class ArmTracker:
             unknown_messages=self.unknown_messages,
             unknown_fields=self.unknown_fields,
             rejected=self.rejected,
+            foreign_feedback=self.foreign,
+            implausible_feedback=self.implausible,
             commands=self.commands,
             ack_timeouts=self.ack_timeouts,
             feedback_rate_hz=round(self.feedback_rate_hz(), 2),
             last_feedback_age_s=None if age is None else round(age, 3),
             last_error=self.last_error,
         )
+
+
+def _jump(a: tuple[float, ...], b: tuple[float, ...]) -> float:
+    return max((abs(x - y) for x, y in zip(a, b, strict=False)), default=0.0)

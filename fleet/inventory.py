@@ -81,6 +81,9 @@ class ArmConfig(Struct, frozen=True, forbid_unknown_fields=True):
     joint_sign: tuple[int, ...] = (1,) * JOINT_COUNT
     watchdog_s: float = 0.5
     lease_s: float = 3.0
+    max_speed_deg_s: float = 360.0
+    """Faster than any D1 joint moves (plausible arms: up to 180 deg/s): an angle report that
+    implies more is a sensor fault or a forgery, never a pose to hold."""
     contact: ContactConfig = ContactConfig()
 
 
@@ -209,6 +212,8 @@ def _check_arm(arm: ArmConfig, path: str) -> None:
         raise _fail(path, where, "ack timeouts must be positive")
     if arm.watchdog_s <= 0 or arm.lease_s <= 0:
         raise _fail(path, where, "watchdog_s and lease_s must be positive")
+    if not 10 <= arm.max_speed_deg_s <= 10000:
+        raise _fail(path, where, "max_speed_deg_s must be within 10..10000")
     contact_problem = check_config(arm.contact)
     if contact_problem is not None:
         raise _fail(path, f"{where}.contact", contact_problem)

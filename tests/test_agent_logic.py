@@ -536,3 +536,33 @@ def test_unload_and_power_off_stops_wait_for_the_arms_status() -> None:
     assert not safety.on_status(enabled=True, powered=True, now_ns=5)
     assert safety.on_status(enabled=True, powered=False, now_ns=6)
     assert safety.stop.done and not safety.needs_resend(2.0)
+
+
+# ----------------------------------------------------------------------------- feedback trust
+
+
+def test_feedback_from_a_second_writer_is_dropped() -> None:
+    tracker = ArmTracker(ArmConfig(id="a1"))
+    assert tracker.on_feedback(_feedback(HOME), 0.0, writer=7) is not None
+    forged = (80.0, 30.0, 30.0, 0.0, 0.0, 0.0, 10.0)
+    assert tracker.on_feedback(_feedback(forged), 0.01, writer=9) is None
+    assert tracker.foreign == 1 and tracker.angles_deg == HOME
+    # A rebooted arm (a new writer) takes over once the old one was silent for link_lost_s.
+    later = tracker.config.link_lost_s + 0.5
+    assert tracker.on_feedback(_feedback(HOME), later, writer=9) is not None
+
+
+def test_an_impossible_jump_is_never_the_pose_unless_it_persists() -> None:
+    tracker = ArmTracker(ArmConfig(id="a1", max_speed_deg_s=360.0))
+    tracker.on_feedback(_feedback(HOME), 0.0)
+    jumped = (HOME[0] + 80.0, *HOME[1:])
+    assert tracker.on_feedback(_feedback(jumped), 0.1) is None  # 800 deg/s
+    assert tracker.implausible == 1 and tracker.angles_deg == HOME
+    moved = (HOME[0] + 30.0, *HOME[1:])
+    assert tracker.on_feedback(_feedback(moved), 0.2) is not None  # 300 deg/s: plausible
+    # A real jump (an unloaded arm that fell) is followed after three agreeing reports.
+    fallen = (HOME[0] + 30.0, HOME[1] - 85.0, *HOME[2:])
+    assert tracker.on_feedback(_feedback(fallen), 0.3) is None
+    assert tracker.on_feedback(_feedback(fallen), 0.4) is None
+    assert tracker.on_feedback(_feedback(fallen), 0.5) is not None
+    assert tracker.angles_deg == fallen

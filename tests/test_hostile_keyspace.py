@@ -33,6 +33,7 @@ from tests.hostile import (
 )
 
 ARMS = ["a1", "a2"]
+FLOOD_BOUND_MS = 1000.0
 
 
 @pytest.fixture(scope="module")
@@ -173,7 +174,10 @@ def test_a_heartbeat_flood_never_delays_a_stop_or_grows_memory(
         thread.join(timeout=10.0)
     delays = {a: (k.received_ns - request.stamp_ns) / 1e6 for a, k in acks.items() if k}
     assert len(delays) == len(ARMS), acks
-    assert max(delays.values()) <= 500.0, f"stop acted on after {delays} ms under the flood"
+    # 1-2 ms on a quiet host, 3-5 s before the fix; the flood itself loads both cores here.
+    assert max(delays.values()) <= FLOOD_BOUND_MS, (
+        f"stop acted on after {delays} ms under the flood"
+    )
     grown = rss_mb(agent) - before_mb
     print(f"flood: {sent[0]} heartbeats, stop delays {delays} ms, agent RSS +{grown:.1f} MB")
     assert grown < 40.0, f"the agent grew {grown:.0f} MB under {sent[0]} heartbeats"

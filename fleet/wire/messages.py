@@ -118,6 +118,10 @@ class Diag(Struct, frozen=True):
     """Resets and heartbeat sources dropped at a full queue (a flood); stops are never dropped."""
     write_failures: Count = 0
     """DDS writes that failed (maybe sent)."""
+    foreign_feedback: Count = 0
+    """Valid-looking feedback from a second DDS writer on the arm's topic (dropped)."""
+    implausible_feedback: Count = 0
+    """Angle reports implying an impossible speed (dropped: a sensor fault or a forgery)."""
 
 
 # ----------------------------------------------------------------------------- commands

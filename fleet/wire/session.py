@@ -59,6 +59,10 @@ with 4 keep-alives per lease detects a vanished peer in about 3 s without flappi
 2-core host. Agent and arm liveness is watched faster by heartbeats, not by this lease."""
 
 
+ROUTER_BLOCK_WAIT_S = 0.5
+"""How long a router waits for a session that stops reading before it closes it."""
+
+
 def zenoh_config(
     mode: Mode,
     connect: list[str] | tuple[str, ...] = (),
@@ -75,6 +79,14 @@ def zenoh_config(
     config.insert_json5("listen/endpoints", json.dumps(list(listen)))
     config.insert_json5("transport/link/tx/lease", json.dumps(int(LEASE_S * 1000)))
     config.insert_json5("transport/link/tx/keep_alive", "4")
+    if mode == "router":
+        # A session that stops reading (a frozen viewer) fills the router's queue towards it;
+        # on a BLOCK message the router waits this long before closing that session, and routes
+        # nothing meanwhile. Zenoh's 5 s would hold every stop up for 5 s per stuck session.
+        config.insert_json5(
+            "transport/link/tx/queue/congestion_control/block/wait_before_close",
+            json.dumps(int(ROUTER_BLOCK_WAIT_S * 1e6)),
+        )
     if mode == "client":
         # Keep trying the router for a while: the router may be starting at the same time.
         config.insert_json5("connect/timeout_ms", json.dumps(int(connect_timeout_s * 1000)))

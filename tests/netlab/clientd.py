@@ -171,13 +171,14 @@ class Daemon:
 
     def load_start(self, rate_hz: float, size: int, for_s: float) -> dict[str, Any]:
         """Publish ``size``-byte samples on the status key of an arm that does not exist
-        (``zz-load``) at ``rate_hz`` for ``for_s`` seconds, with the agents' status QoS (BLOCK,
-        DATA_HIGH): a large fleet's status traffic in one stream, for every status subscriber
-        (they drop it: too large for a status)."""
+        (``zz-load``) at ``rate_hz`` for ``for_s`` seconds, with the agents' status QoS (DROP,
+        DATA_HIGH; it was BLOCK, which let a frozen subscriber stall the router): a large
+        fleet's status traffic in one stream, for every status subscriber (they drop it: too
+        large for a status)."""
         key = self.client.keys.arm("zz-load", keys.STATUS)
         publisher = self.client.session.declare_publisher(
             key,
-            congestion_control=zenoh.CongestionControl.BLOCK,
+            congestion_control=zenoh.CongestionControl.DROP,
             priority=zenoh.Priority.DATA_HIGH,
         )
         payload = b"x" * size

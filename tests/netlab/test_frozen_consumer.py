@@ -2,19 +2,18 @@
 arm's joints and status (what the viewer subscribes to) is frozen (SIGSTOP: a hung viewer, or
 `fleet status --watch` suspended with Ctrl-Z) and another is slow (0.2 s in its callback for
 every sample). A load generator on the viewer host publishes a large fleet's status traffic
-(8 KB at 250 Hz, 2 MB/s, with the agents' status QoS: BLOCK, DATA_HIGH, on the status key of an
+(8 KB at 250 Hz, 2 MB/s, with the agents' status QoS: DROP, DATA_HIGH, on the status key of an
 arm that does not exist) and the viewer host's TCP receive buffer is capped at 64 KB, so what
 takes 36-41 s with 5 arms alone (measured in 60 s runs) happens within seconds.
 
 Asserted: the resident memory of the router and of an agent stays bounded over FROZEN_S, the
 consumers and the fleet survive, and stops after the episode are as fast as before it.
 
-Product bug (xfails, not strict: see FROZEN_S): a BLOCK sample for a subscriber whose queue is
-full makes the
-Zenoh router wait up to ``wait_before_close`` (5 s by default) before it drops that session,
-and while it waits it routes nothing else: every agent's joints, status and stop acks, and the
-client's stops, are held up for 5-10 s (once per stuck session) for everyone. The joints relay
-is DROP, but ``status``, ``diag``, stop acks, stops and heartbeats are BLOCK.
+Product bug, fixed: a BLOCK sample for a subscriber whose queue is full made the Zenoh router
+wait up to ``wait_before_close`` (5 s by default) before it dropped that session, routing
+nothing else meanwhile: every agent's joints, status and stop acks, and the client's stops,
+were held up for 5-10 s (once per stuck session) for everyone. Now ``status`` and ``diag`` are
+DROP (they repeat) and the fleet's routers wait at most 0.5 s (``ROUTER_BLOCK_WAIT_S``).
 """
 
 from __future__ import annotations
@@ -34,8 +33,8 @@ from tests.netlab.fleetlab import LabFleet, RemoteClient
 
 BASELINE_S = 4.0
 FROZEN_S = 25.0
-"""How long the consumers stay (the memory window; the stall came 22-41 s after the freeze in
-the runs so far, so it is not always inside it: the two xfails below are not strict)."""
+"""How long the consumers stay (the memory window; before the fix the stall came 22-41 s after
+the freeze)."""
 STALL_S = 1.0
 """No joints of any arm for this long (10 Hz each) is a stall."""
 LOAD = {"rate_hz": 250.0, "size": 8000}
@@ -210,11 +209,6 @@ def test_frozen_and_slow_consumers_delay_no_stop_and_grow_no_memory(
         assert grew <= RSS_GROWTH_MB[name], f"{name} grew {grew:.1f} MB: {run['rss'][name]}"
 
 
-@pytest.mark.xfail(
-    strict=False,
-    reason="product bug: a frozen subscriber of a BLOCK key (status) stalls the router for "
-    "wait_before_close (5 s) per stuck session: no joints reach anyone",
-)
 def test_a_frozen_consumer_does_not_delay_the_relay(frozen_run: dict[str, Any]) -> None:
     base, frozen = frozen_run["base_relay"], frozen_run["frozen_relay"]
     assert frozen_run["stall"] is None, f"the relay stalled: {frozen_run['stall']}"
@@ -224,11 +218,6 @@ def test_a_frozen_consumer_does_not_delay_the_relay(frozen_run: dict[str, Any]) 
     )
 
 
-@pytest.mark.xfail(
-    strict=False,
-    reason="product bug: in that stall a stop reaches the agents and its acks reach the client "
-    "only when the router gives up on the frozen sessions (5-10 s)",
-)
 def test_a_frozen_consumer_does_not_delay_a_stop(frozen_run: dict[str, Any]) -> None:
     stall = frozen_run["stall"]
     if stall is not None:
