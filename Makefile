@@ -5,8 +5,9 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 FUZZ_SECONDS ?= 60
 FUZZ_TIMEOUT ?= 10
+DURATION ?= 30m
 
-.PHONY: demo test lint bench fuzz clean
+.PHONY: demo test lint bench fuzz soak clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -16,9 +17,13 @@ $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e '.[test]'
 	touch $(STAMP)
 
-# atheris (fuzz) is an optional extra: never needed by `make test`.
+# atheris (fuzz) and matplotlib (soak plot) are optional extras: never needed by `make test`.
 $(VENV)/.installed-fuzz: pyproject.toml | $(STAMP)
 	$(BIN)/python -m pip install --quiet -e '.[test,fuzz]'
+	touch $@
+
+$(VENV)/.installed-soak: pyproject.toml | $(STAMP)
+	$(BIN)/python -m pip install --quiet -e '.[test,soak]'
 	touch $@
 
 demo: $(STAMP)
@@ -39,6 +44,10 @@ bench: $(STAMP)
 # Coverage-guided fuzzing of every hostile-input decoder: FUZZ_SECONDS per target (README, "Fuzzing").
 fuzz: $(VENV)/.installed-fuzz
 	$(BIN)/python -m fuzz.run --seconds $(FUZZ_SECONDS) --timeout $(FUZZ_TIMEOUT)
+
+# The demo fleet under link flaps, restarts, reconnects and stops for DURATION (90s, 5m, 30m...).
+soak: $(VENV)/.installed-soak
+	$(BIN)/python -m bench.soak --duration $(DURATION)
 
 clean:
 	rm -rf $(VENV) build *.egg-info artifacts
