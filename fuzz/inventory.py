@@ -2,16 +2,20 @@
 
 Property: any text gives an ``Inventory`` or ``InventoryError``, never another exception; an
 inventory that parses answers every question the processes ask it (each arm, its network, each
-group) without an error, and holds the invariants the parser promises.
+group) without an error, holds the invariants the parser promises, and gives every arm a
+well-formed CycloneDDS configuration that names its interface and peers (an agent builds it
+before its first DDS participant; malformed XML fails there, far from the file's line).
 """
 
 from __future__ import annotations
 
 import math
+import xml.etree.ElementTree as ET
 
 from fuzz.common import instrumented, main, toml_text
 
 with instrumented():
+    from fleet.d1.dds import cyclonedds_config
     from fleet.inventory import InventoryError, parse_inventory
 
 
@@ -30,10 +34,19 @@ def check(data: bytes) -> None:
         assert 0 < arm.link_stale_s < arm.link_lost_s, arm
         assert math.isfinite(arm.link_lost_s) and arm.watchdog_s > 0 and arm.lease_s > 0, arm
         assert len(arm.joint_sign) == 7 and set(arm.joint_sign) <= {1, -1}, arm
+        _check_dds_config(arm.interface, inventory.peers_of(arm))
     for group in inventory.groups:
         assert set(inventory.resolve(group)) <= set(inventory.arms), group
     assert inventory.resolve("all") == list(inventory.arms)
     inventory.with_domain(7)
+
+
+def _check_dds_config(interface: str, peers: tuple[str, ...]) -> None:
+    """The arm's CycloneDDS XML parses and says what the inventory says."""
+    root = ET.fromstring(cyclonedds_config(interface, peers))  # ParseError breaks the property
+    names = [e.get("name") for e in root.iter("NetworkInterface")]
+    assert names == [interface], (names, interface)
+    assert [e.get("address") for e in root.iter("Peer")] == list(peers), peers
 
 
 def seeds() -> list[bytes]:

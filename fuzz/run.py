@@ -74,8 +74,12 @@ def write_seeds(target: str) -> tuple[Path, Path]:
 
 _QUOTED = re.compile(rb'"[^"\\\n]{1,40}"')
 _WORD = re.compile(rb"[A-Za-z_][A-Za-z0-9_]{1,40}")
-EXTRA_TOKENS = (b"NaN", b"Infinity", b"-0", b"1e400", b"-1e308", b"nan", b"inf", b"true", b"null")
-"""Values that broke decoders before: non-finite literals, overflowing numbers."""
+EXTRA_TOKENS = (
+    *(b"NaN", b"Infinity", b"-0", b"1e400", b"-1e308", b"nan", b"inf", b"true", b"null"),
+    *(b"\\u0000", b"\\u0001", b"\\b", b"\\f", b"\\n", b"\\t", b"\\ud800", b"\\U0010ffff"),
+)
+"""Values that broke decoders before (non-finite literals, overflowing numbers) and the escapes
+that put control characters and odd code points into JSON and TOML strings."""
 
 
 def write_dictionary(target: str, seeds: list[bytes]) -> Path:
