@@ -7,7 +7,8 @@ Definitions (also printed in the report):
   ``window`` seconds (10 % of the run, 15 s to 2 min) that starts when warm-up ends / that ends
   the run (a median, so one sample taken mid-allocation does not decide);
 - **growth**: end over after-warm-up, in percent; the goal is < ``GROWTH_LIMIT_PCT`` for every
-  process that ran the whole soak (a restarted agent starts over, so its growth is not judged);
+  process that ran the whole soak (a restarted agent starts over, so its growth is not judged;
+  its row gives the RSS at the end of each of its runs instead);
 - **CPU**: percent of one core between two samples, mean and max after warm-up;
 - **stop times** (from the stop's ``stamp_ns``, last arm): every arm's DDS stop written
   (``dds_written_ns``), every arm seen still (``still_ns``), and the ``estop`` call until it
@@ -89,12 +90,14 @@ class ProcessRow:
     role: str
     incarnations: int
     rss_start: float
-    rss_warm: float
+    rss_warm: float | None
     rss_end: float
     growth_pct: float | None
     cpu_mean: float
     cpu_max: float
     judged: bool
+    run_ends: tuple[float, float] | None = None
+    """A restarted process: the smallest and largest RSS at the end of one of its runs."""
 
     @property
     def passed(self) -> bool:
@@ -109,7 +112,8 @@ def _window(duration_s: float) -> float:
 
 
 def process_rows(record: SoakRecord, incarnations: dict[str, int]) -> list[ProcessRow]:
-    """Memory and CPU per process (the last incarnation of a restarted one)."""
+    """Memory and CPU per process. A restarted process has no "after warm-up" of its own
+    (its last run may be a minute old): its row gives the RSS at the end of each run instead."""
     warm = WARMUP_SHARE * record.duration_s
     window = _window(record.duration_s)
     rows = []
@@ -119,21 +123,33 @@ def process_rows(record: SoakRecord, incarnations: dict[str, int]) -> list[Proce
         if not mine:
             continue
         end_t = mine[-1][1]
-        after = [s[2] for s in mine if warm <= s[1] < warm + window] or [mine[0][2]]
         tail = [s[2] for s in mine if s[1] >= end_t - window]
-        rss_warm, rss_end = statistics.median(after), statistics.median(tail)
+        rss_end = statistics.median(tail)
         cpus = [s[3] for s in samples if s[3] is not None and s[1] >= warm]
+        rss_warm = growth = None
+        run_ends = None
+        if n == 1:
+            after = [s[2] for s in mine if warm <= s[1] < warm + window] or [mine[0][2]]
+            rss_warm = statistics.median(after)
+            growth = round(100.0 * (rss_end - rss_warm) / rss_warm, 2) if rss_warm else None
+        else:
+            last: dict[int, float] = {}
+            for s in samples:
+                last[s[0]] = s[2]  # samples are in time order: the last one of each run wins
+            ends = list(last.values())
+            run_ends = (min(ends), max(ends))
         rows.append(
             ProcessRow(
                 role=role,
                 incarnations=n,
-                rss_start=mine[0][2],
+                rss_start=mine[0][2] if n == 1 else samples[0][2],
                 rss_warm=rss_warm,
                 rss_end=rss_end,
-                growth_pct=round(100.0 * (rss_end - rss_warm) / rss_warm, 2) if rss_warm else None,
+                growth_pct=growth,
                 cpu_mean=round(statistics.fmean(cpus), 2) if cpus else 0.0,
                 cpu_max=round(max(cpus), 1) if cpus else 0.0,
                 judged=n == 1,
+                run_ends=run_ends,
             )
         )
     return rows
@@ -168,9 +184,12 @@ def markdown(record: SoakRecord, rows: list[ProcessRow]) -> tuple[str, bool]:
     ]
     for r in rows:
         growth = "n/a" if r.growth_pct is None else f"{r.growth_pct:+.2f} %"
+        warm = "n/a" if r.rss_warm is None else f"{r.rss_warm:.1f}"
         verdict = ("PASS" if r.passed else "**FAIL**") if r.judged else "n/a (restarted)"
+        if r.run_ends is not None:
+            verdict += f"; RSS at the end of each run {r.run_ends[0]:.1f}-{r.run_ends[1]:.1f}"
         lines.append(
-            f"| {r.role} | {r.incarnations} | {r.rss_start:.1f} | {r.rss_warm:.1f} | "
+            f"| {r.role} | {r.incarnations} | {r.rss_start:.1f} | {warm} | "
             f"{r.rss_end:.1f} | {growth} | {r.cpu_mean:.1f} / {r.cpu_max:.1f} | {verdict} |"
         )
     lines += [
@@ -288,6 +307,19 @@ def plot(record: SoakRecord, path: Path) -> str | None:
     return None
 
 
+def load_record(path: Path) -> tuple[SoakRecord, dict[str, int]]:
+    """A record from ``soak.json``, and the runs of each process."""
+    data = json.loads(path.read_text(encoding="utf-8"))
+    record = SoakRecord(**data)
+    runs = {role: max(s[0] for s in samples) for role, samples in record.samples.items()}
+    return record, runs
+
+
+def _load_for_cli(directory: Path) -> tuple[SoakRecord, Path, dict[str, int]]:
+    record, runs = load_record(directory / "soak.json")
+    return record, directory, runs
+
+
 def write_report(record: SoakRecord, out: Path, incarnations: dict[str, int]) -> bool:
     """Write ``report.md``, ``soak.png`` and ``soak.json`` into ``out``, print the report;
     True when every goal was met."""
@@ -300,3 +332,10 @@ def write_report(record: SoakRecord, out: Path, incarnations: dict[str, int]) ->
     (out / "soak.json").write_text(json.dumps(asdict(record)), encoding="utf-8")
     print(f"\n{text}\nwritten: {out / 'report.md'}, {out / 'soak.png'}, {out / 'soak.json'}")
     return passed
+
+
+if __name__ == "__main__":  # python -m bench.soak_report artifacts/soak: the report again
+    import sys
+
+    directory = Path(sys.argv[1] if len(sys.argv) > 1 else "artifacts/soak")
+    sys.exit(0 if write_report(*_load_for_cli(directory)) else 1)
