@@ -214,8 +214,13 @@ def main(argv: list[str] | None = None) -> int:
         default=int(os.environ.get("FUZZ_TIMEOUT") or 10),
         help="seconds one input may take before it counts as a hang (default 10)",
     )
-    parser.add_argument("targets", nargs="*", choices=[*TARGETS, []], metavar="TARGET")
+    parser.add_argument("targets", nargs="*", metavar="TARGET", help=f"default: all of {TARGETS}")
     args = parser.parse_args(argv)
+    unknown = sorted(set(args.targets) - set(TARGETS))
+    if unknown:
+        parser.error(
+            f"unknown target(s) {', '.join(unknown)}; the targets are {', '.join(TARGETS)}"
+        )
     targets = args.targets or list(TARGETS)
     load = os.getloadavg()
     print(
