@@ -3,8 +3,11 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+FUZZ_SECONDS ?= 60
+FUZZ_TIMEOUT ?= 10
+DURATION ?= 30m
 
-.PHONY: demo test lint bench clean
+.PHONY: demo test lint bench fuzz soak clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -14,12 +17,21 @@ $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e '.[test]'
 	touch $(STAMP)
 
+# atheris (fuzz) and matplotlib (soak plot) are optional extras: never needed by `make test`.
+$(VENV)/.installed-fuzz: pyproject.toml | $(STAMP)
+	$(BIN)/python -m pip install --quiet -e '.[test,fuzz]'
+	touch $@
+
+$(VENV)/.installed-soak: pyproject.toml | $(STAMP)
+	$(BIN)/python -m pip install --quiet -e '.[test,soak]'
+	touch $@
+
 demo: $(STAMP)
 	$(BIN)/fleet demo --inventory inventory.toml
 
 lint: $(STAMP)
-	$(BIN)/ruff check fleet edge_agent viewer tests bench
-	$(BIN)/ruff format --check fleet edge_agent viewer tests bench
+	$(BIN)/ruff check fleet edge_agent viewer tests bench fuzz
+	$(BIN)/ruff format --check fleet edge_agent viewer tests bench fuzz
 	$(BIN)/mypy fleet/wire fleet/d1
 
 test: $(STAMP) lint
@@ -28,6 +40,14 @@ test: $(STAMP) lint
 
 bench: $(STAMP)
 	$(BIN)/python -m bench
+
+# Coverage-guided fuzzing of every hostile-input decoder: FUZZ_SECONDS per target (README, "Fuzzing").
+fuzz: $(VENV)/.installed-fuzz
+	$(BIN)/python -m fuzz.run --seconds $(FUZZ_SECONDS) --timeout $(FUZZ_TIMEOUT)
+
+# The demo fleet under link flaps, restarts, reconnects and stops for DURATION (90s, 5m, 30m...).
+soak: $(VENV)/.installed-soak
+	$(BIN)/python -m bench.soak --duration $(DURATION)
 
 clean:
 	rm -rf $(VENV) build *.egg-info artifacts

@@ -193,9 +193,27 @@ def _check_finite(section: Struct, path: str, where: str) -> None:
             raise _fail(path, where, f"{name} = {value!r} is not a finite number")
 
 
+def _network_name_problem(what: str, value: str) -> str | None:
+    """Why ``value`` cannot be an interface name or a peer address, or None. They go into the
+    CycloneDDS XML: a control character there (TOML's ``\\f``, ``\\u0001``) made the agent
+    fail at its first DDS participant with "Non specific error", far from the file (fuzzing)."""
+    if not value or len(value) > 255 or not value.isprintable():
+        return f"{what} {brief(value)} must be 1..255 printable characters"
+    return None
+
+
+def _check_network(arm: ArmConfig, path: str, where: str) -> None:
+    problems = [_network_name_problem("interface", arm.interface)]
+    problems += [_network_name_problem("peer", peer) for peer in arm.peers or ()]
+    for problem in problems:
+        if problem is not None:
+            raise _fail(path, where, problem)
+
+
 def _check_arm(arm: ArmConfig, path: str) -> None:
     where = f"arms.{arm.id}"
     _check_finite(arm, path, where)
+    _check_network(arm, path, where)
     if not _SUFFIX.match(arm.suffix):
         raise _fail(path, where, f"suffix {arm.suffix!r} must be empty or like '_1'")
     try:
@@ -269,6 +287,10 @@ def parse_inventory(text: str, path: str = DEFAULT_INVENTORY) -> Inventory:
         raise InventoryError(f"{path}: fleet.name: {exc}") from None
     if not 0 <= dds.domain_id <= 232:
         raise InventoryError(f"{path}: dds.domain_id {brief(dds.domain_id)} is outside 0..232")
+    for peer in dds.peers:
+        problem = _network_name_problem("peer", peer)
+        if problem is not None:
+            raise InventoryError(f"{path}: dds.peers: {problem}")
     arms: dict[str, ArmConfig] = {}
     for arm_id, arm_raw in arms_raw.items():
         where = f"arms.{arm_id}"

@@ -246,3 +246,21 @@ def test_non_finite_coordinator_rate_is_refused() -> None:
     text = '[fleet]\nname = "x"\n[coordinator]\nheartbeat_hz = inf\n[arms.a1]\n'
     with pytest.raises(InventoryError, match="coordinator: heartbeat_hz"):
         parse_inventory(text)
+
+
+@pytest.mark.parametrize(
+    ("line", "fragment"),
+    [
+        ('[arms.a1]\ninterface = "lola\\f"', "arms.a1: interface 'lola\\x0c' must be"),
+        ('[arms.a1]\ninterface = ""', "arms.a1: interface '' must be"),
+        ('[defaults]\npeers = ["10.0.0.1", "\\u0001"]\n[arms.a1]', "arms.a1: peer '\\x01'"),
+        ('[dds]\npeers = ["\\b"]\n[arms.a1]', "dds.peers: peer '\\x08' must be"),
+    ],
+)
+def test_interface_and_peers_must_be_printable(line: str, fragment: str) -> None:
+    """Found by `make fuzz` (fuzz/inventory.py): a control character in an interface name or a
+    peer made malformed CycloneDDS XML, and the agent failed at start with "Non specific
+    error" instead of an error naming the file and the path."""
+    with pytest.raises(InventoryError) as info:
+        parse_inventory(f'[fleet]\nname = "x"\n{line}\n')
+    assert fragment in str(info.value), info.value

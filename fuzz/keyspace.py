@@ -1,0 +1,84 @@
+"""Fuzz target: every key-space decoder (``fleet/wire/payloads.py``: the ``PUBLIC`` table and
+``unknown_op``), each fed the same input.
+
+Property: each kind gives its Struct or ``PayloadError``, never another exception; a decoded
+payload re-encodes, and that decodes to an equal value (the coordinator re-publishes what it
+decoded: a stop in its heartbeat); ``unknown_op`` returns None or an op no agent serves, at
+most 64 characters, and never raises.
+"""
+
+from __future__ import annotations
+
+from fuzz.common import instrumented, main
+
+with instrumented():
+    import msgspec
+
+    from fleet.wire import messages as m
+    from fleet.wire import payloads
+
+KINDS = tuple(payloads.PUBLIC.values())
+
+
+def check(data: bytes) -> None:
+    """The property, for one input."""
+    for kind in KINDS:
+        try:
+            value = kind.decode(data)
+        except payloads.PayloadError:
+            continue
+        encoded = m.encode(value)
+        again = msgspec.json.decode(encoded, type=kind.struct)
+        assert again == value, (kind.name, value, again)
+    op = payloads.unknown_op(data)
+    assert op is None or (isinstance(op, str) and len(op) <= 64 and op not in m.COMMAND_OPS), op
+
+
+def seeds() -> list[bytes]:
+    """One valid payload of every public kind (as the fleet's processes write them), the
+    hostile suite's poisons, and an unknown op."""
+    from tests.hostile import POISONS
+
+    stop = m.StopRequest(stamp_ns=1, source="cli@host", stop_id="s1", reason="test")
+    reply = m.CommandReply(
+        ok=False,
+        arm="a1",
+        seq=4,
+        received=True,
+        executed=None,
+        reached=None,
+        latency_ms=1.5,
+        error=m.ErrorInfo(3205, "busy"),
+        written_ns=2,
+    )
+    commands: list[m.ArmCommand] = [
+        m.MoveJoint(joint=5, angle_deg=60.0, wait_reached=True, tolerance_deg=1.0),
+        m.MoveJoints(angles_deg=[0.0, -60.0, 60.0, 0.0, 30.0, 0.0, 0.0], mode=0, lifetime_s=0.3),
+        m.Torque(on=True, strength=80000),
+        m.Power(on=False, owner="me", takeover=True),
+        m.Zero(start_at_ns=5),
+        m.Hold(),
+        m.Release(owner="me"),
+    ]
+    values: list[msgspec.Struct] = [
+        m.Joints(stamp_ns=1, angles_deg=[0.0] * 7, seq=3),
+        m.ArmStatus(stamp_ns=1, link="ok", enabled=True, motors_ok=[True] * 7, estopped=True),
+        m.Diag(1, "stale", 1, 2, 3, 4, 5, 6, 7, 9.5, 0.1, "x"),
+        *commands,
+        reply,
+        stop,
+        m.ResetRequest(stamp_ns=1, source="viewer"),
+        m.StopAck("a1", "s1", "hold", 1, 2, 3, None),
+        m.Heartbeat(stamp_ns=1, coordinator="c", seq=1, period_s=0.1, stops={"*": stop}),
+        m.FleetState(1, "c", {"a1": m.ArmSummary(True, "ok", contact=False)}),
+        m.MultiArmRequest(target="all", command=commands[1], lead_s=0.3, phase="lift"),
+        m.MultiArmReply(True, {"a1": reply}, 0.5),
+        m.CoordinatorDiag(1, "c", 1, 2, 3, 4, 5, 6),
+        m.StopReport("s1", "cli", 1, {"a1": m.StopTiming(1.0, 1.5, None)}),
+        m.ContactEvent(1, 6, "confirmed", "model", 4.5, 0.75, grip=True),
+    ]
+    return [m.encode(v) for v in values] + list(POISONS.values())[:-1] + [b'{"op":"dance"}']
+
+
+if __name__ == "__main__":
+    main(check)
