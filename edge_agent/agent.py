@@ -1,12 +1,13 @@
 """The edge agent: relays one network's D1 arms into the key space and serves their commands.
 
 Threads (all ours, all named, all under one ``ThreadGuard``):
-- ``dds-feedback`` (DdsLink): decodes feedback, updates the trackers, publishes joints/status
-  and completes commands whose acks or targets arrived;
+- ``relay`` (DdsLink): takes feedback from DDS, decodes it, updates the trackers, publishes
+  joints/status and completes commands whose acks or targets arrived; between samples, the
+  periodic jobs (link state, command deadlines, status at 4 Hz, diag at 1 Hz) every 50 ms;
 - ``commands`` (CommandService, serving.py): checks queries, assigns seqs, writes DDS;
 - ``starts`` (StartScheduler): writes synchronized starts at their time;
 - ``safety`` (SafetyLoop, stops.py): stops and resets first, then heartbeats, the watchdog;
-- ``housekeeping`` (20 Hz): link state, command deadlines, periodic status and diag.
+- ``latches`` (LatchStore): writes latched stops to disk.
 If any of them (or a Zenoh callback) fails, the guard latches and stops every arm, and the
 process exits 1 (``__main__``): a supervisor restarts it; it never runs on half alive.
 
@@ -32,7 +33,6 @@ from edge_agent.inbox import CommandInbox, InboxCounters, SafetyInbox
 from edge_agent.latches import LatchStore, default_state_dir
 from edge_agent.link import DdsLink
 from edge_agent.relay import JSON, ZenohRelay, principal_of
-from edge_agent.safety import ArmSafety
 from edge_agent.scheduler import StartScheduler
 from edge_agent.serving import CommandService
 from edge_agent.slots import ArmSlot, Outbox
@@ -47,7 +47,7 @@ from fleet.wire.messages import ErrorCode, encode
 
 log = logging.getLogger("edge_agent")
 
-HOUSEKEEPING_PERIOD_S = 0.05
+TICK_PERIOD_S = 0.05
 STATUS_PERIOD_S = 0.25
 """Status is re-published 4 times a second: late joiners learn it, and it is the agent's
 heartbeat (the coordinator calls an agent offline after 1 s of silence)."""
@@ -75,7 +75,16 @@ class EdgeAgent:
         )
         suffixes = {a: inventory.arm(a).suffix for a in arm_ids}
         # DDS first: if the interface is wrong we fail before announcing anything on Zenoh.
-        self.link = DdsLink(domain_id, interface, peers, suffixes, self._on_feedback, self.guard)
+        self._next_status = self._next_diag = 0.0
+        self.link = DdsLink(
+            domain_id,
+            interface,
+            peers,
+            suffixes,
+            (self._on_feedback, self._on_bad_sample, self._tick),
+            TICK_PERIOD_S,
+            self.guard,
+        )
         try:
             self.relay = ZenohRelay(
                 inventory, arm_ids, (self.safety_inbox, self.command_inbox), self.guard
@@ -120,7 +129,6 @@ class EdgeAgent:
             self.guard.thread(self.commands.run, "commands"),
             self.scheduler.thread,
             self.latches.thread,
-            self.guard.thread(self._housekeeping_loop, "housekeeping"),
         ]
 
     def start(self) -> EdgeAgent:
@@ -133,16 +141,16 @@ class EdgeAgent:
     @staticmethod
     def _slot(inventory: Inventory, arm: str) -> ArmSlot:
         config = inventory.arm(arm)
-        return ArmSlot(ArmTracker(config), ArmSafety(config.lease_s, config.watchdog_s))
+        return ArmSlot(ArmTracker(config))
 
     def _on_thread_failure(self, what: str) -> None:
         """The guard's failure path (on the failing thread): latch and stop every arm now;
         ``__main__`` then shuts down and exits 1."""
         self.safety_loop.latch_all(f"agent thread failed ({what}); restart the agent")
 
-    # ------------------------------------------------------------------ feedback (DDS thread)
+    # ------------------------------------------------------------------ the relay thread
 
-    def _on_feedback(self, arm: str, text: str, now: float, writer: int | None = None) -> None:
+    def _on_feedback(self, arm: str, text: bytes, now: float, writer: int | None = None) -> None:
         stamp_ns = time.time_ns()
         pubs = self.relay.publishers[arm]
         out = Outbox()
@@ -171,8 +179,8 @@ class EdgeAgent:
                         entry[0].on_ack(message)
                 else:
                     status_changed = True
-            if len(text) <= p.MAX_MESSAGE_BYTES:  # the raw mirror is for debugging, not floods
-                out.puts.append((pubs.raw_feedback, text))
+            if len(text) <= p.MAX_MESSAGE_BYTES and self.relay.raw_feedback_wanted[arm]:
+                out.puts.append((pubs.raw_feedback, text))  # for debugging, not for floods
             if status_changed:
                 out.puts.append((pubs.status, encode(tracker.status(now, stamp_ns))))
             if decoded is not None:
@@ -187,32 +195,36 @@ class EdgeAgent:
             flight.fail(ErrorCode.REJECTED, why)
         self.collect_finished(slot, now, out)
 
-    # ------------------------------------------------------------------ housekeeping
+    def _on_bad_sample(self, arm: str, why: str) -> None:
+        """A sample on the arm's feedback topic that is not an ArmString_: counted."""
+        with self.lock:
+            tracker = self.slots[arm].tracker
+            tracker.malformed += 1
+            tracker.last_error = f"malformed feedback: {why}"
 
-    def _housekeeping_loop(self) -> None:
-        next_status = next_diag = 0.0
-        while not self.stopping.wait(HOUSEKEEPING_PERIOD_S):
-            now = time.monotonic()
-            stamp_ns = time.time_ns()
-            periodic = now >= next_status
-            if periodic:
-                next_status = now + STATUS_PERIOD_S
-            diag = now >= next_diag
-            if diag:
-                next_diag = now + DIAG_PERIOD_S
-            out = Outbox()
-            with self.lock:
-                for arm, slot in self.slots.items():
-                    tracker = slot.tracker
-                    pubs = self.relay.publishers[arm]
-                    if tracker.update_link(now) or periodic:
-                        out.puts.append((pubs.status, encode(tracker.status(now, stamp_ns))))
-                    if diag:
-                        out.puts.append((pubs.diag, encode(self._diag(tracker, now, stamp_ns))))
-                    for flight, _query in list(slot.in_flight.values()):
-                        flight.on_time(now, tracker.angles_deg)
-                    self.collect_finished(slot, now, out)
-            self.flush(out)
+    def _tick(self, now: float) -> None:
+        """The periodic jobs, on the relay thread: link state, command deadlines, status and
+        diag."""
+        stamp_ns = time.time_ns()
+        periodic = now >= self._next_status
+        if periodic:
+            self._next_status = now + STATUS_PERIOD_S
+        diag = now >= self._next_diag
+        if diag:
+            self._next_diag = now + DIAG_PERIOD_S
+        out = Outbox()
+        with self.lock:
+            for arm, slot in self.slots.items():
+                tracker = slot.tracker
+                pubs = self.relay.publishers[arm]
+                if tracker.update_link(now) or periodic:
+                    out.puts.append((pubs.status, encode(tracker.status(now, stamp_ns))))
+                if diag:
+                    out.puts.append((pubs.diag, encode(self._diag(tracker, now, stamp_ns))))
+                for flight, _query in list(slot.in_flight.values()):
+                    flight.on_time(now, tracker.angles_deg)
+                self.collect_finished(slot, now, out)
+        self.flush(out)
 
     def _diag(self, tracker: ArmTracker, now: float, stamp_ns: int) -> m.Diag:
         """One arm's counters and the agent's own (caller holds the lock)."""
@@ -274,6 +286,8 @@ class EdgeAgent:
         self.scheduler.wake()
         self._hold_moving_arms()
         for thread in self._threads:
+            if thread is self.latches.thread:
+                continue  # it runs until latches.close(), which writes the last stops
             if thread.is_alive() and thread is not threading.current_thread():
                 thread.join(timeout=2.0)
         self.latches.close()  # the latches of the last stops, written before the process ends

@@ -3,6 +3,8 @@
 Publisher QoS, and why:
 - ``joints`` and ``raw/*``: congestion control DROP. They are latest-wins state at 10 Hz; a slow
   subscriber must never stall the relay of the next sample (the newest sample is what counts).
+  ``raw/feedback`` is put only while a subscriber matches it (Zenoh's matching status): it is for
+  debugging and recording, and nobody reads it most of the time.
 - ``status`` and ``diag``: DROP, DATA_HIGH: both repeat (4 Hz, 1 Hz), so a lost sample is
   replaced within 0.25 s; BLOCK let one subscriber that stopped reading (a frozen viewer) stall
   the router for every other session (measured on the test bed: 5-10 s without joints).
@@ -99,10 +101,18 @@ class ZenohRelay:
             self._subscribers.append(sub(self.keys.arm(arm, keys.ESTOP), on_stop(arm)))
             self._subscribers.append(sub(self.keys.arm(arm, keys.RESET), on_reset(arm)))
         self.publishers: dict[str, ArmPublishers] = {}
+        self.raw_feedback_wanted: dict[str, bool] = {}
+        self._matching: list[zenoh.MatchingListener[None]] = []
         self._tokens: list[zenoh.LivelinessToken] = []
         self._queryables: list[zenoh.Queryable[None]] = []
         for arm in arm_ids:
             self.publishers[arm] = self._declare_publishers(arm)
+            self.raw_feedback_wanted[arm] = False
+            self._matching.append(
+                self.publishers[arm].raw_feedback.declare_matching_listener(
+                    wrap(self._raw_feedback_matcher(arm), "matching")
+                )
+            )
             self._queryables.append(
                 self.session.declare_queryable(self.keys.commands(arm), on_query(arm))
             )
@@ -134,6 +144,12 @@ class ZenohRelay:
             stop_ack=pub(keys.ESTOP_ACK, block, zenoh.Priority.REAL_TIME),
         )
 
+    def _raw_feedback_matcher(self, arm: str):  # type: ignore[no-untyped-def]
+        def on_matching(status: zenoh.MatchingStatus) -> None:
+            self.raw_feedback_wanted[arm] = status.matching
+
+        return on_matching
+
     def mirror_command(self, arm: str, text: str) -> None:
         """Publish a command string written to ``arm`` on ``raw/command``."""
         self.publishers[arm].raw_command.put(text)
@@ -143,6 +159,9 @@ class ZenohRelay:
         for token in self._tokens:
             token.undeclare()
         self._tokens.clear()
+        for listener in self._matching:
+            listener.undeclare()
+        self._matching.clear()
         for queryable in self._queryables:
             queryable.undeclare()
         self._queryables.clear()

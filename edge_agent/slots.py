@@ -23,11 +23,15 @@ class ArmSlot:
     """One arm: tracker, safety state, seqs and the commands in flight."""
 
     tracker: ArmTracker
-    safety: ArmSafety
     seqs: SeqAllocator = field(default_factory=SeqAllocator)
     in_flight: dict[int, tuple[InFlight, zenoh.Query]] = field(default_factory=dict)
     order: CommandOrder = field(default_factory=CommandOrder)
     joints_seq: int = 0
+
+    @property
+    def safety(self) -> ArmSafety:
+        """The arm's stop latch, lease and watchdog (owned by its tracker's status)."""
+        return self.tracker.safety
 
 
 @dataclass

@@ -161,8 +161,6 @@ class SafetyLoop:
                     request.stop_id, request.source, request.reason, now, now_ns, action
                 ):
                     continue
-                slot.tracker.estopped = True
-                slot.tracker.stop_reason = safety.last_reason
                 self._cancel_in_flight(slot, now, "a protective stop was latched", out)
                 latched.append(arm)
         self._reack(repeats)
@@ -250,7 +248,6 @@ class SafetyLoop:
             released = slot.safety.reset()
             if released is None:
                 return
-            slot.tracker.estopped = False
             slot.safety.last_reason = f"reset by {source[:128]}"
         self._latches.forget(arm)
         with self._lock:
@@ -325,8 +322,6 @@ class SafetyLoop:
             slot.safety.last_reason = (
                 f"stopped before the agent restarted, by {request.source}: {request.reason}"
             )[:1000]
-            slot.tracker.estopped = True
-            slot.tracker.stop_reason = slot.safety.last_reason
         log.warning(
             "arm %s: restored the stop latched before the restart (%s)", arm, request.stop_id
         )

@@ -9,6 +9,7 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass, field
 
+from edge_agent.safety import ArmSafety
 from fleet.d1 import protocol as p
 from fleet.d1.errors import MalformedMessage, UnknownMessage
 from fleet.inventory import ArmConfig
@@ -38,8 +39,9 @@ class ArmTracker:
     powered: bool | None = None
     error: bool | None = None
     motors_ok: tuple[bool, ...] | None = None
-    estopped: bool = False
-    stop_reason: str | None = None
+    safety: ArmSafety = field(init=False)
+    """The arm's stop latch, lease and watchdog: the one owner of the latch, which the status
+    renders."""
     last_feedback_s: float | None = None
     link: LinkState = "lost"
     relayed: int = 0
@@ -59,6 +61,14 @@ class ArmTracker:
     _writer: int | None = None
     _writer_s: float = 0.0
     _jumps: list[tuple[tuple[float, ...], float]] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.safety = ArmSafety(self.config.lease_s, self.config.watchdog_s)
+
+    @property
+    def estopped(self) -> bool:
+        """A protective stop is latched (read from the latch's one owner)."""
+        return self.safety.latched
 
     def on_feedback(
         self, text: str | bytes, now: float, writer: int | None = None
@@ -173,9 +183,9 @@ class ArmTracker:
             powered=self.powered,
             error=self.error,
             motors_ok=None if self.motors_ok is None else list(self.motors_ok),
-            estopped=self.estopped,
+            estopped=self.safety.latched,
             feedback_age_s=None if age is None else round(age, 3),
-            stop_reason=self.stop_reason if self.estopped else None,
+            stop_reason=self.safety.last_reason if self.safety.latched else None,
         )
 
     def diag(self, now: float, stamp_ns: int) -> Diag:

@@ -44,7 +44,8 @@ def tracker_from(header: bytes) -> tuple[ArmTracker, float]:
     text = p.encode_message(p.JointAngles(angles))
     assert tracker.on_feedback(text, now=0.0) is not None
     tracker.update_link(0.0)
-    tracker.estopped = bool(flags & 1)
+    if flags & 1:
+        tracker.safety.latch("fuzz", "fuzz", "", 0.0, 0, config.stop_action)
     tracker.powered = POWER[(flags >> 1) % 3]
     now = 1.0 if flags & 0x40 else 0.0
     tracker.update_link(now)

@@ -35,7 +35,10 @@ def _tracker(
         tracker.on_feedback(_feedback(angles), now=0.0)
         tracker.update_link(0.0)
     tracker.powered = powered
-    tracker.estopped = estopped
+    if estopped:
+        tracker.safety.latch(
+            "test-stop", "test", "", now_s=0.0, now_ns=0, action=tracker.config.stop_action
+        )
     return tracker
 
 

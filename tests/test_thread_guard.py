@@ -120,9 +120,9 @@ class _Seen:
 
 
 INJECTIONS: dict[str, tuple[type, str, int]] = {
-    "dds-feedback": (ArmTracker, "on_feedback", 40),
+    "relay": (ArmTracker, "on_feedback", 40),
     "safety": (SafetyLoop, "_tick", 40),
-    "housekeeping": (ArmTracker, "diag", 3),
+    "relay-periodic-jobs": (ArmTracker, "diag", 3),
     "commands": (CommandService, "_handle", 1),
     "zenoh-callback": (SafetyInbox, "on_heartbeat", 1),
 }

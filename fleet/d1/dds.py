@@ -13,6 +13,7 @@ the demo need on loopback and what a real arm network (``192.168.123.0/24``) wor
 run time and cannot resolve string annotations.)
 """
 
+import struct
 from dataclasses import dataclass
 from xml.sax.saxutils import quoteattr
 
@@ -34,6 +35,35 @@ class ArmString_(IdlStruct, typename="unitree_arm::msg::dds_::ArmString_"):  # n
     """``unitree_arm::msg::dds_::ArmString_``: one JSON string in ``data_``."""
 
     data_: str
+
+
+_PLAIN_ENCAPSULATIONS = {0x0000: ">I", 0x0001: "<I", 0x0006: ">I", 0x0007: "<I"}
+"""CDR and plain XCDR2, big and little endian: for a final struct of one string, both lay it out
+as a 4-byte length (with the NUL) and the bytes. Anything else goes through the IDL machinery."""
+
+
+def arm_string_bytes(serialized: bytes) -> bytes:
+    """The ``data_`` of one serialized ArmString_ sample, as bytes without the NUL.
+
+    The agent's hot path: the binding's generic IDL deserialiser cost 12 us a sample, this a
+    fraction of it. The text is not decoded here: the D1 codec decodes it and counts invalid
+    UTF-8 as a malformed message. Raises ValueError when the sample is not an ArmString_.
+    """
+    if len(serialized) < 9:  # the 4-byte header, a length and at least the NUL
+        raise ValueError(f"not an ArmString_ sample ({len(serialized)} bytes)")
+    layout = _PLAIN_ENCAPSULATIONS.get(int.from_bytes(serialized[:2], "big"))
+    if layout is None:
+        try:
+            return ArmString_.deserialize(serialized).data_.encode()
+        except Exception as exc:  # noqa: BLE001 - the binding raises anything on a hostile one
+            raise ValueError(f"not an ArmString_ sample ({type(exc).__name__}: {exc})") from None
+    (size,) = struct.unpack_from(layout, serialized, 4)
+    end = 8 + size
+    if size < 1 or end > len(serialized) or serialized[end - 1] != 0:
+        raise ValueError(
+            f"not an ArmString_ sample (string of {size} bytes in a {len(serialized)} byte sample)"
+        )
+    return serialized[8 : end - 1]
 
 
 def command_topic(suffix: str) -> str:

@@ -159,6 +159,28 @@ _ENVELOPE_KEYS = frozenset({"seq", "address", "funcode", "data"})
 _ANGLE_KEYS = tuple(f"angle{i}" for i in range(JOINT_COUNT))
 _MOTOR_KEYS = tuple(f"motor{i}_status" for i in range(JOINT_COUNT))
 
+# The hot path: an angle report, exactly as the spec writes it, decodes straight into typed
+# fields (a third of the generic path's cost). Anything else, or anything odd about it (an unknown
+# field, a non-finite number, another funcode), takes the generic path, which explains it.
+class _AngleData(msgspec.Struct, forbid_unknown_fields=True):
+    angle0: float
+    angle1: float
+    angle2: float
+    angle3: float
+    angle4: float
+    angle5: float
+    angle6: float
+
+
+class _AngleReport(msgspec.Struct, forbid_unknown_fields=True):
+    seq: int
+    address: int
+    funcode: int
+    data: _AngleData
+
+
+_angle_report_decoder = msgspec.json.Decoder(_AngleReport)
+
 
 def _number(value: float) -> int | float:
     """Integral values are written as integers, as the spec's examples do."""
@@ -371,11 +393,31 @@ def _unknown_data(data: dict[str, Any], known: tuple[str, ...]) -> list[str]:
     return [f"data.{k}" for k in data if k not in known]
 
 
+def _decode_angle_report(text: str | bytes) -> Decoded | None:
+    """A well-formed angle report, or None (then the generic path decides)."""
+    if len(text) > MAX_MESSAGE_BYTES:
+        return None
+    try:
+        report = _angle_report_decoder.decode(text)
+    except Exception:  # noqa: BLE001 - whatever it is, the generic path names it
+        return None
+    if (report.address, report.funcode) != (REPORT_ADDRESS, 1):
+        return None
+    d = report.data
+    angles = (d.angle0, d.angle1, d.angle2, d.angle3, d.angle4, d.angle5, d.angle6)
+    if not all(map(math.isfinite, angles)):
+        return None
+    return Decoded(JointAngles(angles), report.seq, ())
+
+
 def decode_message(text: str | bytes) -> Decoded:
     """Decode one string from ``rt/arm_Feedback<suffix>``.
 
     Raises MalformedMessage (or its subclass UnknownMessage) for anything that is not a D1 message.
     """
+    fast = _decode_angle_report(text)
+    if fast is not None:
+        return fast
     seq, address, funcode, data, unknown = _parse_envelope(text)
     message: ArmMessage
     if (address, funcode) == (REPORT_ADDRESS, 1):

@@ -1,0 +1,142 @@
+"""Imports point one way (shared/STYLE.md): a walk over every import of the product's packages.
+
+- the codec and the key space (``fleet.d1``, ``fleet.wire``) import nothing above them;
+- ``edge_agent/`` and ``viewer/`` never import the coordinator, nor each other;
+- ``fleet/`` never imports the agent or the viewer, but for its CLI: the ``fleet`` command is
+  the top of the stack and runs the viewer;
+- nothing imports ``edge_agent.agent`` but the agent's ``__main__`` (no module reaches back
+  into the agent), and no package has an import circle, at module level or in disguise
+  (an import inside a function counts too).
+"""
+
+from __future__ import annotations
+
+import ast
+from functools import cache
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+PACKAGES = ("fleet", "edge_agent", "viewer")
+
+
+def _module_name(path: Path) -> str:
+    parts = list(path.relative_to(REPO).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+@cache
+def _modules() -> dict[str, Path]:
+    return {
+        _module_name(path): path
+        for package in PACKAGES
+        for path in sorted((REPO / package).rglob("*.py"))
+    }
+
+
+def _resolve(name: str) -> str | None:
+    """The product module ``name`` refers to (a module or a name in one), or None."""
+    modules = _modules()
+    while name:
+        if name in modules:
+            return name
+        name = name.rpartition(".")[0]
+    return None
+
+
+@cache
+def imports_of(module: str) -> frozenset[str]:
+    """Every product module ``module`` imports, anywhere in its body."""
+    path = _modules()[module]
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        names: list[str] = []
+        if isinstance(node, ast.Import):
+            names = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = package.split(".")
+                anchor = anchor[: len(anchor) - node.level + 1]
+                base = ".".join([*anchor, base] if base else anchor)
+            names = [f"{base}.{alias.name}" for alias in node.names] + [base]
+        for name in names:
+            target = _resolve(name)
+            if target is not None and target != module:
+                found.add(target)
+    return frozenset(found)
+
+
+def _within(module: str, package: str) -> bool:
+    return module == package or module.startswith(package + ".")
+
+
+def _violations(importer: str, forbidden: tuple[str, ...]) -> list[str]:
+    return sorted(
+        f"{module} imports {target}"
+        for module in _modules()
+        if _within(module, importer) and not _within(module, "fleet.cli")
+        for target in imports_of(module)
+        if any(_within(target, f) for f in forbidden)
+    )
+
+
+def test_the_walk_sees_the_product() -> None:
+    assert "edge_agent.link" in _modules()
+    assert "fleet.d1.protocol" in imports_of("edge_agent.tracker")
+    assert "fleet.wire.keys" in imports_of("edge_agent.relay")
+
+
+@pytest.mark.parametrize(
+    ("importer", "forbidden"),
+    [
+        ("fleet.d1", ("fleet.wire", "fleet.coordinator", "fleet.cli", "edge_agent", "viewer")),
+        ("fleet.wire", ("fleet.coordinator", "fleet.cli", "fleet.client", "edge_agent", "viewer")),
+        ("edge_agent", ("fleet.coordinator", "fleet.cli", "fleet.client", "fleet.api", "viewer")),
+        ("viewer", ("fleet.coordinator", "edge_agent")),
+        ("fleet", ("edge_agent", "viewer")),
+    ],
+)
+def test_imports_point_one_way(importer: str, forbidden: tuple[str, ...]) -> None:
+    assert _violations(importer, forbidden) == []
+
+
+def test_nothing_reaches_back_into_the_agent() -> None:
+    importers = sorted(m for m in _modules() if "edge_agent.agent" in imports_of(m))
+    assert importers == ["edge_agent.__main__"]
+
+
+def _circle_from(start: str) -> list[str] | None:
+    """An import path from ``start`` back to itself, if there is one."""
+    stack = [(start, [start])]
+    seen: set[str] = set()
+    while stack:
+        module, path = stack.pop()
+        for target in sorted(imports_of(module)):
+            if target == start:
+                return [*path, start]
+            if target not in seen:
+                seen.add(target)
+                stack.append((target, [*path, target]))
+    return None
+
+
+def test_no_module_imports_itself_through_others() -> None:
+    circles = []
+    for module in _modules():
+        if module.endswith("__main__"):
+            continue
+        circle = _circle_from(module)
+        if circle is not None and not _through_a_package_init(circle):
+            circles.append(" -> ".join(circle))
+    assert circles == []
+
+
+def _through_a_package_init(circle: list[str]) -> bool:
+    """``fleet`` re-exports ``fleet.api`` in its ``__init__``: a package and its own modules
+    naming each other is how Python packages work, not a circle of responsibilities."""
+    return any(_modules()[m].name == "__init__.py" for m in circle)

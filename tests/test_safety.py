@@ -1,0 +1,201 @@
+"""The agent's pure safety logic (edge_agent/safety.py) with an injected clock: the stop latch,
+standstill, the lease and the watchdog. The bugs of earlier rounds lived here: a repeat that
+re-latched after a reset, a watchdog that tripped before the commander was ever heard, a lease
+that outlived a stop."""
+
+from __future__ import annotations
+
+import pytest
+
+from edge_agent.safety import (
+    RESET_IDS_KEPT,
+    STILL_SAMPLES,
+    STILL_TOLERANCE_DEG,
+    STOP_REPEAT_S,
+    SUPERSEDED_IDS_KEPT,
+    ArmSafety,
+    LeaseRefused,
+)
+
+HOME = (0.0,) * 7
+LEASE_S, WATCHDOG_S = 3.0, 0.5
+
+
+def _safety() -> ArmSafety:
+    return ArmSafety(lease_s=LEASE_S, watchdog_s=WATCHDOG_S)
+
+
+def _latch(safety: ArmSafety, stop_id: str, now_s: float = 0.0, action: str = "hold") -> bool:
+    return safety.latch(stop_id, "fleet", "test", now_s, int(now_s * 1e9), action)
+
+
+def _still(safety: ArmSafety, now_s: float, pose: tuple[float, ...] = HOME) -> bool:
+    """Feed STILL_SAMPLES identical reports from ``now_s`` on; True if one confirmed a stop."""
+    confirmed = False
+    for k in range(STILL_SAMPLES):
+        t = now_s + 0.1 * k
+        confirmed |= safety.on_angles(pose, int(t * 1e9), t)
+    return confirmed
+
+
+# ----------------------------------------------------------------------------- latch
+
+
+def test_a_stop_latches_once_and_its_repeats_do_not_relatch() -> None:
+    safety = _safety()
+    assert not safety.latched
+    assert _latch(safety, "s1")
+    assert safety.latched and safety.is_current("s1")
+    assert not _latch(safety, "s1", 0.5), "a repeat is not a new stop"
+    assert safety.stop is not None and safety.stop.received_s == 0.0
+    assert "stopped by fleet" in (safety.last_reason or "")
+
+
+def test_a_reset_releases_the_stop_and_its_repeats_never_latch_again() -> None:
+    safety = _safety()
+    _latch(safety, "s1")
+    released = safety.reset()
+    assert released is not None and released.stop_id == "s1"
+    assert not safety.latched
+    assert not _latch(safety, "s1", 1.0), "a heartbeat repeating a reset stop re-latched"
+    assert _latch(safety, "s2", 1.0), "a new stop must latch"
+    assert safety.reset() is not None and safety.reset() is None
+
+
+def test_a_newer_stop_supersedes_and_one_reset_releases_both() -> None:
+    safety = _safety()
+    _latch(safety, "s1")
+    assert _latch(safety, "s2", 0.1)
+    assert safety.is_current("s2")
+    assert not _latch(safety, "s1", 0.2), "the superseded stop's repeat latched again"
+    safety.reset()
+    assert not _latch(safety, "s1", 0.3) and not _latch(safety, "s2", 0.3)
+
+
+def test_the_memory_of_stop_ids_is_bounded() -> None:
+    safety = _safety()
+    for k in range(SUPERSEDED_IDS_KEPT * 3):
+        _latch(safety, f"flood-{k}", k * 0.001)
+    assert len(safety.superseded_ids) <= SUPERSEDED_IDS_KEPT
+    for k in range(RESET_IDS_KEPT * 2):
+        _latch(safety, f"r-{k}")
+        safety.reset()
+    assert len(safety.reset_stop_ids) <= RESET_IDS_KEPT
+
+
+def test_a_stop_ends_the_lease_and_the_watch() -> None:
+    safety = _safety()
+    safety.check_owner("operator/a", takeover=False, now_s=0.0)
+    safety.watch("coordinator/c", 0.0)
+    _latch(safety, "s1", 0.1)
+    assert safety.lease is None and safety.watched_by is None
+    safety.check_owner("operator/b", takeover=False, now_s=0.2)  # no LeaseRefused
+
+
+# ----------------------------------------------------------------------------- standstill
+
+
+def test_a_hold_stop_is_confirmed_by_standstill_and_repeated_until_then() -> None:
+    safety = _safety()
+    _latch(safety, "s1")
+    assert safety.stop is not None
+    safety.stop.last_sent_s = 0.0
+    assert not safety.needs_resend(STOP_REPEAT_S / 2)
+    assert safety.needs_resend(STOP_REPEAT_S)
+    moving = [(float(k),) * 7 for k in range(STILL_SAMPLES)]
+    for k, pose in enumerate(moving):
+        assert not safety.on_angles(pose, k, 0.1 * k)
+    assert _still(safety, 1.0)
+    assert safety.stop.done and safety.stop.still_ns is not None
+    assert not safety.needs_resend(10.0)
+    assert not _still(safety, 2.0), "confirmed twice"
+
+
+def test_standstill_tolerates_noise_below_the_tolerance_only() -> None:
+    safety = _safety()
+    _latch(safety, "s1")
+    noisy = [(0.0,) * 7, (STILL_TOLERANCE_DEG * 0.9,) * 7, (0.0,) * 7]
+    assert any(safety.on_angles(pose, k, 0.1 * k) for k, pose in enumerate(noisy))
+    safety = _safety()
+    _latch(safety, "s1")
+    drifting = [(0.0,) * 7, (0.0,) * 7, (STILL_TOLERANCE_DEG * 1.5,) * 7]
+    assert not any(safety.on_angles(pose, k, 0.1 * k) for k, pose in enumerate(drifting))
+
+
+@pytest.mark.parametrize(
+    ("action", "status"),
+    [
+        ("unload", {"enabled": False, "powered": True}),
+        ("power_off", {"enabled": True, "powered": False}),
+    ],
+)
+def test_unload_and_power_off_are_done_only_when_still_and_confirmed_by_status(
+    action: str, status: dict[str, bool]
+) -> None:
+    safety = _safety()
+    _latch(safety, "s1", action=action)
+    _still(safety, 0.0)
+    assert safety.stop is not None and not safety.stop.done
+    assert not safety.on_status(enabled=True, powered=True, now_ns=1)
+    assert safety.on_status(now_ns=2, **status)
+    assert safety.stop.done and safety.stop.confirmed_ns == 2
+    assert not safety.on_status(now_ns=3, **status), "confirmed twice"
+
+
+# ----------------------------------------------------------------------------- lease
+
+
+def test_one_owner_at_a_time_until_its_lease_expires() -> None:
+    safety = _safety()
+    safety.check_owner("operator/a", takeover=False, now_s=0.0)
+    with pytest.raises(LeaseRefused) as refused:
+        safety.check_owner("operator/b", takeover=False, now_s=1.0)
+    assert refused.value.holder == "operator/a"
+    safety.check_owner("operator/a", takeover=False, now_s=2.0)  # renews to 5.0
+    with pytest.raises(LeaseRefused):
+        safety.check_owner("operator/b", takeover=False, now_s=4.9)
+    safety.check_owner("operator/b", takeover=False, now_s=5.1)
+    assert safety.lease is not None and safety.lease.owner == "operator/b"
+
+
+def test_a_takeover_takes_the_lease_and_a_release_frees_it() -> None:
+    safety = _safety()
+    safety.check_owner("operator/a", takeover=False, now_s=0.0)
+    safety.check_owner("operator/b", takeover=True, now_s=0.1)
+    assert safety.lease is not None and safety.lease.owner == "operator/b"
+    assert not safety.release("operator/a"), "a former owner released someone else's lease"
+    assert safety.release("operator/b")
+    safety.check_owner("operator/a", takeover=False, now_s=0.2)
+
+
+# ----------------------------------------------------------------------------- watchdog
+
+
+def test_the_watchdog_trips_only_on_a_watched_arm_after_the_silence() -> None:
+    safety = _safety()
+    assert not safety.watchdog_expired(None, 100.0), "an unwatched arm tripped"
+    safety.check_owner("coordinator/c", takeover=False, now_s=10.0)
+    safety.watch("coordinator/c", 10.0)
+    assert not safety.watchdog_expired(None, 10.0 + WATCHDOG_S * 0.9)
+    assert safety.watchdog_expired(None, 10.0 + WATCHDOG_S * 1.1), "the watch start is a beat"
+    assert not safety.watchdog_expired(10.4, 10.4 + WATCHDOG_S * 0.9)
+    assert safety.watchdog_expired(10.4, 10.4 + WATCHDOG_S * 1.1)
+    _latch(safety, "watchdog-a1", 11.0)
+    assert not safety.watchdog_expired(10.4, 20.0), "a latched arm needs no second stop"
+
+
+def test_the_watch_ends_when_the_owner_finished_or_another_commands() -> None:
+    safety = _safety()
+    safety.check_owner("coordinator/c", takeover=False, now_s=0.0)
+    safety.watch("coordinator/c", 0.0)
+    _still(safety, 0.1)  # still, but the owner's lease is fresh: a pause, not the end
+    assert safety.watched_by == "coordinator/c"
+    _still(safety, LEASE_S + 0.5)  # still and the owner silent for its lease: it finished
+    assert safety.watched_by is None
+    safety.check_owner("coordinator/c", takeover=False, now_s=10.0)
+    safety.watch("coordinator/c", 10.0)
+    safety.check_owner("operator/o", takeover=True, now_s=10.1)
+    assert safety.watched_by is None, "another commander's arm is not the first one's to hold"
+    safety.check_owner("coordinator/c", takeover=True, now_s=11.0)
+    safety.watch("coordinator/c", 11.0)
+    assert safety.release("coordinator/c") and safety.watched_by is None
