@@ -10,13 +10,21 @@ Publisher QoS, and why:
   the router for every other session (measured on the test bed: 5-10 s without joints).
 - ``estop/ack``: BLOCK, REAL_TIME: a stop's acknowledgment must arrive, and first.
 - command replies go back on the query itself.
-Callbacks run on Zenoh threads, under the agent's guard: they only decode and hand off to the
-bounded inboxes (``inbox.py``); they never block.
+Callbacks run under the agent's guard: they only decode and hand off to the bounded inboxes
+(``inbox.py``); they never block. The per-arm stop, reset and matching callbacks run directly on
+Zenoh's receive thread (``direct``): by default zenoh-python gives every callback a Python thread
+of its own, which at 250 arms was 770 threads in one agent. Two kinds keep their thread: the
+heartbeat (anyone allowed to beat can flood it; on the receive thread each beat would wait for
+the GIL ahead of the next stop) and the command queries (one that finds the queue full answers
+"busy" at once, and a reply must never wait for room in a congested send queue on the thread
+that receives the stops).
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import zenoh
 
@@ -27,6 +35,11 @@ from fleet.security.session import open_session
 from fleet.wire import keys
 
 JSON = zenoh.Encoding.APPLICATION_JSON
+
+
+def direct(callback: Callable[[Any], None]) -> zenoh.handlers.Callback[Any]:
+    """``callback`` run on the Zenoh thread that received the sample (it must not block)."""
+    return zenoh.handlers.Callback(callback, indirect=False)
 
 
 @dataclass
@@ -75,10 +88,14 @@ class ZenohRelay:
         wrap = guard.wrap
 
         def on_stop(arm: str | None):  # type: ignore[no-untyped-def]
-            return wrap(lambda sample: safety.on_stop(arm, sample.payload.to_bytes()), "estop")
+            return direct(
+                wrap(lambda sample: safety.on_stop(arm, sample.payload.to_bytes()), "estop")
+            )
 
         def on_reset(arm: str | None):  # type: ignore[no-untyped-def]
-            return wrap(lambda sample: safety.on_reset(arm, sample.payload.to_bytes()), "reset")
+            return direct(
+                wrap(lambda sample: safety.on_reset(arm, sample.payload.to_bytes()), "reset")
+            )
 
         def on_query(arm: str):  # type: ignore[no-untyped-def]
             return wrap(lambda query: commands.on_query(arm, query), "cmd")
@@ -110,7 +127,7 @@ class ZenohRelay:
             self.raw_feedback_wanted[arm] = False
             self._matching.append(
                 self.publishers[arm].raw_feedback.declare_matching_listener(
-                    wrap(self._raw_feedback_matcher(arm), "matching")
+                    direct(wrap(self._raw_feedback_matcher(arm), "matching"))
                 )
             )
             self._queryables.append(
