@@ -112,6 +112,7 @@ class SimulatedArms:
 
     def start(self, with_zenoh: bool = True) -> SimulatedArms:
         """Start serving; with_zenoh also serves fault injection on the key space."""
+        self._started_s = time.monotonic()
         if with_zenoh:
             self._session = open_session(self._inventory)
             for arm_id in self._arms:
