@@ -1,6 +1,7 @@
 """``python -m bench`` (``make bench``): run every section, print the table, save JSON and
-Markdown. Order: raw hops, fan-outs, relay and cost, command and stop, viewer, raw hops again
-(the raw figures pool both repetitions, so drift in the machine's load over the run shows)."""
+Markdown. Order: raw hops, fan-outs, relay and cost, command and stop, viewer, contact, 1000
+arms, two routers, raw hops again (the raw figures pool both repetitions, so drift in the
+machine's load over the run shows). ``--only SECTION`` (repeatable) runs some of them."""
 
 from __future__ import annotations
 
@@ -10,10 +11,11 @@ import json
 import os
 import platform
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from bench import contact, fleet_runs, raw, relay, report, viewer_cpu
+from bench import contact, fleet_runs, raw, relay, report, scale, viewer_cpu
 from bench.proc import REPO
 
 
@@ -38,8 +40,27 @@ def _strip_samples(value: Any) -> Any:
     return value
 
 
-def run(quick: bool, viewer: bool) -> dict[str, Any]:
-    """Every section; returns the results with their goals."""
+SECTIONS = ("raw", "relay", "fleet", "viewer", "contact", "scale", "routers")
+"""raw: hops and fan-outs; relay: latency and cost at 1-100 arms; fleet: command and stop;
+scale: 1000 arms; routers: two routers (issue 12)."""
+
+
+_STEPS: tuple[tuple[str, str, Callable[[bool], Any]], ...] = (
+    ("relay", "relay latency and cost at 1, 10, 100 arms (with the coordinator)", relay.run),
+    ("fleet", "command round trip; stop fan-out to 10, 50, 100 arms", fleet_runs.run),
+    ("viewer", "viewer CPU at 10, 50, 200 arms", viewer_cpu.run),
+    ("contact", "contact detection: labelled episodes (pure simulator + detector)",
+     lambda _quick: contact.bench_contact()),
+    ("scale", "1000 arms at 10 Hz: 4 fleet sim, 4 agents, coordinator, viewer; stops",
+     scale.run_thousand),
+    ("routers", "two routers: raw hop and fan-out over them; relay and stops of 100 arms",
+     scale.run_two_routers),
+)  # fmt: skip
+"""The sections after the raw hops, in order: (name, what it measures, function of quick)."""
+
+
+def run(quick: bool, sections: tuple[str, ...] = SECTIONS) -> dict[str, Any]:
+    """The ``sections`` (every one by default); returns the results with their goals."""
     started = time.monotonic()
     meta: dict[str, Any] = {
         "date": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
@@ -51,34 +72,24 @@ def run(quick: bool, viewer: bool) -> dict[str, Any]:
     def step(name: str) -> None:
         print(f"[bench {time.monotonic() - started:5.0f} s] {name}", flush=True)
 
-    step("raw DDS and Zenoh hops")
-    first = raw.hops(quick)
-    step("raw Zenoh fan-out to 10, 50, 100 subscribers")
-    raw_results = raw.fanouts(quick)
-    step("relay latency and cost at 1, 10, 100 arms (with the coordinator)")
-    relay_results = relay.run(quick)
-    step("command round trip; stop fan-out to 10, 50, 100 arms")
-    fleet_results = fleet_runs.run(quick)
-    viewer_results: dict[str, Any] = {}
-    if viewer:
-        step("viewer CPU at 10, 50, 200 arms")
-        viewer_results = viewer_cpu.run(quick)
-    step("contact detection: labelled episodes (pure simulator + detector)")
-    contact_results = contact.bench_contact()
-    step("raw DDS and Zenoh hops again")
-    second = raw.hops(quick)
-    for key in ("dds_hop", "zenoh_hop"):
-        raw_results[key] = raw.pooled(first[key], second[key])
+    results: dict[str, Any] = {"meta": meta}
+    if "raw" in sections:
+        step("raw DDS and Zenoh hops")
+        first = raw.hops(quick)
+        step("raw Zenoh fan-out to 10, 50, 100 subscribers")
+        results["raw"] = raw.fanouts(quick)
+    for name, what, measure in _STEPS:
+        if name in sections:
+            step(what)
+            results[name] = measure(quick)
+    if "raw" in sections:
+        step("raw DDS and Zenoh hops again")
+        second = raw.hops(quick)
+        for key in ("dds_hop", "zenoh_hop"):
+            results["raw"][key] = raw.pooled(first[key], second[key])
     meta["load_end"] = _load()
     meta["wall_s"] = round(time.monotonic() - started, 1)
-    results = {
-        "meta": meta,
-        "raw": raw_results,
-        "relay": relay_results,
-        "fleet": fleet_results,
-        "viewer": viewer_results,
-        "contact": contact_results,
-    }
+    meta["sections"] = list(sections)
     results = _strip_samples(results)
     results["goals"] = report.goals(results)
     return results
@@ -89,10 +100,16 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench", description=__doc__)
     parser.add_argument("--quick", action="store_true", help="short windows (a smoke run)")
     parser.add_argument("--no-viewer", action="store_true", help="skip the viewer's CPU")
+    parser.add_argument(
+        "--only", action="append", choices=SECTIONS, help="run this section only (repeatable)"
+    )
     parser.add_argument("--json", default=str(REPO / "bench-results.json"))
     parser.add_argument("--markdown", default=str(REPO / "bench" / "latest.md"))
     args = parser.parse_args(argv)
-    results = run(args.quick, not args.no_viewer)
+    sections = tuple(args.only or SECTIONS)
+    if args.no_viewer:
+        sections = tuple(s for s in sections if s != "viewer")
+    results = run(args.quick, sections)
     text = report.markdown(results)
     notes = REPO / "bench" / "NOTES.md"
     if notes.exists():

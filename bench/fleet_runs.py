@@ -35,19 +35,27 @@ def stop_fanout(arms: int, stops: int) -> dict[str, Any]:
     with BenchFleet(arms, f"stop{arms}") as fleet:
         fleet.start_router()
         fleet.start("sim", ["-m", "fleet.cli.main", "sim"])
-        groups = [fleet.arms[i : i + ARMS_PER_AGENT] for i in range(0, arms, ARMS_PER_AGENT)]
+        groups = fleet.groups(ARMS_PER_AGENT)
         for i, group in enumerate(groups):
             fleet.start(f"agent{i}", ["-m", "edge_agent", *fleet.arm_args(group)])
-        client = fleet.start("stopper", ["-m", "bench.w_stop", "--stops", str(stops)], piped=True)
-        client.wait_ready(timeout_s=120.0)
-        result = client.result(timeout_s=60.0 + stops * 7.0)
+        return {"agents": len(groups), **stops_run(fleet, stops)}
+
+
+def stops_run(fleet: BenchFleet, stops: int, timeout_s: float = 5.0) -> dict[str, Any]:
+    """``stops`` fleet stops by ``bench.w_stop`` on a running fleet: the time from each stop's
+    stamp to the last arm's ack (received, DDS written), over the stops every arm acked."""
+    argv = ["-m", "bench.w_stop", "--stops", str(stops), "--timeout-s", str(timeout_s)]
+    client = fleet.start("stopper", argv + ["--seen-timeout-s", "120"], piped=True)
+    client.wait_ready(timeout_s=150.0)
+    result = client.result(timeout_s=60.0 + stops * (timeout_s + 2.0))
     complete = [s for s in result["stops"] if s["missing"] == 0]
     return {
-        "arms": arms,
-        "agents": len(groups),
+        "arms": result["arms"],
         "arms_seen": result["seen"],
         "stops": len(result["stops"]),
         "incomplete_stops": len(result["stops"]) - len(complete),
+        "most_missing": max((s["missing"] for s in result["stops"]), default=0),
+        "fewest_answering": min((s["answered"] for s in result["stops"]), default=0),
         "last_written": summary_ms([s["last_written_ns"] for s in complete]),
         "last_received": summary_ms([s["last_received_ns"] for s in complete]),
     }

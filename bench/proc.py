@@ -104,6 +104,18 @@ class Worker:
         result: dict[str, Any] = json.loads(line)
         return result
 
+    def wait_log(self, needle: str, timeout_s: float) -> str:
+        """Block until a line of the worker's log holds ``needle`` (a plain process's own
+        announcement, e.g. the viewer's URL); returns that line. RuntimeError otherwise."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline and self.alive():
+            self._log.flush()
+            for line in self.log_path.read_text(errors="replace").splitlines():
+                if needle in line:
+                    return line
+            time.sleep(0.2)
+        raise RuntimeError(f"{self.name}: no {needle!r} in {timeout_s} s\n{self.log_tail()}")
+
     def log_tail(self, lines: int = 20) -> str:
         """The end of the worker's stderr log."""
         self._log.flush()
@@ -146,27 +158,38 @@ class BenchFleet:
         self.endpoint = f"tcp/127.0.0.1:{self.port}"
         self.workers: list[Worker] = []
 
-    @property
-    def common(self) -> list[str]:
-        """Options every fleet command and bench worker takes."""
-        return ["--inventory", str(self.inventory), "--log-level", "WARNING"]
-
-    def start(self, name: str, argv: list[str], piped: bool = False) -> Worker:
+    def start(
+        self, name: str, argv: list[str], piped: bool = False, log_level: str = "WARNING"
+    ) -> Worker:
         """Start ``python argv... --inventory ...`` (a bench worker when ``piped``)."""
-        worker = Worker(name, [*argv, *self.common], self.dir, piped)
+        common = ["--inventory", str(self.inventory), "--log-level", log_level]
+        worker = Worker(name, [*argv, *common], self.dir, piped)
         self.workers.append(worker)
         return worker
 
-    def start_router(self) -> Worker:
-        """``fleet router``; returns once its port accepts connections (bounded)."""
-        router = self.start("router", ["-m", "fleet.cli.main", "router"])
+    def start_router(
+        self, name: str = "router", port: int | None = None, connect: tuple[str, ...] = ()
+    ) -> Worker:
+        """``fleet router`` on the inventory's endpoint, or listening on ``port`` and joined to
+        the routers at ``connect`` (a site router); returns once it accepts connections."""
+        port = self.port if port is None else port
+        argv = ["-m", "fleet.cli.main", "router"]
+        if port != self.port:
+            argv += ["--listen", f"tcp/127.0.0.1:{port}"]
+        for endpoint in connect:
+            argv += ["--connect", endpoint]
+        router = self.start(name, argv)
         deadline = time.monotonic() + 20.0
         while time.monotonic() < deadline and router.alive():
             with socket.socket() as probe:
-                if probe.connect_ex(("127.0.0.1", self.port)) == 0:
+                if probe.connect_ex(("127.0.0.1", port)) == 0:
                     return router
             time.sleep(0.05)
-        raise RuntimeError(f"router did not listen on {self.endpoint}\n{router.log_tail()}")
+        raise RuntimeError(f"{name} did not listen on port {port}\n{router.log_tail()}")
+
+    def groups(self, size: int) -> list[list[str]]:
+        """The arms in consecutive groups of ``size`` (one agent, or one simulator, each)."""
+        return [self.arms[i : i + size] for i in range(0, len(self.arms), size)]
 
     def arm_args(self, arms: list[str]) -> list[str]:
         """``--arm a1 --arm a2 ...``."""

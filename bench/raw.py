@@ -38,20 +38,35 @@ def zenoh_fanout(subscribers: int, count: int, rate_hz: float, stop_qos: bool) -
     """Delay from one put to its arrival at the last of ``subscribers`` (through the router)."""
     with BenchFleet(0, f"zenoh{subscribers}") as fleet:
         fleet.start_router()
-        processes = max(1, math.ceil(subscribers / SUBS_PER_PROCESS))
-        shares = [
-            subscribers // processes + (i < subscribers % processes) for i in range(processes)
-        ]
-        subs = [
-            fleet.start(f"sub{i}", ["-m", "bench.w_zenoh", "sub", "--subs", str(n)], piped=True)
-            for i, n in enumerate(shares)
-        ]
-        for sub in subs:
-            sub.wait_ready()
-        pub_argv = ["-m", "bench.w_zenoh", "pub", "--count", str(count), "--rate-hz", str(rate_hz)]
-        pub = fleet.start("pub", pub_argv + (["--stop-qos"] if stop_qos else []), piped=True)
-        pub.result(timeout_s=count / rate_hz + 60.0)
-        results = [sub.finish() for sub in subs]
+        return fanout_in(fleet, subscribers, count, rate_hz, stop_qos)
+
+
+def fanout_in(
+    fleet: BenchFleet,
+    subscribers: int,
+    count: int,
+    rate_hz: float,
+    stop_qos: bool,
+    pub_endpoint: str | None = None,
+) -> dict[str, Any]:
+    """``zenoh_fanout`` on the routers of ``fleet``: subscribers on its inventory's router, the
+    publisher there too or on ``pub_endpoint`` (another router joined to it)."""
+    processes = max(1, math.ceil(subscribers / SUBS_PER_PROCESS))
+    shares = [subscribers // processes + (i < subscribers % processes) for i in range(processes)]
+    subs = [
+        fleet.start(f"sub{i}", ["-m", "bench.w_zenoh", "sub", "--subs", str(n)], piped=True)
+        for i, n in enumerate(shares)
+    ]
+    for sub in subs:
+        sub.wait_ready()
+    pub_argv = ["-m", "bench.w_zenoh", "pub", "--count", str(count), "--rate-hz", str(rate_hz)]
+    pub_argv += ["--stop-qos"] if stop_qos else []
+    pub_argv += ["--endpoint", pub_endpoint] if pub_endpoint else []
+    pub = fleet.start("pub", pub_argv, piped=True)
+    pub.result(timeout_s=count / rate_hz + 60.0)
+    results = [sub.finish() for sub in subs]
+    for worker in (pub, *subs):
+        worker.stop()
     worst: dict[str, int] = {}
     arrivals: dict[str, int] = {}
     for result in results:

@@ -47,7 +47,7 @@ def relay_run(arms: int, rate_hz: float, window_s: float) -> dict[str, Any]:
     in_window = sum(1 for per_arm in sent for ns in per_arm if w0 <= ns < w1)
     delays = []
     lost = 0
-    received = {(a, k): ns for a, k, ns in got["received"]}
+    received = {(a, k): ns for a, k, ns, _stamp in got["received"]}
     for a, per_arm in enumerate(sent):
         for k, ns in enumerate(per_arm):
             if not w0 <= ns < w1:

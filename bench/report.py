@@ -1,4 +1,6 @@
-"""The benchmark's table: every figure with its goal from issue 7 and PASS/FAIL, as Markdown.
+"""The benchmark's table: every figure with its goal (issues 7 and 12) and PASS/FAIL, as Markdown.
+
+A run of some sections only (``python -m bench --only ...``) gets the rows and goals of those.
 
 Latency goals are ratios against the raw hops measured in the same run; a goal is never
 loosened here: a missed goal prints FAIL with the figure.
@@ -7,6 +9,7 @@ loosened here: a missed goal prints FAIL with the figure.
 from __future__ import annotations
 
 import math
+import os
 from typing import Any
 
 from bench.stats import ratio
@@ -27,17 +30,81 @@ def _lat_row(name: str, lat: dict[str, Any]) -> Row:
     return (name, _ms(lat["p50_ms"]), _ms(lat["p99_ms"]), "", "", "")
 
 
+ISSUE7 = ("raw", "relay", "fleet")
+"""The sections the goals of issue 7 compare with each other."""
+
+
 def goals(r: dict[str, Any]) -> list[dict[str, Any]]:
-    """Each goal of issue 7 with its figure, limit and verdict (also saved in the JSON)."""
-    raw, relay, fleet = r["raw"], r["relay"], r["fleet"]
-    dds, zen = raw["dds_hop"]["p50_ms"], raw["zenoh_hop"]["p50_ms"]
-    hops = dds + zen
+    """Each goal of issues 7 and 12 with its figure, limit and verdict (also saved in the JSON)."""
     out: list[dict[str, Any]] = []
 
     def add(name: str, figure: float, limit: float, unit: str) -> None:
         ok = None if math.isnan(figure) or math.isnan(limit) else figure <= limit
         out.append({"goal": name, "figure": figure, "limit": limit, "unit": unit, "ok": ok})
 
+    if all(k in r for k in ISSUE7):
+        _issue7_goals(r, add)
+    viewer50 = r.get("viewer", {}).get("50", math.nan)
+    if "viewer" in r:
+        add("viewer CPU, 50 arms at 10 Hz (% of a core)", viewer50, 15.0, "%")
+    contact = r.get("contact", {}).get("default")
+    if contact:
+        add("contact: stalls missed (recall >= 99 %)", 100.0 - contact["stall_recall"], 1.0, "%")
+        add("contact: false alarms in free motion", contact["false_alarms"], 0.0, "")
+        add("contact: detection delay p95 <= 300 ms", contact["p95_ms"], 300.0, "ms")
+    if "scale" in r:
+        _scale_goals(r["scale"], add)
+    if "routers" in r:
+        _routers_goals(r["routers"], add)
+    return out
+
+
+def _stop_p99(stop: dict[str, Any]) -> float:
+    """p99 to the last arm's DDS write; infinite when a stop was not acked by every arm."""
+    return math.inf if stop["incomplete_stops"] else stop["last_written"]["p99_ms"]
+
+
+def _keeps_up(run: dict[str, Any]) -> tuple[float, bool]:
+    """(share of the simulators' reports relayed in the last third, lag growth <= 1.5 x)."""
+    relay = run["relay"]
+    share = relay["rate_per_arm_hz"][-1] / run["sim"]["per_arm_hz"]
+    return round(share, 3), (relay["lag_growth"] or math.inf) <= 1.5
+
+
+def _scale_goals(run: dict[str, Any], add: Any) -> None:
+    relay, hop = run["relay"], run["probe_hop"]
+    share, _flat = _keeps_up(run)
+    add("1000 arms: reports relayed in the last third (>= 95 %)", 100 * (1 - share), 5.0, "% lost")
+    add("1000 arms: lag growth, last / first third p50 (<= 1.5 x)", relay["lag_growth"] or math.inf,
+        1.5, "x")  # fmt: skip
+    add(
+        "1000 arms: relay p50 <= 2 x raw Zenoh hop alongside",
+        relay["p50_ms"],
+        2 * hop["p50_ms"],
+        "ms",
+    )
+    add("1000 arms: stop to the last arm p99 <= 50 ms", _stop_p99(run["stop"]), 50.0, "ms")
+    add("1000 arms: coordinator (% of a core)", run["cpu_pct"]["coordinator"], 10.0, "%")
+    viewer = run["cpu_pct"]["viewer"] if run["alive"]["viewer"] else math.inf
+    add("1000 arms: viewer (% of a core; alive at the end)", viewer, 50.0, "%")
+
+
+def _routers_goals(run: dict[str, Any], add: Any) -> None:
+    relay, hop, fan = run["relay"], run["probe_hop"], run["fanout_100"]
+    add(
+        "two routers: relay p50 <= 1.1 x raw hop over them",
+        relay["p50_ms"],
+        1.1 * hop["p50_ms"],
+        "ms",
+    )
+    add("two routers: stop to last of 100 arms p99 <= 2 x raw fan-out p99", _stop_p99(run["stop"]),
+        2 * fan["p99_ms"], "ms")  # fmt: skip
+
+
+def _issue7_goals(r: dict[str, Any], add: Any) -> None:
+    raw, relay, fleet = r["raw"], r["relay"], r["fleet"]
+    dds, zen = raw["dds_hop"]["p50_ms"], raw["zenoh_hop"]["p50_ms"]
+    hops = dds + zen
     for rate in ("10", "100"):
         lat = relay[f"1x{rate}"]["latency"]
         add(f"relay p50 at {rate} Hz <= 1.1 x (DDS + Zenoh hop)", lat["p50_ms"], 1.1 * hops, "ms")
@@ -60,18 +127,86 @@ def goals(r: dict[str, Any]) -> list[dict[str, Any]]:
         1.0,
         "MiB",
     )
-    viewer50 = r.get("viewer", {}).get("50", math.nan)
-    add("viewer CPU, 50 arms at 10 Hz (% of a core)", viewer50, 15.0, "%")
-    contact = r.get("contact", {}).get("default")
-    if contact:
-        add("contact: stalls missed (recall >= 99 %)", 100.0 - contact["stall_recall"], 1.0, "%")
-        add("contact: false alarms in free motion", contact["false_alarms"], 0.0, "")
-        add("contact: detection delay p95 <= 300 ms", contact["p95_ms"], 300.0, "ms")
-    return out
 
 
 def rows(r: dict[str, Any]) -> list[Row]:
-    """The table's rows."""
+    """The table's rows (of the sections this run has)."""
+    table = _issue7_rows(r) if all(k in r for k in ISSUE7) else []
+    for arms, pct in r.get("viewer", {}).items():
+        ok = pct <= 15.0 if arms == "50" else None
+        table.append((f"viewer CPU, {arms} arms at 10 Hz", f"{pct:g} % core", "", "",
+                      "<= 15 %" if arms == "50" else "(growth)", _verdict(ok)))  # fmt: skip
+    if "scale" in r:
+        table += _scale_rows(r["scale"])
+    if "routers" in r:
+        table += _routers_rows(r["routers"])
+    return table
+
+
+def _stop_row(name: str, stop: dict[str, Any], fan99: float | None, goal: str, ok: bool) -> Row:
+    w = stop["last_written"]
+    missed = ""
+    if stop["incomplete_stops"]:
+        missed = (f"; {stop['incomplete_stops']} of {stop['stops']} stops not acked by every arm, "
+                  f"fewest answering {stop['fewest_answering']}")  # fmt: skip
+    ratio_text = f"{ratio(w['p99_ms'], fan99)} x fan-out p99" if fan99 else ""
+    return (f"{name} (n={w['n']}{missed})", _ms(w["p50_ms"]), _ms(w["p99_ms"]), ratio_text, goal,
+            _verdict(ok))  # fmt: skip
+
+
+def _scale_rows(run: dict[str, Any]) -> list[Row]:
+    relay, hop, cpu = run["relay"], run["probe_hop"], run["cpu_pct"]
+    n, viewer_ok = run["arms"], run["alive"]["viewer"] and cpu["viewer"] <= 50.0
+    hop_ratio = f"{ratio(relay['p50_ms'], hop['p50_ms'])} x hop"
+    share, flat = _keeps_up(run)
+    rates = " / ".join(f"{x:g}" for x in relay["rate_per_arm_hz"])
+    stop99 = _stop_p99(run["stop"])
+    agents = ", ".join(f"{cpu[f'agent{i}']:g}" for i in range(run["agents"]))
+    sims = ", ".join(f"{cpu[f'sim{i}']:g}" for i in range(run["sims"]))
+    return [
+        (f"{n} arms: raw Zenoh hop alongside (same router, same load)", _ms(hop["p50_ms"]),
+         _ms(hop["p99_ms"]), "", "", ""),
+        (f"{n} arms, {run['agents']} agents: relay stamp -> client (every 10th arm)",
+         _ms(relay["p50_ms"]), _ms(relay["p99_ms"]), hop_ratio, "<= 2 x hop",
+         _verdict(relay["p50_ms"] <= 2 * hop["p50_ms"])),
+        (f"{n} arms: samples per arm-s at the client, thirds (simulators: "
+         f"{run['sim']['per_arm_hz']:g} Hz, nominal {run['nominal_hz']:g})", f"{rates} Hz",
+         f"lag x {relay['lag_growth']} (p50 {relay['first_third']['p50_ms']:.2f} -> "
+         f"{relay['last_third']['p50_ms']:.2f} ms)", f"{100 * share:.0f} % relayed",
+         ">= 95 %, lag <= 1.5 x", _verdict(share >= 0.95 and flat)),
+        _stop_row(f"{n} arms: stop -> DDS stop written, last arm", run["stop"], None,
+                  "p99 <= 50 ms", stop99 <= 50.0),
+        (f"{n} arms: coordinator CPU", f"{cpu['coordinator']:g} % core", "", "", "<= 10 %",
+         _verdict(cpu["coordinator"] <= 10.0)),
+        (f"{n} arms: viewer CPU (alive at the end: {run['alive']['viewer']})",
+         f"{cpu['viewer']:g} % core", "", "", "<= 50 %", _verdict(viewer_ok)),
+        (f"{n} arms: agents CPU (% core each)", f"{run['agents_cpu_pct']:g} % core", agents, "", "",
+         ""),
+        (f"{n} arms: fleet sim CPU (% core each)", f"{run['sims_cpu_pct']:g} % core", sims, "", "",
+         ""),
+        (f"{n} arms: router; machine busy (of {os.cpu_count()} cores)", f"{cpu['router']:g} % core",
+         f"{run['machine_busy_pct']:g} % busy", "", "", ""),
+    ]  # fmt: skip
+
+
+def _routers_rows(run: dict[str, Any]) -> list[Row]:
+    relay, hop, fan = run["relay"], run["probe_hop"], run["fanout_100"]
+    stop99 = _stop_p99(run["stop"])
+    hop_ratio = f"{ratio(relay['p50_ms'], hop['p50_ms'])} x hop"
+    return [
+        ("two routers: raw Zenoh hop, site -> central (alongside the relay)", _ms(hop["p50_ms"]),
+         _ms(hop["p99_ms"]), "", "", ""),
+        ("two routers: raw Zenoh fan-out, last of 100 subscribers", _ms(fan["p50_ms"]),
+         _ms(fan["p99_ms"]), "", "", ""),
+        (f"two routers: relay stamp -> client, {run['arms']} arms, {run['agents']} agents",
+         _ms(relay["p50_ms"]), _ms(relay["p99_ms"]), hop_ratio, "<= 1.1 x hop",
+         _verdict(relay["p50_ms"] <= 1.1 * hop["p50_ms"])),
+        _stop_row(f"two routers: stop -> DDS stop written, last of {run['arms']} arms", run["stop"],
+                  fan["p99_ms"], "<= 2 x fan-out p99", stop99 <= 2 * fan["p99_ms"]),
+    ]  # fmt: skip
+
+
+def _issue7_rows(r: dict[str, Any]) -> list[Row]:
     raw, relay, fleet = r["raw"], r["relay"], r["fleet"]
     dds, zen = raw["dds_hop"]["p50_ms"], raw["zenoh_hop"]["p50_ms"]
     hops = dds + zen
@@ -124,10 +259,6 @@ def rows(r: dict[str, Any]) -> list[Row]:
         table.append((f"coordinator, {arms} arm(s) (CPU; RSS start -> end)",
                       f"{run['coordinator_cpu_pct']:g} % core", f"{rss0:g} -> {rss1:g} MiB", "",
                       "<= 5 %, flat" if arms == 100 else "(growth)", _verdict(ok)))  # fmt: skip
-    for arms, pct in r.get("viewer", {}).items():
-        ok = pct <= 15.0 if arms == "50" else None
-        table.append((f"viewer CPU, {arms} arms at 10 Hz", f"{pct:g} % core", "", "",
-                      "<= 15 %" if arms == "50" else "(growth)", _verdict(ok)))  # fmt: skip
     return table
 
 
@@ -145,7 +276,7 @@ def markdown(r: dict[str, Any]) -> str:
         "|---|---|---|---|---|---|",
     ]
     lines += ["| " + " | ".join(row) + " |" for row in rows(r)]
-    lines += ["", "Goals of issue 7:", ""]
+    lines += ["", "Goals (issues 7 and 12):", ""]
     for g in r["goals"]:
         lines.append(
             f"- {_verdict(g['ok'])}: {g['goal']}: {g['figure']:.2f} {g['unit']} "

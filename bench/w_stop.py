@@ -12,6 +12,7 @@ import zenoh
 
 from bench import workerlib
 from fleet.client import STOP_QOS, FleetClient
+from fleet.inventory import Inventory
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
 
@@ -19,14 +20,14 @@ SETTLE_S = 0.6
 """After a reset: the agents release the latch and write a hold before the next stop."""
 
 
-def run(args_inventory: str, stops: int, timeout_s: float) -> dict:
+def run(inventory: Inventory, stops: int, timeout_s: float, seen_timeout_s: float) -> dict:
     """Wait until every arm relays joints, then stop and reset ``stops`` times."""
-    inventory = workerlib.load_inventory(args_inventory)
     space = keys.KeySpace(inventory.fleet)
     arms = set(inventory.arms)
     lock = threading.Lock()
     seen: set[str] = set()
     acks: dict[str, m.StopAck] = {}
+    answered: set[str] = set()  # arms that acked the current stop at all (written or not yet)
     current = [""]
 
     def on_joints(sample: zenoh.Sample) -> None:
@@ -36,6 +37,8 @@ def run(args_inventory: str, stops: int, timeout_s: float) -> dict:
     def on_ack(sample: zenoh.Sample) -> None:
         ack = payloads.STOP_ACK.decode(sample.payload.to_bytes())
         with lock:
+            if ack.stop_id == current[0]:
+                answered.add(ack.arm)
             if ack.stop_id == current[0] and ack.arm not in acks and ack.dds_written_ns:
                 acks[ack.arm] = ack
 
@@ -46,9 +49,10 @@ def run(args_inventory: str, stops: int, timeout_s: float) -> dict:
             session.declare_subscriber(space.all_arms(keys.JOINTS), on_joints),
             session.declare_subscriber(space.all_arms(keys.ESTOP_ACK), on_ack),
         ]
-        deadline = time.monotonic() + 90.0
+        deadline = time.monotonic() + seen_timeout_s
         while time.monotonic() < deadline and len(seen) < len(arms):
             time.sleep(0.1)
+        subs.pop(0).undeclare()  # every arm relays: its 10 Hz joints would only load us now
         workerlib.ready()
         time.sleep(1.0)
         for _ in range(stops):
@@ -56,6 +60,7 @@ def run(args_inventory: str, stops: int, timeout_s: float) -> dict:
             with lock:
                 current[0] = stop_id
                 acks.clear()
+                answered.clear()
             request = m.StopRequest(time.time_ns(), "bench", stop_id, "benchmark")
             session.put(space.estop, m.encode(request), **STOP_QOS)  # type: ignore[arg-type]
             end = time.monotonic() + timeout_s
@@ -66,7 +71,9 @@ def run(args_inventory: str, stops: int, timeout_s: float) -> dict:
                 time.sleep(0.002)
             with lock:
                 got = list(acks.values())
-            results.append(_timing(request.stamp_ns, got, len(arms)))
+                results.append(
+                    {**_timing(request.stamp_ns, got, len(arms)), "answered": len(answered)}
+                )
             client.reset(source="bench")
             time.sleep(SETTLE_S)
         for sub in subs:
@@ -89,8 +96,10 @@ def main() -> None:
     parser = workerlib.parser(__doc__)
     parser.add_argument("--stops", type=int, default=20)
     parser.add_argument("--timeout-s", type=float, default=5.0)
+    parser.add_argument("--seen-timeout-s", type=float, default=90.0, help="for every arm")
     args = parser.parse_args()
-    workerlib.emit(run(args.inventory, args.stops, args.timeout_s))
+    inventory = workerlib.inventory(args)
+    workerlib.emit(run(inventory, args.stops, args.timeout_s, args.seen_timeout_s))
 
 
 if __name__ == "__main__":

@@ -19,12 +19,16 @@ def parser(description: str | None) -> argparse.ArgumentParser:
     result.add_argument("--inventory", required=True)
     result.add_argument("--log-level", default="WARNING")
     result.add_argument("--max-s", type=float, default=120.0, help="hard time limit")
+    result.add_argument(
+        "--endpoint", action="append", help="meet on this Zenoh router instead (repeatable)"
+    )
     return result
 
 
 def inventory(args: argparse.Namespace) -> Inventory:
-    """The inventory named by ``--inventory``."""
-    return load_inventory(args.inventory)
+    """The inventory named by ``--inventory``, on the ``--endpoint`` routers if given."""
+    loaded = load_inventory(args.inventory)
+    return loaded.with_endpoints(args.endpoint) if args.endpoint else loaded
 
 
 def ready() -> threading.Event:

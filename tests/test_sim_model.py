@@ -303,3 +303,16 @@ def test_fault_requests_decode_and_apply() -> None:
 def test_fault_on_a_bad_joint_is_refused(joint: int) -> None:
     with pytest.raises(ValueError, match="outside 0..6"):
         f.apply_fault(Faults(), f.Stall(joint=joint, angle_deg=0.0))
+
+
+def test_an_arm_at_rest_skips_the_integration_and_stays_exactly() -> None:
+    """The at-rest shortcut (no stepping) gives what stepping gives: the same angles, the
+    time moved on; a command ends it, and a stall keeps the arm on the stepped path."""
+    arm = SimArmModel(time_s=0.0)
+    arm.advance(5.0)
+    assert arm.angles_deg == [0.0] * 7 and arm.time_s == 5.0
+    arm.apply('{"seq":4,"address":1,"funcode":1,"data":{"id":0,"angle":30}}')
+    arm.advance(6.0)
+    assert 0.0 < arm.angles_deg[0] <= 30.0
+    arm.faults.stalls[1] = 0.0
+    assert not arm._at_rest()
