@@ -179,7 +179,7 @@ class EdgeAgent:
                         entry[0].on_ack(message)
                 else:
                     status_changed = True
-            if len(text) <= p.MAX_MESSAGE_BYTES and self.relay.raw_feedback_wanted[arm]:
+            if pubs.raw_feedback_matched and len(text) <= p.MAX_MESSAGE_BYTES:
                 out.puts.append((pubs.raw_feedback, text))  # for debugging, not for floods
             if status_changed:
                 out.puts.append((pubs.status, encode(tracker.status(now, stamp_ns))))

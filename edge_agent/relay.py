@@ -3,8 +3,9 @@
 Publisher QoS, and why:
 - ``joints`` and ``raw/*``: congestion control DROP. They are latest-wins state at 10 Hz; a slow
   subscriber must never stall the relay of the next sample (the newest sample is what counts).
-  ``raw/feedback`` is put only while a subscriber matches it (Zenoh's matching status): it is for
-  debugging and recording, and nobody reads it most of the time.
+  ``raw/feedback`` and ``raw/command`` are put only while a subscriber matches them (Zenoh's
+  matching status): they are for debugging and recording, and nobody reads them most of the
+  time.
 - ``status`` and ``diag``: DROP, DATA_HIGH: both repeat (4 Hz, 1 Hz), so a lost sample is
   replaced within 0.25 s; BLOCK let one subscriber that stopped reading (a frozen viewer) stall
   the router for every other session (measured on the test bed: 5-10 s without joints).
@@ -52,6 +53,8 @@ class ArmPublishers:
     raw_feedback: zenoh.Publisher
     raw_command: zenoh.Publisher
     stop_ack: zenoh.Publisher
+    raw_feedback_matched: bool = False
+    raw_command_matched: bool = False
 
     def all(self) -> tuple[zenoh.Publisher, ...]:
         """Every publisher (for undeclaring)."""
@@ -118,18 +121,17 @@ class ZenohRelay:
             self._subscribers.append(sub(self.keys.arm(arm, keys.ESTOP), on_stop(arm)))
             self._subscribers.append(sub(self.keys.arm(arm, keys.RESET), on_reset(arm)))
         self.publishers: dict[str, ArmPublishers] = {}
-        self.raw_feedback_wanted: dict[str, bool] = {}
         self._matching: list[zenoh.MatchingListener[None]] = []
         self._tokens: list[zenoh.LivelinessToken] = []
         self._queryables: list[zenoh.Queryable[None]] = []
         for arm in arm_ids:
-            self.publishers[arm] = self._declare_publishers(arm)
-            self.raw_feedback_wanted[arm] = False
-            self._matching.append(
-                self.publishers[arm].raw_feedback.declare_matching_listener(
-                    direct(wrap(self._raw_feedback_matcher(arm), "matching"))
-                )
-            )
+            pubs = self.publishers[arm] = self._declare_publishers(arm)
+            for publisher, flag in (
+                (pubs.raw_feedback, "raw_feedback_matched"),
+                (pubs.raw_command, "raw_command_matched"),
+            ):
+                on_matching = wrap(self._matcher(pubs, flag), "matching")
+                self._matching.append(publisher.declare_matching_listener(direct(on_matching)))
             self._queryables.append(
                 self.session.declare_queryable(self.keys.commands(arm), on_query(arm))
             )
@@ -161,15 +163,18 @@ class ZenohRelay:
             stop_ack=pub(keys.ESTOP_ACK, block, zenoh.Priority.REAL_TIME),
         )
 
-    def _raw_feedback_matcher(self, arm: str):  # type: ignore[no-untyped-def]
+    @staticmethod
+    def _matcher(pubs: ArmPublishers, flag: str) -> Callable[[zenoh.MatchingStatus], None]:
         def on_matching(status: zenoh.MatchingStatus) -> None:
-            self.raw_feedback_wanted[arm] = status.matching
+            setattr(pubs, flag, status.matching)
 
         return on_matching
 
     def mirror_command(self, arm: str, text: str) -> None:
-        """Publish a command string written to ``arm`` on ``raw/command``."""
-        self.publishers[arm].raw_command.put(text)
+        """Publish a command string written to ``arm`` on ``raw/command`` (while subscribed)."""
+        pubs = self.publishers[arm]
+        if pubs.raw_command_matched:
+            pubs.raw_command.put(text)
 
     def close(self) -> None:
         """Undeclare tokens first (the fleet sees the agent leave), then close the session."""

@@ -11,6 +11,8 @@ non-zero, so a supervisor restarts the process.
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import logging
 import threading
 from collections.abc import Callable
@@ -25,6 +27,16 @@ EXIT_THREAD_FAILED = 1
 """The exit code of a process whose thread failed (it shut down safely; restart it)."""
 
 
+_PR_SET_NAME = 15
+_libc = ctypes.CDLL(ctypes.util.find_library("c"), use_errno=True)
+
+
+def name_native_thread(name: str) -> None:
+    """Give the calling OS thread ``name`` (15 bytes at most) so ``top -H`` and /proc's per-thread
+    CPU say which of our threads is which, not ``python`` eight times."""
+    _libc.prctl(_PR_SET_NAME, name.encode()[:15], 0, 0, 0)
+
+
 class ThreadGuard:
     """Wraps thread bodies and callbacks; ``failed`` is set by the first unexpected failure."""
 
@@ -36,8 +48,15 @@ class ThreadGuard:
         self._lock = threading.Lock()
 
     def thread(self, target: Callable[[], object], name: str) -> threading.Thread:
-        """A daemon thread (not started) whose body runs under the guard."""
-        return threading.Thread(target=self.wrap(target, name), name=name, daemon=True)
+        """A daemon thread (not started) whose body runs under the guard, named ``name`` for the
+        OS too."""
+        body = self.wrap(target, name)
+
+        def named() -> None:
+            name_native_thread(name)
+            body()
+
+        return threading.Thread(target=named, name=name, daemon=True)
 
     def wrap(self, fn: Callable[P, R], name: str | None = None) -> Callable[P, R | None]:
         """``fn`` under the guard: an exception is reported (``fail``) and not re-raised, so a

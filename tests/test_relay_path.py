@@ -31,6 +31,16 @@ def test_a_sample_decodes_to_the_bytes_the_binding_would_give(text: str) -> None
     assert dds.arm_string_bytes(serialized) == text.encode()
 
 
+@given(st.text(max_size=300), st.booleans())
+def test_a_command_serializes_byte_for_byte_as_the_binding_writes_it(
+    text: str, version_2: bool
+) -> None:
+    if "\x00" in text:
+        return
+    binding = dds.ArmString_(text).serialize(use_version_2=version_2)
+    assert dds.arm_string_sample(text, version_2) == binding.ljust((len(binding) + 3) & ~3, b"\0")
+
+
 @pytest.mark.parametrize("header", [b"\x00\x00\x00\x00", b"\x00\x06\x00\x00"])
 def test_big_endian_and_xcdr2_samples_decode(header: bytes) -> None:
     serialized = header + struct.pack(">I", 4) + b"abc\x00"

@@ -159,6 +159,7 @@ _ENVELOPE_KEYS = frozenset({"seq", "address", "funcode", "data"})
 _ANGLE_KEYS = tuple(f"angle{i}" for i in range(JOINT_COUNT))
 _MOTOR_KEYS = tuple(f"motor{i}_status" for i in range(JOINT_COUNT))
 
+
 # The hot path: an angle report, exactly as the spec writes it, decodes straight into typed
 # fields (a third of the generic path's cost). Anything else, or anything odd about it (an unknown
 # field, a non-finite number, another funcode), takes the generic path, which explains it.
