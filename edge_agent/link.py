@@ -41,13 +41,6 @@ from fleet.guard import ThreadGuard
 log = logging.getLogger("edge_agent.link")
 
 TAKE_BATCH = 64
-MIN_WAKE_INTERVAL_S = 0.002
-"""Wake-ups closer together than this are paced: the thread sleeps out the rest of the interval
-and then takes everything that arrived. Independent arms report out of phase, so at 100 arms
-every sample woke the thread on its own, and each wake-up costs this 2-core VM about 40 us of CPU
-(a futex, an interrupt to another core, the GIL back). Paced, a wake-up takes every sample of the
-last 2 ms: a sample waits at most that long, and only when samples come faster than 500 a
-second; one arm's 10 or 100 Hz is never delayed."""
 ANY_SAMPLE = SampleState.Any | ViewState.Any | InstanceState.Any
 
 FeedbackHandler = Callable[[str, bytes, float, "int | None"], None]
@@ -149,16 +142,9 @@ class DdsLink:
 
     def _run(self) -> None:
         next_tick = time.monotonic()
-        last_wake = 0.0
         while not self._stop.is_set():
-            paced = last_wake + MIN_WAKE_INTERVAL_S - time.monotonic()
-            if paced > 0:
-                time.sleep(paced)  # what arrives meanwhile is taken in one wake-up
-            ready = self._ready.wait(next_tick - time.monotonic())
-            if ready:
-                last_wake = time.monotonic()
-                for index in ready:
-                    self._take(*self._readers[index])
+            for index in self._ready.wait(next_tick - time.monotonic()):
+                self._take(*self._readers[index])
             now = time.monotonic()
             if now >= next_tick:
                 next_tick = max(next_tick + self._tick_s, now)
