@@ -22,9 +22,9 @@ from pathlib import Path
 
 import msgspec
 
-from fleet.choreo.watch import ArmWatch
 from fleet.client import FleetClient
 from fleet.inventory import Inventory, load_inventory
+from fleet.watch import ArmWatch
 from fleet.wire import messages as m
 
 SYNC_LEAD_S = 0.3

@@ -25,9 +25,10 @@ from fleet.choreo.grip import GripDetector
 from fleet.choreo.script import Pose, Script
 from fleet.choreo.timeline import ArmFacts, Frame, Timeline, max_error_deg
 from fleet.choreo.validate import check_motion
-from fleet.choreo.watch import ArmWatch, Liveness, settle
 from fleet.client import FleetClient
 from fleet.d1.limits import CONTROL_RATE_HZ, GRIPPER_JOINT
+from fleet.heartbeat import Liveness
+from fleet.watch import ArmWatch, settle
 from fleet.wire import messages as m
 
 log = logging.getLogger("fleet.choreo")

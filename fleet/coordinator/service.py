@@ -29,6 +29,7 @@ from fleet.coordinator.intake import Control, CoordinatorIntake
 from fleet.coordinator.state import FleetStateTracker
 from fleet.coordinator.stops import FLEET, StopBook
 from fleet.guard import ThreadGuard
+from fleet.heartbeat import beat_until
 from fleet.inventory import Inventory, InventoryError
 from fleet.security.config import COMMANDERS
 from fleet.security.session import open_session
@@ -70,6 +71,7 @@ class Coordinator:
         self.undecodable_stops = 0  # guarded by lock
         self.desk = RequestDesk(self.keys, self._serve, self.guard)
         self._pending_actions = 0  # guarded by lock
+        self._next_diag = 0.0  # heartbeat thread only
         self.session = open_session(inventory)
         self.client = FleetClient(inventory, self.session)
         self._declared: list[zenoh.Subscriber[None] | zenoh.Queryable[None]] = []
@@ -111,25 +113,26 @@ class Coordinator:
     # ------------------------------------------------------------------ threads
 
     def _beat(self) -> None:
-        seq = 0
-        next_beat = time.monotonic()
-        next_diag = next_beat
-        while not self.stopping.is_set():
-            now, stamp = time.monotonic(), time.time_ns()
+        beat_until(
+            self.stopping, self._heartbeat_pub, self.id, self.period_s, self._latched, self._after
+        )
+
+    def _latched(self) -> dict[str, m.StopRequest]:
+        with self.lock:
+            return self.stops.latched()
+
+    def _after(self, seq: int, stamp_ns: int) -> None:
+        """After a beat: the fleet state every other beat, the diag once a second."""
+        if self.stopping.is_set():
+            return  # a thread failed: publish nothing more
+        now = time.monotonic()
+        if seq % 2 == 0:
             with self.lock:
-                beat = m.Heartbeat(stamp, self.id, seq, self.period_s, self.stops.latched())
-                state = self.state.state(self.id, now, stamp) if seq % 2 == 0 else None
-            if self.stopping.is_set():
-                return  # a thread failed meanwhile: not one more beat
-            self._heartbeat_pub.put(encode(beat))
-            if state is not None:
-                self._state_pub.put(encode(state))
-            if now >= next_diag:
-                next_diag = now + DIAG_PERIOD_S
-                self._diag_pub.put(encode(self.diag(stamp)))
-            seq += 1
-            next_beat += self.period_s
-            self.stopping.wait(max(0.0, next_beat - time.monotonic()))
+                state = self.state.state(self.id, now, stamp_ns)
+            self._state_pub.put(encode(state))
+        if now >= self._next_diag:
+            self._next_diag = now + DIAG_PERIOD_S
+            self._diag_pub.put(encode(self.diag(stamp_ns)))
 
     def diag(self, stamp_ns: int) -> m.CoordinatorDiag:
         """The coordinator's counters."""
