@@ -94,7 +94,7 @@ class ContactEdge:
         detector = self.detectors.get(arm)
         if detector is None:
             return
-        if isinstance(message, p.ArmStatus):
+        if isinstance(message, p.D1Status):
             detector.on_status(message.error, message.enabled, message.powered, now)
             return
         if not isinstance(message, p.JointAngles):

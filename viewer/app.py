@@ -27,7 +27,7 @@ from viewer.meshes import link_meshes
 from viewer.panels import FleetPanels
 from viewer.scene import FleetScene
 from viewer.server import start_server
-from viewer.state import FleetState
+from viewer.state import ViewerFleet
 
 log = logging.getLogger("viewer")
 
@@ -75,7 +75,7 @@ class Viewer:
         except BaseException:
             self.server.stop()
             raise
-        self.state = FleetState(inventory, self.session)
+        self.state = ViewerFleet(inventory, self.session)
         self.commander = Commander(
             inventory, self.session, notify=self._notify, guard=self.guard, read_only=read_only
         )

@@ -25,7 +25,7 @@ from fleet.choreo.grip import GripDetector
 from fleet.choreo.script import Pose, Script
 from fleet.choreo.timeline import ArmFacts, Frame, Timeline, max_error_deg
 from fleet.choreo.validate import check_motion
-from fleet.client import FleetClient
+from fleet.client import FleetClient, start_at_ns
 from fleet.d1.limits import CONTROL_RATE_HZ, GRIPPER_JOINT
 from fleet.heartbeat import Liveness
 from fleet.watch import ArmWatch, settle
@@ -143,9 +143,8 @@ class Player:
         return {a: tuple(watch.latest(a).joints.angles_deg) for a in self.script.arms}  # type: ignore[union-attr]
 
     def _run(self, timeline: Timeline, watch: ArmWatch, stop: threading.Event) -> None:
-        lead_ns = int(self.script.start_lead_s * 1e9)
-        start_ns = time.time_ns() + lead_ns
-        start_s = time.monotonic() + lead_ns / 1e9
+        start_ns = start_at_ns(self.script.start_lead_s)
+        start_s = time.monotonic() + self.script.start_lead_s
         timeline.start(start_s)
         first = timeline.tick(start_s + self.period_s, {})
         self.result.start_skew_ms = self._synchronized_start(first, start_ns)

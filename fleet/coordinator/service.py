@@ -21,7 +21,7 @@ from concurrent.futures import ThreadPoolExecutor
 import msgspec
 import zenoh
 
-from fleet.client import STOP_QOS, FleetClient
+from fleet.client import STOP_QOS, FleetClient, start_at_ns
 from fleet.coordinator.contact_actions import perform
 from fleet.coordinator.contact_policy import Action, ContactPolicy
 from fleet.coordinator.desk import RequestDesk, error_reply
@@ -241,7 +241,7 @@ class Coordinator:
                 if request.lead_s is not None
                 else self.inventory.coordinator.sync_lead_s
             )
-            changes["start_at_ns"] = time.time_ns() + int(lead * 1e9)
+            changes["start_at_ns"] = start_at_ns(lead)
         command = msgspec.structs.replace(request.command, **changes)
         replies = dict(zip(arms, self._pool.map(lambda a: self.client.command(a, command), arms)))
         written = [r.written_ns for r in replies.values() if r.ok and r.written_ns is not None]
