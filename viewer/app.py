@@ -85,7 +85,6 @@ class Viewer:
         self.state.start(self.guard)
         self._closing = threading.Event()
         self._closed = False
-        self.ticks = 0
         self._thread = self.guard.thread(self._render_loop, "viewer-render")
         self._thread.start()
 
@@ -117,7 +116,6 @@ class Viewer:
             if now >= next_panels:
                 next_panels = now + 1.0 / PANEL_RATE_HZ
                 self.panels.update(snapshot)
-            self.ticks += 1
 
     def close(self) -> None:
         """Shutdown order: stop drawing -> stop commanding (join) -> unsubscribe -> close the

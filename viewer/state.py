@@ -39,7 +39,6 @@ class Snapshot:
     joints_age_s: npt.NDArray[np.float64]  # (N,), seconds since the viewer got joints (inf: never)
     status: tuple[m.ArmStatus | None, ...]
     online: npt.NDArray[np.bool_]  # (N,), the agent's liveliness token is present
-    joints_received: int  # joints samples received so far (all arms)
     contact: npt.NDArray[np.bool_] | None = None  # (N, 7), joint in confirmed contact
 
     def contact_rows(self) -> npt.NDArray[np.bool_]:
@@ -87,7 +86,6 @@ class ViewerFleet:
         self._status: list[m.ArmStatus | None] = [None] * n
         self._online = np.zeros(n, dtype=bool)
         self._contact = np.zeros((n, JOINT_COUNT), dtype=bool)
-        self._received = 0
         self.malformed = 0  # payloads we could not decode (counted, dropped)
         self._last_warning = -math.inf
         self._handles: list[zenoh.Subscriber[None]] = []
@@ -158,7 +156,6 @@ class ViewerFleet:
         with self._lock:
             self._angles[i] = row
             self._joints_at[i] = now
-            self._received += 1
 
     def _on_contact(self, i: int, event: m.ContactEvent) -> None:
         if not 0 <= event.joint < JOINT_COUNT:
@@ -185,14 +182,12 @@ class ViewerFleet:
             status = tuple(self._status)
             online = self._online.copy()
             contact = self._contact.copy()
-            received = self._received
         return Snapshot(
             arms=self.arms,
             angles_deg=angles,
             joints_age_s=now - joints_at,
             status=status,
             online=online,
-            joints_received=received,
             contact=contact,
         )
 

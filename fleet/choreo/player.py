@@ -38,10 +38,10 @@ TARGET_LIFETIME_S = 0.3
 PATH_WINDOW = 6
 """The measured pose is compared with the targets of the last 6 ticks (feedback lags ~0.1 s)."""
 MAX_PENDING = 3
+"""Commands in flight per arm beyond which a tick skips the arm."""
 KEYFRAME_WINDOW_S = 0.4
 """A keyframe's tracking error is the arm's closest approach within this time after the keyframe
 (feedback is 10 Hz and ~0.1 s behind the command: the sample at the exact instant is stale)."""
-"""Commands in flight per arm beyond which a tick skips the arm (and counts it)."""
 
 
 @dataclass
@@ -55,7 +55,6 @@ class PlayResult:
     start_skew_ms: float | None = None
     keyframe_error_deg: list[float] = field(default_factory=list)
     max_path_error_deg: float = 0.0
-    skipped_ticks: int = 0
     elapsed_s: float = 0.0
 
 
@@ -265,8 +264,7 @@ class Player:
             target = frame.targets[arm]
             self.recent[arm].append(target)
             if len(self.pending[arm]) >= MAX_PENDING:
-                self.result.skipped_ticks += 1
-                continue
+                continue  # the agent is behind: skip this tick, the next target supersedes it
             command = m.MoveJoints(
                 angles_deg=list(target),
                 mode=0,

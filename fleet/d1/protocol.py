@@ -78,7 +78,6 @@ class ReturnToZero(msgspec.Struct, frozen=True):
 
 Command = SetJointAngle | SetAllAngles | SetJointTorque | SetAllTorque | SetPower | ReturnToZero
 
-MOTION_COMMANDS = (SetJointAngle, SetAllAngles, ReturnToZero)
 """Commands that make the arm move (refused while stopped, need power)."""
 
 _FUNCODE_OF: dict[type, int] = {
