@@ -243,7 +243,7 @@ def run(ep: Episode, config: ContactConfig) -> Outcome:
         arrive = t + rng.uniform(0.0005, 0.003) + rng.uniform(0.0, ep.jitter_s)
         if reports % 5 == 0:
             status = model.status_reports()[0]
-            assert isinstance(status, p.ArmStatus)
+            assert isinstance(status, p.D1Status)
             det.on_status(status.error, status.enabled, status.powered, arrive)
         joints = model.joint_report()
         assert joints is not None

@@ -201,11 +201,11 @@ class Soak:
         key = str(sample.key_expr)
         data = sample.payload.to_bytes()
         try:
-            if key.endswith("coordinator/diag"):
-                diag: Any = payloads.COORDINATOR_DIAG.decode(data)
+            if key.endswith(keys.COORDINATOR_DIAG):
+                diag: Any = payloads.decode(keys.COORDINATOR_DIAG, data)
                 name = "coordinator"
             else:
-                diag = payloads.DIAG.decode(data)
+                diag = payloads.decode(keys.DIAG, data)
                 name = "agent-" + keys.KeySpace(FLEET).parse_arm_key(key).arm
         except (payloads.PayloadError, keys.KeyError_):
             return

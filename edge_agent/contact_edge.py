@@ -78,7 +78,6 @@ class ContactEdge:
                 priority=zenoh.Priority.DATA_HIGH,
             )
         self._pending: list[tuple[str, p.SetJointAngle]] = []  # guarded by lock
-        self.force_limits = 0
         writer.observers.append(self.on_sent)
 
     def on_message(
@@ -94,7 +93,7 @@ class ContactEdge:
         detector = self.detectors.get(arm)
         if detector is None:
             return
-        if isinstance(message, p.ArmStatus):
+        if isinstance(message, p.D1Status):
             detector.on_status(message.error, message.enabled, message.powered, now)
             return
         if not isinstance(message, p.JointAngles):
@@ -122,7 +121,6 @@ class ContactEdge:
         """Retract ``joint``'s target to ``angle`` (caller holds the lock)."""
         lo, hi = JOINT_RANGE_DEG[joint]
         self._pending.append((arm, p.SetJointAngle(joint, round(min(max(angle, lo), hi), 2))))
-        self.force_limits += 1
         why = f"contact on joint {joint}: target retracted to {angle:.1f} deg (force limit)"
         for flight, _query in slot.in_flight.values():
             if joint in flight.targets_deg:

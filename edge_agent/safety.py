@@ -13,13 +13,10 @@ The rules:
 
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass, field
 
-STILL_SAMPLES = 3
-"""Three consecutive angle reports (about 0.3 s) ..."""
-STILL_TOLERANCE_DEG = 0.3
-"""... within 0.3 deg of each other on every joint mean the arm is still."""
+from fleet.d1.standstill import Standstill  # the one definition of "still"
+
 RESET_IDS_KEPT = 256
 """Stop ids an operator reset, remembered so their repeats (heartbeat) do not re-latch."""
 SUPERSEDED_IDS_KEPT = 64
@@ -28,33 +25,6 @@ distinct stop ids keeps only the newest."""
 STOP_REPEAT_S = 0.2
 """Until the arm is seen still, the stop command is re-sent every 0.2 s (two control cycles):
 a stop is not trusted to one DDS sample or to an ack the arm may not send."""
-
-
-@dataclass
-class Standstill:
-    """Detects standstill from the last few angle reports."""
-
-    window: deque[tuple[float, ...]] = field(default_factory=lambda: deque(maxlen=STILL_SAMPLES))
-
-    def add(self, angles_deg: tuple[float, ...]) -> None:
-        """Record one angle report."""
-        self.window.append(angles_deg)
-
-    def clear(self) -> None:
-        """Forget history (a new stop starts a new observation)."""
-        self.window.clear()
-
-    @property
-    def still(self) -> bool:
-        """True when the last STILL_SAMPLES reports agree within STILL_TOLERANCE_DEG."""
-        if len(self.window) < STILL_SAMPLES:
-            return False
-        first = self.window[0]
-        return all(
-            abs(a - b) <= STILL_TOLERANCE_DEG
-            for sample in self.window
-            for a, b in zip(sample, first)
-        )
 
 
 @dataclass

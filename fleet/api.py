@@ -22,13 +22,29 @@ from pathlib import Path
 
 import msgspec
 
-from fleet.choreo.watch import ArmWatch
-from fleet.client import FleetClient
+from fleet.client import FleetClient, start_at_ns
 from fleet.inventory import Inventory, load_inventory
+from fleet.watch import ArmWatch
 from fleet.wire import messages as m
 
-SYNC_LEAD_S = 0.3
-"""Lead-in of a group's synchronized start (every arm gets the same ``start_at_ns``)."""
+
+def _move_joints(
+    angles_deg: list[float],
+    wait: bool,
+    mode: int,
+    timeout_s: float,
+    tolerance_deg: float = 2.0,
+    start_at_ns: int | None = None,
+) -> m.MoveJoints:
+    """The ``move_joints`` an arm's or a group's ``move`` sends (mode 1 unless 0 is asked)."""
+    return m.MoveJoints(
+        angles_deg=list(angles_deg),
+        mode=1 if mode else 0,
+        wait_reached=wait,
+        timeout_s=timeout_s,
+        tolerance_deg=tolerance_deg,
+        start_at_ns=start_at_ns,
+    )
 
 
 class CommandFailed(RuntimeError):
@@ -66,13 +82,7 @@ class Arm:
         check: bool = True,
     ) -> m.CommandReply:
         """Move all seven joints (degrees, wire ids 0..6); ``wait``: until feedback shows it."""
-        command = m.MoveJoints(
-            angles_deg=list(angles_deg),
-            mode=1 if mode else 0,
-            wait_reached=wait,
-            timeout_s=timeout_s,
-            tolerance_deg=tolerance_deg,
-        )
+        command = _move_joints(angles_deg, wait, mode, timeout_s, tolerance_deg=tolerance_deg)
         return self.command(command, check)
 
     def move_joint(self, joint: int, angle_deg: float, wait: bool = False) -> m.CommandReply:
@@ -115,16 +125,11 @@ class Group:
     def move(
         self, angles_deg: list[float], wait: bool = False, mode: int = 1, timeout_s: float = 10.0
     ) -> dict[str, m.CommandReply]:
-        """Every arm to the same pose, all starting at the same instant (``start_at_ns``).
-        Raises CommandFailed for the first arm that failed (after all replied)."""
-        start_ns = time.time_ns() + int(SYNC_LEAD_S * 1e9)
-        command = m.MoveJoints(
-            angles_deg=list(angles_deg),
-            mode=1 if mode else 0,
-            wait_reached=wait,
-            timeout_s=timeout_s,
-            start_at_ns=start_ns,
-        )
+        """Every arm to the same pose, all starting at the same instant (``start_at_ns``, the
+        inventory's ``sync_lead_s`` ahead, as the coordinator's synchronized starts). Raises
+        CommandFailed for the first arm that failed (after all replied)."""
+        start_ns = start_at_ns(self.fleet.inventory.coordinator.sync_lead_s)
+        command = _move_joints(angles_deg, wait, mode, timeout_s, start_at_ns=start_ns)
         replies = dict(
             zip(
                 [a.id for a in self.arms],

@@ -30,6 +30,13 @@ replay, or a network that held it, never executes it late. Hosts' clocks must ag
 within this (NTP); a streamed target sets its own, shorter lifetime."""
 
 
+def start_at_ns(lead_s: float) -> int:
+    """A synchronized start ``lead_s`` from now (``start_at_ns`` of every arm's command). The
+    time base is this host's wall clock, compared by each agent with its own: keep hosts
+    NTP/PTP-synchronized."""
+    return time.time_ns() + int(lead_s * 1e9)
+
+
 def _no_reply(arm: str, why: str) -> m.CommandReply:
     return m.CommandReply(
         ok=False,
@@ -235,11 +242,12 @@ class FleetClient:
             try:
                 key = self.keys.parse_arm_key(str(sample.key_expr))
                 data = sample.payload.to_bytes()
+                payload = payloads.decode(key.channel, data)
                 with lock:
-                    if key.channel == keys.STATUS:
-                        statuses[key.arm] = payloads.STATUS.decode(data)
-                    elif key.channel == keys.JOINTS:
-                        joints[key.arm] = payloads.JOINTS.decode(data)
+                    if isinstance(payload, m.ArmStatus):
+                        statuses[key.arm] = payload
+                    elif isinstance(payload, m.Joints):
+                        joints[key.arm] = payload
                     if all(a in statuses and a in joints for a in wanted):
                         done.set()
             except (keys.KeyError_, payloads.PayloadError):

@@ -31,7 +31,7 @@ def check(data: bytes) -> None:
         elif isinstance(message, p.MotorStatus):
             assert len(message.motors_ok) == JOINT_COUNT, message
         else:
-            assert isinstance(message, (p.ArmStatus, p.ReceiveAck, p.ExecuteAck)), message
+            assert isinstance(message, (p.D1Status, p.ReceiveAck, p.ExecuteAck)), message
 
 
 def seeds() -> list[bytes]:

@@ -1,4 +1,4 @@
-"""Fuzz target: every key-space decoder (``fleet/wire/payloads.py``: the ``PUBLIC`` table and
+"""Fuzz target: every key-space decoder (``fleet/wire/payloads.py``: the ``CHANNELS`` table and
 ``unknown_op``), each fed the same input.
 
 Property: each kind gives its Struct or ``PayloadError``, never another exception; a decoded
@@ -14,10 +14,11 @@ from fuzz.common import instrumented, main
 with instrumented():
     import msgspec
 
+    from fleet.wire import keys, payloads
     from fleet.wire import messages as m
-    from fleet.wire import payloads
 
-KINDS = tuple(payloads.PUBLIC.values())
+KINDS = tuple(c.payload for c in payloads.CHANNELS.values() if c.kind != keys.RAW_COMMAND)
+"""Every Struct kind (a raw command is a plain JSON object, re-encoded by no one)."""
 
 
 def check(data: bytes) -> None:

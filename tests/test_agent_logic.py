@@ -465,7 +465,7 @@ def test_unknown_fields_are_counted_but_the_message_is_used() -> None:
 def test_status_motors_and_payloads() -> None:
     tracker = ArmTracker(ArmConfig(id="a1"))
     tracker.on_feedback(_feedback(), now=0.0)
-    tracker.on_feedback(p.encode_message(p.ArmStatus(True, True, False)), now=0.1)
+    tracker.on_feedback(p.encode_message(p.D1Status(True, True, False)), now=0.1)
     motors = (True, True, False, True, True, True, True)
     tracker.on_feedback(p.encode_message(p.MotorStatus(motors)), now=0.2)
     tracker.update_link(0.3)

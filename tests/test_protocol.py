@@ -54,7 +54,7 @@ GOLDEN_MESSAGES: list[tuple[str, p.ArmMessage]] = [
     (
         '{"seq":10,"address":2,"funcode":3,"data":{"enable_status":1,"power_status":1,'
         '"error_status":1}}',
-        p.ArmStatus(enabled=True, powered=True, error=False),
+        p.D1Status(enabled=True, powered=True, error=False),
     ),
     (
         '{"seq":10,"address":2,"funcode":4,"data":{"motor0_status":1,"motor1_status":1,'
@@ -107,7 +107,7 @@ def test_ack_carries_the_command_seq() -> None:
 
 def test_status_error_flag_is_inverted_on_the_wire() -> None:
     # error_status 1 = normal, 0 = abnormal
-    text = p.encode_message(p.ArmStatus(enabled=False, powered=False, error=True))
+    text = p.encode_message(p.D1Status(enabled=False, powered=False, error=True))
     assert text == (
         '{"seq":10,"address":2,"funcode":3,"data":{"enable_status":0,"power_status":0,'
         '"error_status":0}}'
@@ -154,7 +154,7 @@ ACK_SEQS = st.integers(min_value=0, max_value=2**31)
 
 MESSAGES: st.SearchStrategy[p.ArmMessage] = st.one_of(
     st.builds(p.JointAngles, angles_deg=st.tuples(*(FINITE for _ in range(JOINT_COUNT)))),
-    st.builds(p.ArmStatus, enabled=st.booleans(), powered=st.booleans(), error=st.booleans()),
+    st.builds(p.D1Status, enabled=st.booleans(), powered=st.booleans(), error=st.booleans()),
     st.builds(p.MotorStatus, motors_ok=FLAGS7),
     st.builds(p.ReceiveAck, seq=ACK_SEQS, ok=st.booleans()),
     st.builds(p.ExecuteAck, seq=ACK_SEQS, ok=st.booleans()),
@@ -378,7 +378,7 @@ def test_unknown_fields_are_tolerated_and_listed() -> None:
         '"power_status":0,"error_status":1,"temperature":41.5,"voltage":24}}'
     )
     decoded = p.decode_message(text)
-    assert decoded.message == p.ArmStatus(enabled=True, powered=False, error=False)
+    assert decoded.message == p.D1Status(enabled=True, powered=False, error=False)
     assert decoded.unknown_fields == ("stamp", "data.temperature", "data.voltage")
 
 

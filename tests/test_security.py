@@ -19,8 +19,8 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from fleet.choreo.watch import Liveness
 from fleet.client import FleetClient
+from fleet.heartbeat import Liveness
 from fleet.security.certs import make_certs
 from fleet.wire import keys
 from fleet.wire import messages as m

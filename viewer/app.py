@@ -27,7 +27,7 @@ from viewer.meshes import link_meshes
 from viewer.panels import FleetPanels
 from viewer.scene import FleetScene
 from viewer.server import start_server
-from viewer.state import FleetState
+from viewer.state import ViewerFleet
 
 log = logging.getLogger("viewer")
 
@@ -75,7 +75,7 @@ class Viewer:
         except BaseException:
             self.server.stop()
             raise
-        self.state = FleetState(inventory, self.session)
+        self.state = ViewerFleet(inventory, self.session)
         self.commander = Commander(
             inventory, self.session, notify=self._notify, guard=self.guard, read_only=read_only
         )
@@ -85,7 +85,6 @@ class Viewer:
         self.state.start(self.guard)
         self._closing = threading.Event()
         self._closed = False
-        self.ticks = 0
         self._thread = self.guard.thread(self._render_loop, "viewer-render")
         self._thread.start()
 
@@ -117,7 +116,6 @@ class Viewer:
             if now >= next_panels:
                 next_panels = now + 1.0 / PANEL_RATE_HZ
                 self.panels.update(snapshot)
-            self.ticks += 1
 
     def close(self) -> None:
         """Shutdown order: stop drawing -> stop commanding (join) -> unsubscribe -> close the

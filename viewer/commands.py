@@ -77,7 +77,6 @@ class Commander:
         self._wake = threading.Event()
         self._closing = threading.Event()
         self._stops: queue.SimpleQueue[m.StopRequest | None] = queue.SimpleQueue()
-        self.stops_sent = 0
         guard = guard or ThreadGuard("viewer")
         self._threads = [
             guard.thread(self._jog_loop, "viewer-jog"),
@@ -95,7 +94,6 @@ class Commander:
             self._pending.clear()
         request = self.client.stop_request(reason, source="viewer")
         self.client.put_stop(request)
-        self.stops_sent += 1
         self._stops.put(request)
         log.warning("STOP ALL sent (stop_id %s)", request.stop_id)
         return request

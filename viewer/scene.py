@@ -99,7 +99,6 @@ class FleetScene:
         self._drawn_code = np.full(n, -1, dtype=np.int8)
         self._drawn_error = np.zeros(n, dtype=bool)
         self._drawn_contact = np.zeros((n, 7), dtype=bool)
-        self.ticks_sent = 0
 
         scene = server.scene
         scene.set_up_direction("+z")
@@ -185,7 +184,6 @@ class FleetScene:
         self._drawn_code = code
         self._drawn_error = error
         self._drawn_contact = contact
-        self.ticks_sent += 1
         return True
 
 

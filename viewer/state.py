@@ -39,7 +39,6 @@ class Snapshot:
     joints_age_s: npt.NDArray[np.float64]  # (N,), seconds since the viewer got joints (inf: never)
     status: tuple[m.ArmStatus | None, ...]
     online: npt.NDArray[np.bool_]  # (N,), the agent's liveliness token is present
-    joints_received: int  # joints samples received so far (all arms)
     contact: npt.NDArray[np.bool_] | None = None  # (N, 7), joint in confirmed contact
 
     def contact_rows(self) -> npt.NDArray[np.bool_]:
@@ -65,7 +64,7 @@ class Snapshot:
         return np.array([s is not None and bool(s.error) for s in self.status], dtype=bool)
 
 
-class FleetState:
+class ViewerFleet:
     """Latest joints, status and agent liveliness of every inventory arm. A context manager."""
 
     def __init__(
@@ -87,7 +86,6 @@ class FleetState:
         self._status: list[m.ArmStatus | None] = [None] * n
         self._online = np.zeros(n, dtype=bool)
         self._contact = np.zeros((n, JOINT_COUNT), dtype=bool)
-        self._received = 0
         self.malformed = 0  # payloads we could not decode (counted, dropped)
         self._last_warning = -math.inf
         self._handles: list[zenoh.Subscriber[None]] = []
@@ -99,20 +97,16 @@ class FleetState:
         def wrap(callback: Callable[[zenoh.Sample], None]) -> Callable[[zenoh.Sample], object]:
             return callback if guard is None else guard.wrap(callback, "viewer-state")
 
+        on_sample = wrap(self._on_sample)
         self._handles = [
-            self._session.declare_subscriber(
-                self.keys.all_arms(keys.JOINTS), wrap(self._on_joints)
-            ),
-            self._session.declare_subscriber(
-                self.keys.all_arms(keys.STATUS), wrap(self._on_status)
-            ),
+            self._session.declare_subscriber(self.keys.all_arms(channel), on_sample)
+            for channel in (keys.JOINTS, keys.STATUS, keys.CONTACT)
+        ]
+        self._handles.append(
             self._session.liveliness().declare_subscriber(
                 self.keys.all_arms(keys.AGENT), wrap(self._on_token), history=True
-            ),
-            self._session.declare_subscriber(
-                self.keys.all_arms(keys.CONTACT), wrap(self._on_contact)
-            ),
-        ]
+            )
+        )
 
     # ------------------------------------------------------------------ zenoh callbacks
 
@@ -131,15 +125,29 @@ class FleetState:
             self._last_warning = now
         log.warning("dropped a malformed %s payload (%s); %d so far", what, exc, self.malformed)
 
-    def _on_joints(self, sample: zenoh.Sample) -> None:
-        i = self._arm_index(sample)
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        """Joints, status or contact of an inventory arm, decoded through the channel table."""
+        try:
+            key = self.keys.parse_arm_key(str(sample.key_expr))
+        except keys.KeyError_:
+            return
+        i = self._index.get(key.arm)
         if i is None:
             return
         try:
-            joints = payloads.JOINTS.decode(sample.payload.to_bytes())
+            payload = payloads.decode(key.channel, sample.payload.to_bytes())
         except payloads.PayloadError as exc:
-            self._bad("joints", exc)
+            self._bad(key.channel, exc)
             return
+        if isinstance(payload, m.Joints):
+            self._on_joints(i, payload)
+        elif isinstance(payload, m.ArmStatus):
+            with self._lock:
+                self._status[i] = payload
+        elif isinstance(payload, m.ContactEvent):
+            self._on_contact(i, payload)
+
+    def _on_joints(self, i: int, joints: m.Joints) -> None:
         row = np.asarray(joints.angles_deg, dtype=float)
         if row.shape != (JOINT_COUNT,) or not np.all(np.isfinite(row)):
             self._bad("joints", ValueError(f"{len(joints.angles_deg)} angles or non-finite"))
@@ -148,29 +156,8 @@ class FleetState:
         with self._lock:
             self._angles[i] = row
             self._joints_at[i] = now
-            self._received += 1
 
-    def _on_status(self, sample: zenoh.Sample) -> None:
-        i = self._arm_index(sample)
-        if i is None:
-            return
-        try:
-            status = payloads.STATUS.decode(sample.payload.to_bytes())
-        except payloads.PayloadError as exc:
-            self._bad("status", exc)
-            return
-        with self._lock:
-            self._status[i] = status
-
-    def _on_contact(self, sample: zenoh.Sample) -> None:
-        i = self._arm_index(sample)
-        if i is None:
-            return
-        try:
-            event = payloads.CONTACT.decode(sample.payload.to_bytes())
-        except payloads.PayloadError as exc:
-            self._bad("contact", exc)
-            return
+    def _on_contact(self, i: int, event: m.ContactEvent) -> None:
         if not 0 <= event.joint < JOINT_COUNT:
             self._bad("contact", ValueError(f"joint {event.joint}"))
             return
@@ -195,14 +182,12 @@ class FleetState:
             status = tuple(self._status)
             online = self._online.copy()
             contact = self._contact.copy()
-            received = self._received
         return Snapshot(
             arms=self.arms,
             angles_deg=angles,
             joints_age_s=now - joints_at,
             status=status,
             online=online,
-            joints_received=received,
             contact=contact,
         )
 
@@ -212,7 +197,7 @@ class FleetState:
         for handle in handles:
             handle.undeclare()
 
-    def __enter__(self) -> FleetState:
+    def __enter__(self) -> ViewerFleet:
         self.start()
         return self
 

@@ -14,20 +14,18 @@ from collections import deque
 from dataclasses import dataclass, field
 
 from fleet.d1.limits import GRIPPER_JOINT
+from fleet.d1.standstill import STILL_SAMPLES, is_still
 
-STALL_SAMPLES = 3
-"""Three gripper reports (about 0.3 s) ..."""
-STALL_SPREAD_DEG = 0.3
-"""... within 0.3 deg of each other mean the gripper stopped ..."""
 SHORT_OF_TARGET_DEG = 2.0
-"""... and more than 2 deg short of (above) its closing target means it holds an object."""
+"""A gripper still (``fleet.d1.standstill``) more than 2 deg short of (above) its closing
+target holds an object."""
 
 
 @dataclass
 class GripDetector:
     """Confirms a grip on one arm from its gripper angle stalling short of the target."""
 
-    window: deque[float] = field(default_factory=lambda: deque(maxlen=STALL_SAMPLES))
+    window: deque[float] = field(default_factory=lambda: deque(maxlen=STILL_SAMPLES))
 
     def add(self, angles_deg: tuple[float, ...] | list[float]) -> None:
         """Feed one joint report (seven angles)."""
@@ -35,7 +33,5 @@ class GripDetector:
 
     def gripped(self, target_deg: float) -> bool:
         """True when the gripper stopped more than SHORT_OF_TARGET_DEG above ``target_deg``."""
-        if len(self.window) < STALL_SAMPLES:
-            return False
-        still = max(self.window) - min(self.window) <= STALL_SPREAD_DEG
+        still = is_still([(angle,) for angle in self.window])
         return still and self.window[-1] - target_deg > SHORT_OF_TARGET_DEG

@@ -25,9 +25,10 @@ from fleet.choreo.grip import GripDetector
 from fleet.choreo.script import Pose, Script
 from fleet.choreo.timeline import ArmFacts, Frame, Timeline, max_error_deg
 from fleet.choreo.validate import check_motion
-from fleet.choreo.watch import ArmWatch, Liveness, settle
-from fleet.client import FleetClient
+from fleet.client import FleetClient, start_at_ns
 from fleet.d1.limits import CONTROL_RATE_HZ, GRIPPER_JOINT
+from fleet.heartbeat import Liveness
+from fleet.watch import ArmWatch, settle
 from fleet.wire import messages as m
 
 log = logging.getLogger("fleet.choreo")
@@ -37,10 +38,10 @@ TARGET_LIFETIME_S = 0.3
 PATH_WINDOW = 6
 """The measured pose is compared with the targets of the last 6 ticks (feedback lags ~0.1 s)."""
 MAX_PENDING = 3
+"""Commands in flight per arm beyond which a tick skips the arm."""
 KEYFRAME_WINDOW_S = 0.4
 """A keyframe's tracking error is the arm's closest approach within this time after the keyframe
 (feedback is 10 Hz and ~0.1 s behind the command: the sample at the exact instant is stale)."""
-"""Commands in flight per arm beyond which a tick skips the arm (and counts it)."""
 
 
 @dataclass
@@ -54,7 +55,6 @@ class PlayResult:
     start_skew_ms: float | None = None
     keyframe_error_deg: list[float] = field(default_factory=list)
     max_path_error_deg: float = 0.0
-    skipped_ticks: int = 0
     elapsed_s: float = 0.0
 
 
@@ -142,9 +142,8 @@ class Player:
         return {a: tuple(watch.latest(a).joints.angles_deg) for a in self.script.arms}  # type: ignore[union-attr]
 
     def _run(self, timeline: Timeline, watch: ArmWatch, stop: threading.Event) -> None:
-        lead_ns = int(self.script.start_lead_s * 1e9)
-        start_ns = time.time_ns() + lead_ns
-        start_s = time.monotonic() + lead_ns / 1e9
+        start_ns = start_at_ns(self.script.start_lead_s)
+        start_s = time.monotonic() + self.script.start_lead_s
         timeline.start(start_s)
         first = timeline.tick(start_s + self.period_s, {})
         self.result.start_skew_ms = self._synchronized_start(first, start_ns)
@@ -265,8 +264,7 @@ class Player:
             target = frame.targets[arm]
             self.recent[arm].append(target)
             if len(self.pending[arm]) >= MAX_PENDING:
-                self.result.skipped_ticks += 1
-                continue
+                continue  # the agent is behind: skip this tick, the next target supersedes it
             command = m.MoveJoints(
                 angles_deg=list(target),
                 mode=0,

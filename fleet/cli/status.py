@@ -102,8 +102,9 @@ def run_status(args: argparse.Namespace) -> int:
 
 def run_schema(_args: argparse.Namespace) -> int:
     """JSON Schema of every payload, keyed by the key it travels on."""
-    types = list([k.struct for k in payloads.PUBLIC.values()])
+    channels = list(payloads.CHANNELS.values())
+    types = [c.payload.struct for c in channels]
     schemas, components = msgspec.json.schema_components(types, ref_template="#/$defs/{name}")
-    out = {"keys": dict(zip(payloads.PUBLIC, schemas, strict=False)), "$defs": components}
+    out = {"keys": {c.key: s for c, s in zip(channels, schemas, strict=True)}, "$defs": components}
     print(json.dumps(out, indent=2))
     return 0

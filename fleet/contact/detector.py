@@ -142,11 +142,6 @@ class ContactDetector:
         continuous run of firing counts once (the benchmark's per-method figures)."""
         return {m: list(times) for m, times in self._joints[joint].onsets.items()}
 
-    def confirmed_methods(self, joint: int, now_s: float) -> set[str]:
-        """Methods (enabled or not) confirmed on ``joint`` right now."""
-        joint_state = self._joints[joint]
-        return {m for m in joint_state.since if self._is_confirmed(joint_state, m, now_s)}
-
     # ------------------------------------------------------------------ the core
 
     def on_angles(self, angles_deg: tuple[float, ...], now_s: float) -> Report:

@@ -148,9 +148,10 @@ class CoordinatorIntake:
         if arm is None:
             return
         channel = self._space.parse_arm_key(str(sample.key_expr)).channel
-        kind = payloads.STOP_ACK if channel == keys.ESTOP_ACK else payloads.CONTACT
         try:
-            payload: m.StopAck | m.ContactEvent = kind.decode(sample.payload.to_bytes())
+            payload: m.StopAck | m.ContactEvent = payloads.decode(
+                channel, sample.payload.to_bytes()
+            )
         except payloads.PayloadError:
             self._bad()
             return

@@ -21,7 +21,7 @@ from concurrent.futures import ThreadPoolExecutor
 import msgspec
 import zenoh
 
-from fleet.client import STOP_QOS, FleetClient
+from fleet.client import STOP_QOS, FleetClient, start_at_ns
 from fleet.coordinator.contact_actions import perform
 from fleet.coordinator.contact_policy import Action, ContactPolicy
 from fleet.coordinator.desk import RequestDesk, error_reply
@@ -29,6 +29,7 @@ from fleet.coordinator.intake import Control, CoordinatorIntake
 from fleet.coordinator.state import FleetStateTracker
 from fleet.coordinator.stops import FLEET, StopBook
 from fleet.guard import ThreadGuard
+from fleet.heartbeat import beat_until
 from fleet.inventory import Inventory, InventoryError
 from fleet.security.config import COMMANDERS
 from fleet.security.session import open_session
@@ -70,6 +71,7 @@ class Coordinator:
         self.undecodable_stops = 0  # guarded by lock
         self.desk = RequestDesk(self.keys, self._serve, self.guard)
         self._pending_actions = 0  # guarded by lock
+        self._next_diag = 0.0  # heartbeat thread only
         self.session = open_session(inventory)
         self.client = FleetClient(inventory, self.session)
         self._declared: list[zenoh.Subscriber[None] | zenoh.Queryable[None]] = []
@@ -111,25 +113,26 @@ class Coordinator:
     # ------------------------------------------------------------------ threads
 
     def _beat(self) -> None:
-        seq = 0
-        next_beat = time.monotonic()
-        next_diag = next_beat
-        while not self.stopping.is_set():
-            now, stamp = time.monotonic(), time.time_ns()
+        beat_until(
+            self.stopping, self._heartbeat_pub, self.id, self.period_s, self._latched, self._after
+        )
+
+    def _latched(self) -> dict[str, m.StopRequest]:
+        with self.lock:
+            return self.stops.latched()
+
+    def _after(self, seq: int, stamp_ns: int) -> None:
+        """After a beat: the fleet state every other beat, the diag once a second."""
+        if self.stopping.is_set():
+            return  # a thread failed: publish nothing more
+        now = time.monotonic()
+        if seq % 2 == 0:
             with self.lock:
-                beat = m.Heartbeat(stamp, self.id, seq, self.period_s, self.stops.latched())
-                state = self.state.state(self.id, now, stamp) if seq % 2 == 0 else None
-            if self.stopping.is_set():
-                return  # a thread failed meanwhile: not one more beat
-            self._heartbeat_pub.put(encode(beat))
-            if state is not None:
-                self._state_pub.put(encode(state))
-            if now >= next_diag:
-                next_diag = now + DIAG_PERIOD_S
-                self._diag_pub.put(encode(self.diag(stamp)))
-            seq += 1
-            next_beat += self.period_s
-            self.stopping.wait(max(0.0, next_beat - time.monotonic()))
+                state = self.state.state(self.id, now, stamp_ns)
+            self._state_pub.put(encode(state))
+        if now >= self._next_diag:
+            self._next_diag = now + DIAG_PERIOD_S
+            self._diag_pub.put(encode(self.diag(stamp_ns)))
 
     def diag(self, stamp_ns: int) -> m.CoordinatorDiag:
         """The coordinator's counters."""
@@ -238,7 +241,7 @@ class Coordinator:
                 if request.lead_s is not None
                 else self.inventory.coordinator.sync_lead_s
             )
-            changes["start_at_ns"] = time.time_ns() + int(lead * 1e9)
+            changes["start_at_ns"] = start_at_ns(lead)
         command = msgspec.structs.replace(request.command, **changes)
         replies = dict(zip(arms, self._pool.map(lambda a: self.client.command(a, command), arms)))
         written = [r.written_ns for r in replies.values() if r.ok and r.written_ns is not None]

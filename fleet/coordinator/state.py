@@ -29,21 +29,12 @@ class FleetStateTracker:
         self.offline_after_s = offline_after_s
         self._arms = {arm: _ArmView() for arm in arms}
 
-    def knows(self, arm: str) -> bool:
-        """True for an arm of the inventory."""
-        return arm in self._arms
-
     def on_token(self, arm: str, present: bool, now: float) -> None:
         """The agent's liveliness token appeared or went away."""
         if arm in self._arms:
             self._arms[arm].token = present
             if present:
                 self._arms[arm].heard_s = now
-
-    def on_heard(self, arm: str, now: float) -> None:
-        """Any sample from the arm's agent."""
-        if arm in self._arms:
-            self._arms[arm].heard_s = now
 
     def on_status(self, arm: str, status: m.ArmStatus, now: float) -> None:
         """The agent's latest status."""

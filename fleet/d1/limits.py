@@ -16,7 +16,6 @@ from __future__ import annotations
 JOINT_COUNT = 7
 """Six arm joints plus the gripper (wire ids 0..6)."""
 
-ARM_JOINT_COUNT = 6
 GRIPPER_JOINT = 6
 
 ARM_JOINT_LIMIT_DEG: tuple[float, ...] = (135.0, 90.0, 90.0, 135.0, 90.0, 135.0)
@@ -35,9 +34,3 @@ TORQUE_MODE_MAX = 80000
 
 CONTROL_RATE_HZ = 10.0
 """The arm's control cycle and feedback rate."""
-
-
-def joint_in_range(joint: int, angle_deg: float) -> bool:
-    """True when ``angle_deg`` is inside the documented range of wire joint ``joint``."""
-    low, high = JOINT_RANGE_DEG[joint]
-    return low <= angle_deg <= high

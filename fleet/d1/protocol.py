@@ -78,7 +78,6 @@ class ReturnToZero(msgspec.Struct, frozen=True):
 
 Command = SetJointAngle | SetAllAngles | SetJointTorque | SetAllTorque | SetPower | ReturnToZero
 
-MOTION_COMMANDS = (SetJointAngle, SetAllAngles, ReturnToZero)
 """Commands that make the arm move (refused while stopped, need power)."""
 
 _FUNCODE_OF: dict[type, int] = {
@@ -100,12 +99,19 @@ class JointAngles(msgspec.Struct, frozen=True):
     angles_deg: tuple[float, ...]
 
 
-class ArmStatus(msgspec.Struct, frozen=True):
-    """2/3: enable and power state; ``error`` is True when the arm reports ``error_status`` 0."""
+class D1Status(msgspec.Struct, frozen=True):
+    """2/3: the arm's own enable and power report; ``error`` is True when the arm reports
+    ``error_status`` 0. (Not the key space's ``fleet.wire.messages.ArmStatus``, which the agent
+    builds from this, the link state and its latch.)"""
 
     enabled: bool
     powered: bool
     error: bool
+
+
+ArmStatus = D1Status
+"""Old name of ``D1Status``, kept only until ``edge_agent/agent.py`` and ``tracker.py`` (being
+reworked in parallel) spell the new one; remove it then. New code uses ``D1Status``."""
 
 
 class MotorStatus(msgspec.Struct, frozen=True):
@@ -128,7 +134,7 @@ class ExecuteAck(msgspec.Struct, frozen=True):
     ok: bool
 
 
-ArmMessage = JointAngles | ArmStatus | MotorStatus | ReceiveAck | ExecuteAck
+ArmMessage = JointAngles | D1Status | MotorStatus | ReceiveAck | ExecuteAck
 
 
 class Decoded(msgspec.Struct, frozen=True):
@@ -298,7 +304,7 @@ def encode_message(message: ArmMessage, seq: int = ARM_REPORT_SEQ) -> str:
             raise InvalidCommand(f"expected {JOINT_COUNT} angles, got {len(message.angles_deg)}")
         data = {k: _number(a) for k, a in zip(_ANGLE_KEYS, message.angles_deg, strict=False)}
         address, funcode = REPORT_ADDRESS, 1
-    elif isinstance(message, ArmStatus):
+    elif isinstance(message, D1Status):
         data = {
             "enable_status": _flag(message.enabled),
             "power_status": _flag(message.powered),
@@ -426,7 +432,7 @@ def decode_message(text: str | bytes) -> Decoded:
         message = JointAngles(tuple(_read_number(data, k) for k in _ANGLE_KEYS))
     elif (address, funcode) == (REPORT_ADDRESS, 3):
         known = ("enable_status", "power_status", "error_status")
-        message = ArmStatus(
+        message = D1Status(
             enabled=_read_flag(data, "enable_status"),
             powered=_read_flag(data, "power_status"),
             error=not _read_flag(data, "error_status"),

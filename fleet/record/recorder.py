@@ -34,7 +34,6 @@ import threading
 import time
 from collections.abc import Iterable
 from pathlib import Path
-from typing import Any
 
 import zenoh
 
@@ -46,18 +45,6 @@ log = logging.getLogger("fleet.record")
 
 RECORDED_CHANNELS: tuple[str, ...] = (keys.JOINTS, keys.STATUS, keys.CONTACT, keys.RAW_COMMAND)
 RECORDED_CHANNELS += (keys.ESTOP, keys.ESTOP_ACK)
-RAW_COMMAND: payloads.PayloadKind[dict[str, Any]] = payloads.payload_kind(
-    "raw command", dict[str, Any], 4 * payloads.KIB
-)
-"""The agent's mirror of what it wrote to DDS: a JSON object (the D1 codec caps it at 4 KiB)."""
-KINDS: dict[str, payloads.PayloadKind[Any]] = {
-    keys.JOINTS: payloads.JOINTS,
-    keys.STATUS: payloads.STATUS,
-    keys.CONTACT: payloads.CONTACT,
-    keys.RAW_COMMAND: RAW_COMMAND,
-    keys.ESTOP: payloads.STOP,
-    keys.ESTOP_ACK: payloads.STOP_ACK,
-}
 QUEUE_DEPTH = 20000
 """Samples waiting for the recorder thread, at most: half a second of a 40,000/s burst."""
 POLL_S = 0.005
@@ -178,7 +165,7 @@ class Recorder:
             return
         arm, channel = where
         try:
-            decoded = KINDS[channel].decode(payload)
+            decoded = payloads.decode(channel, payload)
         except payloads.PayloadError as exc:
             self._skip(key, str(exc))
             return
@@ -201,7 +188,7 @@ class Recorder:
                 parsed = self.space.parse_arm_key(key)
             except keys.KeyError_:
                 return None
-            if parsed.arm not in self._armset or parsed.channel not in KINDS:
+            if parsed.arm not in self._armset or parsed.channel not in RECORDED_CHANNELS:
                 return None
             route = (parsed.arm, parsed.channel)
         self._routes[key] = route  # only keys we subscribed to: a bounded set

@@ -25,8 +25,7 @@ from typing import IO, Any
 import msgspec
 from mcap.writer import CompressionType, Writer
 
-from fleet.wire import keys
-from fleet.wire import messages as m
+from fleet.wire import keys, payloads
 
 FLUSH_PERIOD_S = 0.5
 """A chunk is closed and the file flushed this often (if anything was added): a killed recorder
@@ -53,20 +52,14 @@ def _struct_schema(struct: Any) -> dict[str, Any]:
 
 
 def channel_schema(channel: str) -> tuple[str, dict[str, Any]]:
-    """(schema name, JSON Schema) of an arm channel's payload."""
-    if channel == keys.JOINTS:
-        return "Joints", _struct_schema(m.Joints)
-    if channel == keys.STATUS:
-        return "ArmStatus", _struct_schema(m.ArmStatus)
-    if channel == keys.ESTOP:
-        return "StopRequest", _struct_schema(m.StopRequest)
-    if channel == keys.ESTOP_ACK:
-        return "StopAck", _struct_schema(m.StopAck)
+    """(schema name, JSON Schema) of an arm channel's payload, from the channel table."""
     if channel == keys.RAW_COMMAND:
-        return "D1Command", _RAW_COMMAND_SCHEMA
-    if channel == keys.CONTACT:
-        return "ContactEvent", _struct_schema(m.ContactEvent)
-    return "JSON", _ANY_OBJECT
+        return "D1Command", _RAW_COMMAND_SCHEMA  # a plain object: its own words say more
+    known = payloads.CHANNELS.get(channel)
+    if known is None:
+        return "JSON", _ANY_OBJECT
+    struct = known.payload.struct
+    return struct.__name__, _struct_schema(struct)
 
 
 class RecordingWriter:

@@ -200,7 +200,7 @@ class SimArmModel:
             return []
         motors = tuple(j not in self.faults.motors_offline for j in range(JOINT_COUNT))
         return [
-            p.ArmStatus(
+            p.D1Status(
                 enabled=any(self.enabled),
                 powered=self.powered,
                 error=self.faults.error_status

@@ -25,9 +25,10 @@ import uuid
 from concurrent.futures import Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field
 
-from fleet.choreo.watch import ArmWatch, Liveness, settle
 from fleet.client import FleetClient
+from fleet.heartbeat import Liveness
 from fleet.teleop.mapping import FollowerMap
+from fleet.watch import ArmWatch, settle
 from fleet.wire import messages as m
 
 log = logging.getLogger("fleet.mirror")

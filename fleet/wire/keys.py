@@ -28,6 +28,12 @@ HEARTBEAT = "heartbeat"
 CONTACT = "contact"
 SIM_FAULT = "sim/fault"
 
+# Key kinds directly under fleet/<fleet>/ (HEARTBEAT, ESTOP and RESET above serve both levels)
+STATE = "state"
+STOP_REPORT = "estop/report"
+COORDINATOR_CMD = "coordinator/cmd"
+COORDINATOR_DIAG = "coordinator/diag"
+
 ARM_CHANNELS = (
     JOINTS,
     STATUS,
@@ -93,27 +99,27 @@ class KeySpace:
     @property
     def state(self) -> str:
         """The coordinator's fleet summary."""
-        return f"{self.prefix}/state"
+        return f"{self.prefix}/{STATE}"
 
     @property
     def estop(self) -> str:
         """Fleet-wide protective stop."""
-        return f"{self.prefix}/estop"
+        return f"{self.prefix}/{ESTOP}"
 
     @property
     def reset(self) -> str:
         """Fleet-wide operator reset (agents subscribe to it)."""
-        return f"{self.prefix}/reset"
+        return f"{self.prefix}/{RESET}"
 
     @property
     def heartbeat(self) -> str:
         """Every commander's heartbeat (``heartbeat/*``: subscribe to this)."""
-        return f"{self.prefix}/heartbeat/*"
+        return f"{self.prefix}/{HEARTBEAT}/*"
 
     def heartbeat_of(self, principal: str) -> str:
         """``principal``'s heartbeat: the router lets only ``principal`` publish it, so the
         agents take the commander's identity from the key, never from the payload."""
-        return f"{self.prefix}/heartbeat/{check_name('principal', principal)}"
+        return f"{self.prefix}/{HEARTBEAT}/{check_name('principal', principal)}"
 
     def command(self, arm: str, principal: str) -> str:
         """``arm/<arm>/cmd/<principal>``: ``principal``'s commands (``arm`` may be ``*``)."""
@@ -126,21 +132,21 @@ class KeySpace:
     @property
     def coordinator_cmd(self) -> str:
         """Multi-arm commands of every principal (the coordinator's queryable)."""
-        return f"{self.prefix}/coordinator/cmd/*"
+        return f"{self.prefix}/{COORDINATOR_CMD}/*"
 
     def coordinator_command(self, principal: str) -> str:
         """``principal``'s multi-arm commands."""
-        return f"{self.prefix}/coordinator/cmd/{check_name('principal', principal)}"
+        return f"{self.prefix}/{COORDINATOR_CMD}/{check_name('principal', principal)}"
 
     @property
     def coordinator_diag(self) -> str:
         """The coordinator's counters."""
-        return f"{self.prefix}/coordinator/diag"
+        return f"{self.prefix}/{COORDINATOR_DIAG}"
 
     @property
     def stop_report(self) -> str:
         """The coordinator's per-arm timing of each stop."""
-        return f"{self.prefix}/estop/report"
+        return f"{self.prefix}/{STOP_REPORT}"
 
     @property
     def everything(self) -> str:
@@ -150,7 +156,7 @@ class KeySpace:
     def principal_of(self, key: str) -> str:
         """The principal a heartbeat or command key ends with; raises KeyError_ otherwise."""
         principal = key.rpartition("/")[2]
-        for base in ("/heartbeat/", "/coordinator/cmd/"):
+        for base in (f"/{HEARTBEAT}/", f"/{COORDINATOR_CMD}/"):
             if key == f"{self.prefix}{base}{principal}" and _NAME.match(principal):
                 return principal
         try:

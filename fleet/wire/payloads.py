@@ -1,10 +1,12 @@
-"""The one way a key-space payload is decoded: a table of payload kinds and one helper.
+"""The one way a key-space payload is decoded: the channel table and one helper.
 
-Every consumer (agent, coordinator, simulator, viewer, CLI, recorder) decodes through
-``PayloadKind.decode``: the size is capped before parsing, and *any* failure of the parser
-becomes ``PayloadError``. msgspec raises more than ``msgspec.DecodeError`` on hostile input:
-``RecursionError`` for JSON nested ~1000 deep, ``UnicodeDecodeError`` for invalid UTF-8 in a
-string. A thread that catches only ``DecodeError`` dies on a 2 KB put; none may.
+``CHANNELS`` maps each key kind to its Struct (a ``PayloadKind``); every consumer (agent,
+coordinator, client, simulator, viewer, CLI, recorder, choreography) decodes through
+``decode(kind, data)`` or the kind's own ``PayloadKind.decode``: the size is capped before
+parsing, and *any* failure of the parser becomes ``PayloadError``. msgspec raises more than
+``msgspec.DecodeError`` on hostile input: ``RecursionError`` for JSON nested ~1000 deep,
+``UnicodeDecodeError`` for invalid UTF-8 in a string. A thread that catches only
+``DecodeError`` dies on a 2 KB put; none may.
 
 Size caps are per kind (``max_bytes``): generous for every real payload (the largest a command
 gets is about 400 bytes), small enough that a flood of them costs little memory.
@@ -17,6 +19,7 @@ from typing import Any, Generic, TypeVar
 
 import msgspec
 
+from fleet.wire import keys
 from fleet.wire import messages as m
 
 T = TypeVar("T")
@@ -102,22 +105,53 @@ COORDINATOR_DIAG: PayloadKind[m.CoordinatorDiag] = payload_kind(
     "coordinator diag", m.CoordinatorDiag, 8 * KIB
 )
 
-PUBLIC: dict[str, PayloadKind[Any]] = {
-    "arm/<arm>/joints": JOINTS,
-    "arm/<arm>/status": STATUS,
-    "arm/<arm>/diag": DIAG,
-    "arm/<arm>/cmd (request)": COMMAND,
-    "arm/<arm>/cmd (reply)": REPLY,
-    "estop, arm/<arm>/estop": STOP,
-    "reset, arm/<arm>/reset": RESET,
-    "arm/<arm>/estop/ack": STOP_ACK,
-    "heartbeat": HEARTBEAT,
-    "state": STATE,
-    "coordinator/cmd (request)": MULTI_REQUEST,
-    "coordinator/cmd (reply)": MULTI_REPLY,
-    "coordinator/diag": COORDINATOR_DIAG,
-    "estop/report": STOP_REPORT,
-    "arm/<arm>/contact": CONTACT,
+RAW_COMMAND: PayloadKind[dict[str, Any]] = payload_kind("raw command", dict[str, Any], 4 * KIB)
+"""The agent's mirror of what it wrote to DDS: a JSON object (the D1 codec caps it at 4 KiB).
+(``raw/feedback`` has no kind: it is the arm's text as read, which need not be JSON at all.)"""
+
+CMD_REPLY = f"{keys.CMD} reply"
+COORDINATOR_CMD_REPLY = f"{keys.COORDINATOR_CMD} reply"
+"""Kinds of the replies to the two queryables (a reply travels on its query's key)."""
+
+
+@dataclass(frozen=True)
+class Channel:
+    """One row of the key-space table: a key kind (``keys.JOINTS``, ``keys.STATE``, ...; what
+    a subscriber routes on), its key as the README spells it, and its payload."""
+
+    kind: str
+    key: str
+    payload: PayloadKind[Any]
+
+
+CHANNELS: dict[str, Channel] = {
+    c.kind: c
+    for c in (
+        Channel(keys.JOINTS, "arm/<arm>/joints", JOINTS),
+        Channel(keys.STATUS, "arm/<arm>/status", STATUS),
+        Channel(keys.DIAG, "arm/<arm>/diag", DIAG),
+        Channel(keys.RAW_COMMAND, "arm/<arm>/raw/command", RAW_COMMAND),
+        Channel(keys.CMD, "arm/<arm>/cmd (request)", COMMAND),
+        Channel(CMD_REPLY, "arm/<arm>/cmd (reply)", REPLY),
+        Channel(keys.ESTOP, "estop, arm/<arm>/estop", STOP),
+        Channel(keys.RESET, "reset, arm/<arm>/reset", RESET),
+        Channel(keys.ESTOP_ACK, "arm/<arm>/estop/ack", STOP_ACK),
+        Channel(keys.HEARTBEAT, "heartbeat/<principal>", HEARTBEAT),
+        Channel(keys.STATE, "state", STATE),
+        Channel(keys.COORDINATOR_CMD, "coordinator/cmd (request)", MULTI_REQUEST),
+        Channel(COORDINATOR_CMD_REPLY, "coordinator/cmd (reply)", MULTI_REPLY),
+        Channel(keys.COORDINATOR_DIAG, "coordinator/diag", COORDINATOR_DIAG),
+        Channel(keys.STOP_REPORT, "estop/report", STOP_REPORT),
+        Channel(keys.CONTACT, "arm/<arm>/contact", CONTACT),
+    )
 }
-"""Every public key's payload kind (``fleet schema`` prints their JSON Schemas; the README's
-key-space table lists the same keys)."""
+"""THE channel table: every key kind that carries a decodable payload, with its payload kind.
+Every consumer (agent, coordinator, client, recorder, choreography, viewer, ``fleet schema``)
+decodes through it; the README's key-space table lists the same keys."""
+
+
+def decode(kind: str, data: bytes | bytearray | memoryview | str) -> Any:
+    """The payload of a sample on a key of ``kind`` (a ``CHANNELS`` kind); raises PayloadError
+    for anything that is not one. A kind with no payload (``agent``, ``raw/feedback``) is a
+    bug of the caller: KeyError."""
+    return CHANNELS[kind].payload.decode(data)

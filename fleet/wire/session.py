@@ -116,12 +116,3 @@ def open_client(
             f"no Zenoh router answered on {', '.join(endpoints)} within {connect_timeout_s:g} s "
             f"({exc}); is `fleet router` running?"
         ) from None
-
-
-def open_router(
-    endpoints: list[str] | tuple[str, ...], connect: list[str] | tuple[str, ...] = ()
-) -> zenoh.Session:
-    """A router session listening on ``endpoints`` and, if given, connected to the routers on
-    ``connect`` (a site router joined to a central one). A router retries its ``connect``
-    endpoints for ever, also after a connected router went away, so it may start first."""
-    return zenoh.open(zenoh_config("router", connect=connect, listen=endpoints))

@@ -1,33 +1,26 @@
-"""What a streaming commander (the choreography player, the mirror) needs to know of its arms,
-and the heartbeat that makes the agents watch them.
+"""What a client that commands arms (the scripting API, the choreography player, the mirror)
+knows of them: the latest joints, status and gripper contact of each.
 
 ``ArmWatch`` subscribes to the arms' joints, status and contact keys and keeps the latest of
-each (a Zenoh callback only decodes and stores under a lock: no I/O, no Zenoh call).
-``Liveness`` publishes a ``Heartbeat`` with the commander's id on ``heartbeat/<principal>`` at
-10 Hz on its own thread: agents treat any heartbeat publisher as a coordinator, so an arm moved
-by this commander is held by its agent when the commander dies.
+each (a Zenoh callback only decodes, through the channel table, and stores under a lock: no
+I/O, no Zenoh call). ``settle`` waits until arms are still (``fleet.d1.standstill``). The
+heartbeat that makes the agents watch a commander is ``fleet.heartbeat``.
 """
 
 from __future__ import annotations
 
-import logging
 import threading
 import time
-from collections import deque
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import zenoh
 
-from fleet.client import JSON, STOP_QOS
 from fleet.d1.limits import GRIPPER_JOINT
+from fleet.d1.standstill import Standstill
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
-from fleet.wire.messages import encode
 
-log = logging.getLogger("fleet.choreo")
-
-HEARTBEAT_PERIOD_S = 0.1
 STATUS_SILENT_S = 1.0
 """An arm whose agent published no status for this long has lost its link (status is 4 Hz)."""
 
@@ -71,25 +64,24 @@ class ArmWatch:
             return
         if key.arm not in self._latest:
             return
-        data, now = sample.payload.to_bytes(), time.monotonic()
         try:
-            if key.channel == keys.JOINTS:
-                joints = payloads.JOINTS.decode(data)
-                with self.lock:
-                    self._latest[key.arm].joints, self._latest[key.arm].joints_at = joints, now
-                if self._on_joints is not None:
-                    self._on_joints(key.arm, joints)
-            elif key.channel == keys.STATUS:
-                status = payloads.STATUS.decode(data)
-                with self.lock:
-                    self._latest[key.arm].status, self._latest[key.arm].status_at = status, now
-            elif key.channel == keys.CONTACT:
-                contact = _contact_of(data)
-                if contact is not None:
-                    with self.lock:
-                        self._latest[key.arm].contact = contact
+            payload = payloads.decode(key.channel, sample.payload.to_bytes())
         except payloads.PayloadError:
             return  # a foreign payload: the agent counts malformed data, not us
+        now, arm = time.monotonic(), key.arm
+        if isinstance(payload, m.Joints):
+            with self.lock:
+                self._latest[arm].joints, self._latest[arm].joints_at = payload, now
+            if self._on_joints is not None:
+                self._on_joints(arm, payload)
+        elif isinstance(payload, m.ArmStatus):
+            with self.lock:
+                self._latest[arm].status, self._latest[arm].status_at = payload, now
+        elif isinstance(payload, m.ContactEvent):
+            contact = _gripper_contact(payload)
+            if contact is not None:
+                with self.lock:
+                    self._latest[arm].contact = contact
 
     def latest(self, arm: str) -> Latest:
         """A copy of the newest samples of ``arm``."""
@@ -129,57 +121,14 @@ class ArmWatch:
             sub.undeclare()
 
 
-def _contact_of(data: bytes) -> bool | None:
+def _gripper_contact(event: m.ContactEvent) -> bool | None:
     """A gripper ``ContactEvent``: True for a confirmed grip, False when released or free,
     None for anything else (another joint, a suspicion: the last word stands)."""
-    event = payloads.CONTACT.decode(data)
     if event.joint != GRIPPER_JOINT:
         return None
     if event.state == "confirmed":
         return event.grip
     return False if event.state in ("released", "free") else None
-
-
-class Liveness:
-    """A Heartbeat publisher for commander ``owner`` (10 Hz, own thread). A context manager."""
-
-    def __init__(
-        self, session: zenoh.Session, space: keys.KeySpace, owner: str, principal: str
-    ) -> None:
-        self.owner = owner
-        key = space.heartbeat_of(principal)  # the router lets only `principal` publish it
-        self._pub = session.declare_publisher(key, encoding=JSON, **STOP_QOS)
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="liveness", daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        try:
-            seq = 0
-            next_beat = time.monotonic()
-            while not self._stop.is_set():
-                beat = m.Heartbeat(time.time_ns(), self.owner, seq, HEARTBEAT_PERIOD_S)
-                self._pub.put(encode(beat))
-                seq += 1
-                next_beat += HEARTBEAT_PERIOD_S
-                self._stop.wait(max(0.0, next_beat - time.monotonic()))
-        except BaseException:
-            log.exception("liveness thread failed: agents will hold the arms")
-            raise
-
-    def close(self) -> None:
-        """Stop beating (agents then hold arms still moving under this owner); idempotent."""
-        if self._stop.is_set():
-            return
-        self._stop.set()
-        self._thread.join(timeout=2.0)
-        self._pub.undeclare()
-
-    def __enter__(self) -> Liveness:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 def settle(
@@ -188,10 +137,10 @@ def settle(
     goal: Mapping[str, tuple[float, ...]] | None,
     timeout_s: float,
 ) -> dict[str, tuple[float, ...]]:
-    """Wait (bounded) until every arm is still over 4 reports (and within 0.8 deg of ``goal``);
-    returns each arm's last pose."""
+    """Wait (bounded) until every arm is still (and within 0.8 deg of ``goal``); returns each
+    arm's last pose."""
     deadline = time.monotonic() + timeout_s
-    history: dict[str, deque[tuple[float, ...]]] = {a: deque(maxlen=4) for a in arms}
+    still = {a: Standstill() for a in arms}
     seen: dict[str, int] = {}
     poses: dict[str, tuple[float, ...]] = {}
     while time.monotonic() < deadline:
@@ -199,13 +148,10 @@ def settle(
             joints = watch.latest(arm).joints
             if joints is not None and seen.get(arm) != joints.seq:
                 seen[arm] = joints.seq
-                history[arm].append(tuple(joints.angles_deg))
                 poses[arm] = tuple(joints.angles_deg)
+                still[arm].add(poses[arm])
         if all(
-            len(h) == h.maxlen
-            and _spread(h[0], h[-1]) < 0.3
-            and (goal is None or _spread(h[-1], goal[a]) < 0.8)
-            for a, h in history.items()
+            s.still and (goal is None or _spread(poses[a], goal[a]) < 0.8) for a, s in still.items()
         ):
             break
         time.sleep(0.05)

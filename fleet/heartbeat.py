@@ -1,0 +1,90 @@
+"""The one heartbeat loop: a ``Heartbeat`` on ``heartbeat/<principal>`` every period.
+
+Agents treat every heartbeat publisher as a commander to watch: an arm moved by a commander
+whose beat stops is held by its agent. The coordinator runs ``beat_until`` on its own guarded
+thread (its latched stops ride in every beat, its fleet state and diag are put after a beat);
+a choreography player or a mirror runs it through ``Liveness``, a thread of its own.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+
+import zenoh
+
+from fleet.client import JSON, STOP_QOS
+from fleet.wire import keys
+from fleet.wire import messages as m
+from fleet.wire.messages import encode
+
+log = logging.getLogger("fleet.heartbeat")
+
+HEARTBEAT_PERIOD_S = 0.1
+"""A commander's beat (10 Hz): well inside the agents' default ``watchdog_s`` of 0.5 s."""
+
+
+def _no_stops() -> dict[str, m.StopRequest]:
+    return {}
+
+
+def beat_until(
+    stopping: threading.Event,
+    publisher: zenoh.Publisher,
+    sender: str,
+    period_s: float,
+    stops: Callable[[], dict[str, m.StopRequest]] = _no_stops,
+    after: Callable[[int, int], None] | None = None,
+) -> None:
+    """Put a beat of ``sender`` every ``period_s`` until ``stopping`` is set; ``stops`` gives the
+    latched stops to repeat, ``after(seq, stamp_ns)`` runs after each beat. Fixed rate: a late
+    beat is followed by the next on schedule, not by a burst."""
+    seq = 0
+    next_beat = time.monotonic()
+    while not stopping.is_set():
+        beat = m.Heartbeat(time.time_ns(), sender, seq, period_s, stops())
+        if stopping.is_set():
+            return  # stopped (a thread failed) while composing: not one more beat
+        publisher.put(encode(beat))
+        if after is not None:
+            after(seq, beat.stamp_ns)
+        seq += 1
+        next_beat += period_s
+        stopping.wait(max(0.0, next_beat - time.monotonic()))
+
+
+class Liveness:
+    """The heartbeat of commander ``owner`` (10 Hz, own thread). A context manager."""
+
+    def __init__(
+        self, session: zenoh.Session, space: keys.KeySpace, owner: str, principal: str
+    ) -> None:
+        self.owner = owner
+        key = space.heartbeat_of(principal)  # the router lets only `principal` publish it
+        self._pub = session.declare_publisher(key, encoding=JSON, **STOP_QOS)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="liveness", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        try:
+            beat_until(self._stop, self._pub, self.owner, HEARTBEAT_PERIOD_S)
+        except BaseException:
+            log.exception("liveness thread failed: agents will hold the arms")
+            raise
+
+    def close(self) -> None:
+        """Stop beating (agents then hold arms still moving under this owner); idempotent."""
+        if self._stop.is_set():
+            return
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+        self._pub.undeclare()
+
+    def __enter__(self) -> Liveness:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
