@@ -169,7 +169,7 @@ class EdgeAgent:
                         flight.on_angles(message.angles_deg)
                     if slot.safety.on_angles(message.angles_deg, stamp_ns, now):
                         self.safety_loop.on_still(arm, slot, out)
-                elif isinstance(message, p.ArmStatus):
+                elif isinstance(message, p.D1Status):
                     status_changed = True
                     if slot.safety.on_status(message.enabled, message.powered, stamp_ns):
                         self.safety_loop.on_still(arm, slot, out)  # acknowledged as confirmed

@@ -99,7 +99,7 @@ class ArmTracker:
             self.angles_deg = message.angles_deg
             self.angles_s = now
             self._angle_times.append(now)
-        elif isinstance(message, p.ArmStatus):
+        elif isinstance(message, p.D1Status):
             self.enabled, self.powered, self.error = message.enabled, message.powered, message.error
         elif isinstance(message, p.MotorStatus):
             self.motors_ok = message.motors_ok

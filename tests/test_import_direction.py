@@ -1,6 +1,6 @@
 """Imports point one way (shared/STYLE.md): a walk over every import of the product's packages.
 
-- the codec and the key space (``fleet.d1``, ``fleet.wire``) import nothing above them;
+- the codec imports only itself, the key space only itself and the codec;
 - ``edge_agent/`` and ``viewer/`` never import the coordinator, nor each other;
 - ``fleet/`` never imports the agent or the viewer, but for its CLI: the ``fleet`` command is
   the top of the stack and runs the viewer;
@@ -89,6 +89,28 @@ def test_the_walk_sees_the_product() -> None:
     assert "edge_agent.link" in _modules()
     assert "fleet.d1.protocol" in imports_of("edge_agent.tracker")
     assert "fleet.wire.keys" in imports_of("edge_agent.relay")
+
+
+def _outside(importer: str, allowed: tuple[str, ...]) -> list[str]:
+    return sorted(
+        f"{module} imports {target}"
+        for module in _modules()
+        if _within(module, importer)
+        for target in imports_of(module)
+        if not any(_within(target, a) for a in allowed)
+    )
+
+
+def test_the_codec_and_the_key_space_import_nothing_above_them() -> None:
+    assert _outside("fleet.d1", ("fleet.d1",)) == []
+    assert _outside("fleet.wire", ("fleet.wire", "fleet.d1")) == []
+
+
+def test_the_client_side_library_never_imports_its_users() -> None:
+    """``fleet.watch`` and ``fleet.heartbeat`` serve the API, player, mirror and coordinator."""
+    users = ("fleet.api", "fleet.choreo", "fleet.teleop", "fleet.coordinator", "fleet.cli")
+    for module in ("fleet.watch", "fleet.heartbeat"):
+        assert [t for t in imports_of(module) if any(_within(t, u) for u in users)] == []
 
 
 @pytest.mark.parametrize(

@@ -9,13 +9,12 @@ import pytest
 
 from edge_agent.safety import (
     RESET_IDS_KEPT,
-    STILL_SAMPLES,
-    STILL_TOLERANCE_DEG,
     STOP_REPEAT_S,
     SUPERSEDED_IDS_KEPT,
     ArmSafety,
     LeaseRefused,
 )
+from fleet.d1.standstill import STILL_SAMPLES, STILL_TOLERANCE_DEG
 
 HOME = (0.0,) * 7
 LEASE_S, WATCHDOG_S = 3.0, 0.5

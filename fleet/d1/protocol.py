@@ -109,11 +109,6 @@ class D1Status(msgspec.Struct, frozen=True):
     error: bool
 
 
-ArmStatus = D1Status
-"""Old name of ``D1Status``, kept only until ``edge_agent/agent.py`` and ``tracker.py`` (being
-reworked in parallel) spell the new one; remove it then. New code uses ``D1Status``."""
-
-
 class MotorStatus(msgspec.Struct, frozen=True):
     """2/4: per-motor health, True = normal."""
 
