@@ -85,10 +85,6 @@ class ArmWriter:
             later.append(tell)
         return written
 
-    def write_now(self, arm: str, command: p.Command) -> Written | None:
-        """Write ``command`` with a seq nobody waits for (its effect is confirmed by feedback)."""
-        return self.write(arm, lambda slot, _now: (command, transient_seq(slot)))
-
 
 def transient_seq(slot: ArmSlot) -> int:
     """A seq for a command whose acks nobody awaits (a stop, a hold, a force limit): unique
