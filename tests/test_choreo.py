@@ -167,3 +167,11 @@ def test_mirror_mapping_inverts_and_clamps() -> None:
 
 def test_stop_messages_used_by_the_player_exist() -> None:
     assert m.MoveJoints(angles_deg=list(ZERO), mode=0, stamp_ns=1, lifetime_s=0.3).mode == 0
+
+
+def test_a_leader_cannot_follow_itself() -> None:
+    """``fleet mirror --leader a1 --follower a1`` left a1 unloaded and commanded at once."""
+    from fleet.teleop.mirror import Mirror
+
+    with pytest.raises(MappingError, match="cannot follow itself"):
+        Mirror(None, "a1", parse_mappings(["a2", "a1"]))  # type: ignore[arg-type]

@@ -144,6 +144,8 @@ def run_mirror(args: argparse.Namespace) -> int:
         inventory.arm(arm)
     try:
         mappings = parse_mappings(args.follower, args.invert, args.limit)
+        if args.leader in args.follower:
+            raise MappingError(f"arm {args.leader!r} cannot follow itself: pick another follower")
     except MappingError as exc:
         print(f"fleet mirror: {exc}", file=sys.stderr)
         return 2

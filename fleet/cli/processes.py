@@ -145,6 +145,9 @@ def run_coordinator(args: argparse.Namespace) -> int:
 def _port_free(endpoint: str) -> bool:
     host, _, port = endpoint.split("/", 1)[-1].rpartition(":")
     with socket.socket() as probe:
+        # As the router binds: a port whose last connections linger in TIME-WAIT (the previous
+        # demo's) is free to listen on, and must not read as "in use" for a minute.
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:
             probe.bind((host, int(port)))
         except OSError:

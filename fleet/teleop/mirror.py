@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 
 from fleet.client import FleetClient
 from fleet.heartbeat import Liveness
-from fleet.teleop.mapping import FollowerMap
+from fleet.teleop.mapping import FollowerMap, MappingError
 from fleet.watch import ArmWatch, settle
 from fleet.wire import messages as m
 
@@ -73,6 +73,10 @@ class Mirror:
         mappings: list[FollowerMap],
         unload_leader: bool = True,
     ) -> None:
+        if leader in {f.arm for f in mappings}:
+            # The leader is unloaded to be moved by hand: as its own follower it would be
+            # left unloaded and commanded at once.
+            raise MappingError(f"arm {leader!r} cannot follow itself: pick another follower")
         self.client = client
         self.leader = leader
         self.mappings = mappings
