@@ -65,14 +65,21 @@ def default_source() -> str:
 class FleetClient:
     """A Zenoh session on the fleet's key space. A context manager."""
 
-    def __init__(self, inventory: Inventory, session: zenoh.Session | None = None) -> None:
+    def __init__(
+        self,
+        inventory: Inventory,
+        session: zenoh.Session | None = None,
+        connect_timeout_s: float = 10.0,
+    ) -> None:
         self.inventory = inventory
         self.keys = keys.KeySpace(inventory.fleet)
         self._own_session = session is None
         self.principal = inventory.principal
         self._stamp_lock = threading.Lock()
         self._last_stamp_ns = 0
-        self.session = session if session is not None else open_session(inventory)
+        if session is None:
+            session = open_session(inventory, connect_timeout_s=connect_timeout_s)
+        self.session = session
 
     # ------------------------------------------------------------------ commands
 

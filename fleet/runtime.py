@@ -42,6 +42,11 @@ def wait_for(stop: threading.Event, failed: threading.Event | None = None) -> bo
     return False
 
 
+CLI_CONNECT_TIMEOUT_S = 2.0
+"""A command (``fleet estop`` included) fails this fast when no router answers: a stop that
+waits 10 s for a router that is not there is worse than a clear error at once."""
+
+
 def add_inventory_options(parser: argparse.ArgumentParser) -> None:
     """``--inventory``, ``--domain`` and ``--endpoint``: every command takes them."""
     parser.add_argument(
@@ -63,6 +68,13 @@ def add_inventory_options(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="who this process acts as (default: $D1_FLEET_PRINCIPAL, else the process's own: "
         "operator for the CLI, coordinator, viewer, sim, router, the arms' agent)",
+    )
+    parser.add_argument(
+        "--connect-timeout",
+        type=float,
+        default=CLI_CONNECT_TIMEOUT_S,
+        metavar="S",
+        help=f"how long a command waits for the router (default {CLI_CONNECT_TIMEOUT_S:g} s)",
     )
     parser.add_argument("--log-level", default="INFO")
 

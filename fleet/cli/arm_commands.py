@@ -110,7 +110,7 @@ def _send(args: argparse.Namespace, command: m.ArmCommand) -> int:
     inventory = inventory_from_args(args)
     arms = inventory.resolve(args.target)
     skew = None
-    with FleetClient(inventory) as client:
+    with FleetClient(inventory, connect_timeout_s=args.connect_timeout) as client:
         if args.sync:
             multi = client.multi(args.target, command)
             if multi.error is not None:

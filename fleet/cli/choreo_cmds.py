@@ -98,7 +98,7 @@ def run_play(args: argparse.Namespace) -> int:
         print(f"fleet play: {exc}", file=sys.stderr)
         return 2
     stop = shutdown_event()
-    with FleetClient(inventory) as client:
+    with FleetClient(inventory, connect_timeout_s=args.connect_timeout) as client:
         player = Player(client, script, on_progress=None if args.quiet else _progress)
         if args.check:
             snap = client.snapshot(script.arms)
@@ -150,7 +150,7 @@ def run_mirror(args: argparse.Namespace) -> int:
         print(f"fleet mirror: {exc}", file=sys.stderr)
         return 2
     stop = shutdown_event()
-    with FleetClient(inventory) as client:
+    with FleetClient(inventory, connect_timeout_s=args.connect_timeout) as client:
         mirror = Mirror(client, args.leader, mappings, unload_leader=not args.keep_torque)
         result = mirror.run(stop, for_s=args.for_s)
     print(result.summary(), flush=True)

@@ -48,7 +48,7 @@ def run_record(args: argparse.Namespace) -> int:
         arms += [a for a in inventory.resolve(target) if a not in arms]
     path = args.output or time.strftime("fleet-%Y%m%d-%H%M%S.mcap")
     stop = shutdown_event()
-    with FleetClient(inventory) as client:
+    with FleetClient(inventory, connect_timeout_s=args.connect_timeout) as client:
         try:
             rec = Recorder(client.session, client.keys, arms, path)
         except OSError as exc:
@@ -97,7 +97,7 @@ def run_replay(args: argparse.Namespace) -> int:
         print(f"fleet replay: warning: {recording.describe()}", file=sys.stderr, flush=True)
     messages = recording.messages
     stop = shutdown_event()
-    with FleetClient(inventory) as client:
+    with FleetClient(inventory, connect_timeout_s=args.connect_timeout) as client:
         if args.onto is None:
             fleet = args.fleet or f"{inventory.fleet}-replay"
             print(f"replaying {args.file} read-only as fleet/{fleet}/** (no commands)", flush=True)

@@ -44,7 +44,7 @@ def run_estop(args: argparse.Namespace) -> int:
                 "under gravity (README, Safety); make sure nothing is under it",
                 file=sys.stderr,
             )
-    with FleetClient(inventory) as client:
+    with FleetClient(inventory, connect_timeout_s=args.connect_timeout) as client:
         sent_ns = time.time_ns()
         acks = client.estop(args.arm, reason=args.reason, timeout_s=args.timeout)
     missing = [arm for arm, ack in acks.items() if ack is None]
@@ -69,7 +69,7 @@ def run_estop(args: argparse.Namespace) -> int:
 def run_reset(args: argparse.Namespace) -> int:
     """Put a reset; the agents make each arm's measured pose its target."""
     inventory = inventory_from_args(args)
-    with FleetClient(inventory) as client:
+    with FleetClient(inventory, connect_timeout_s=args.connect_timeout) as client:
         client.reset(args.arm)
     print(f"reset sent to {args.arm or 'every arm'} (arms stay where they are)")
     return 0

@@ -78,7 +78,7 @@ def run_status(args: argparse.Namespace) -> int:
     inventory = inventory_from_args(args)
     stop = shutdown_event()
     healthy = True
-    with FleetClient(inventory) as client:
+    with FleetClient(inventory, connect_timeout_s=args.connect_timeout) as client:
         printed = 0
         while True:
             snapshot = client.snapshot()

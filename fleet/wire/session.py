@@ -8,10 +8,13 @@ so no process binds to a network we did not choose.
 from __future__ import annotations
 
 import json
+import logging
 from dataclasses import dataclass
 from typing import Literal
 
 import zenoh
+
+log = logging.getLogger("fleet.session")
 
 Mode = Literal["router", "peer", "client"]
 
@@ -112,7 +115,8 @@ def open_client(
     try:
         return zenoh.open(config)
     except zenoh.ZError as exc:
+        log.debug("zenoh.open failed: %s", exc)  # Zenoh's text names Rust source files
         raise RouterUnreachable(
-            f"no Zenoh router answered on {', '.join(endpoints)} within {connect_timeout_s:g} s "
-            f"({exc}); is `fleet router` running?"
+            f"no Zenoh router answered on {', '.join(endpoints)} within {connect_timeout_s:g} s; "
+            "is `fleet router` running? (--connect-timeout S waits longer)"
         ) from None
