@@ -3,9 +3,11 @@
 Publisher QoS, and why:
 - ``joints`` and ``raw/*``: congestion control DROP. They are latest-wins state at 10 Hz; a slow
   subscriber must never stall the relay of the next sample (the newest sample is what counts).
-  ``raw/feedback`` and ``raw/command`` are put only while a subscriber matches them (Zenoh's
-  matching status): they are for debugging and recording, and nobody reads them most of the
-  time.
+  ``raw/feedback`` is put only while a subscriber matches it (Zenoh's matching status): it is
+  for debugging and recording, nobody reads it most of the time, and it doubled the puts of the
+  hot path. ``raw/command`` is always put: it is rare, and a recorder that subscribed just
+  before a command must see it (the agent learns of a new subscriber a moment after the
+  router does).
 - ``status`` and ``diag``: DROP, DATA_HIGH: both repeat (4 Hz, 1 Hz), so a lost sample is
   replaced within 0.25 s; BLOCK let one subscriber that stopped reading (a frozen viewer) stall
   the router for every other session (measured on the test bed: 5-10 s without joints).
@@ -54,7 +56,6 @@ class ArmPublishers:
     raw_command: zenoh.Publisher
     stop_ack: zenoh.Publisher
     raw_feedback_matched: bool = False
-    raw_command_matched: bool = False
 
     def all(self) -> tuple[zenoh.Publisher, ...]:
         """Every publisher (for undeclaring)."""
@@ -126,12 +127,8 @@ class ZenohRelay:
         self._queryables: list[zenoh.Queryable[None]] = []
         for arm in arm_ids:
             pubs = self.publishers[arm] = self._declare_publishers(arm)
-            for publisher, flag in (
-                (pubs.raw_feedback, "raw_feedback_matched"),
-                (pubs.raw_command, "raw_command_matched"),
-            ):
-                on_matching = wrap(self._matcher(pubs, flag), "matching")
-                self._matching.append(publisher.declare_matching_listener(direct(on_matching)))
+            on_matching = wrap(self._matcher(pubs), "matching")
+            self._matching.append(pubs.raw_feedback.declare_matching_listener(direct(on_matching)))
             self._queryables.append(
                 self.session.declare_queryable(self.keys.commands(arm), on_query(arm))
             )
@@ -164,17 +161,15 @@ class ZenohRelay:
         )
 
     @staticmethod
-    def _matcher(pubs: ArmPublishers, flag: str) -> Callable[[zenoh.MatchingStatus], None]:
+    def _matcher(pubs: ArmPublishers) -> Callable[[zenoh.MatchingStatus], None]:
         def on_matching(status: zenoh.MatchingStatus) -> None:
-            setattr(pubs, flag, status.matching)
+            pubs.raw_feedback_matched = status.matching
 
         return on_matching
 
     def mirror_command(self, arm: str, text: str) -> None:
-        """Publish a command string written to ``arm`` on ``raw/command`` (while subscribed)."""
-        pubs = self.publishers[arm]
-        if pubs.raw_command_matched:
-            pubs.raw_command.put(text)
+        """Publish a command string written to ``arm`` on ``raw/command``."""
+        self.publishers[arm].raw_command.put(text)
 
     def close(self) -> None:
         """Undeclare tokens first (the fleet sees the agent leave), then close the session."""
