@@ -42,7 +42,13 @@ def register(
         parser.add_argument(
             "--sync",
             action="store_true",
-            help="through the coordinator: one owner, all arms start at the same time",
+            help="through the coordinator: one owner, all arms start at the same time; refused "
+            "(no arm moves) if any target is offline, not ok or stopped",
+        )
+        parser.add_argument(
+            "--partial",
+            action="store_true",
+            help="with --sync: move the arms that can, even if some cannot",
         )
         return parser
 
@@ -131,7 +137,7 @@ def _send(args: argparse.Namespace, command: m.ArmCommand) -> int:
     skew = None
     with FleetClient(inventory, connect_timeout_s=args.connect_timeout) as client:
         if args.sync:
-            multi = client.multi(args.target, command)
+            multi = client.multi(args.target, command, partial=args.partial)
             if multi.error is not None:
                 print(f"FAILED [{multi.error.code}] {multi.error.message}")
                 return 3 if multi.error.code == ErrorCode.NOT_REGISTERED else 1
