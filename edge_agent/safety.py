@@ -67,8 +67,8 @@ class LeaseRefused(Exception):
 
     def __init__(self, holder: str, remaining_s: float) -> None:
         super().__init__(
-            f"held by {holder!r} (lease expires in {remaining_s:.1f} s unless renewed); "
-            "pass takeover=true to take it"
+            f"held by {holder!r}: its lease expires in {remaining_s:.1f} s unless renewed. "
+            "To take the arm anyway: --takeover on the command line, takeover=True in the API"
         )
         self.holder = holder
 

@@ -126,12 +126,20 @@ class FleetClient:
         return _no_reply(arm, why)
 
     def multi(
-        self, target: str, command: m.ArmCommand, sync: bool = True, lead_s: float | None = None
+        self,
+        target: str,
+        command: m.ArmCommand,
+        sync: bool = True,
+        lead_s: float | None = None,
+        partial: bool = False,
     ) -> m.MultiArmReply:
         """Send ``command`` to an arm, a group or ``all`` through the coordinator (one owner,
-        synchronized start). Fails with 3103 when no coordinator answers."""
+        synchronized start: all or nothing unless ``partial``). Fails with 3103 when no
+        coordinator answers."""
         self.inventory.resolve(target)
-        request = m.MultiArmRequest(target=target, command=command, sync=sync, lead_s=lead_s)
+        request = m.MultiArmRequest(
+            target=target, command=command, sync=sync, lead_s=lead_s, partial=partial
+        )
         timeout = (command.timeout_s if command.wait_reached else 3.0) + 2 * REPLY_MARGIN_S
         key = self.keys.coordinator_command(self.principal)
         for reply in self.session.get(key, payload=encode(request), encoding=JSON, timeout=timeout):

@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 import re
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, get_args
 
 import msgspec
 from msgspec import Struct
@@ -167,8 +167,24 @@ class Inventory(Struct, frozen=True):
         return msgspec.structs.replace(self, endpoints=list(endpoints))
 
 
+def _enum_choices() -> dict[str, tuple[str, ...]]:
+    """Fields whose value is one of a few words, and those words (an error lists them)."""
+    from fleet.security.config import Role, SecurityMode
+
+    return {
+        "stop_action": get_args(StopAction),
+        "mode": get_args(SecurityMode),
+        "role": get_args(Role),
+    }
+
+
 def _fail(path: str, where: str, exc: msgspec.ValidationError | str) -> InventoryError:
     text = str(exc)
+    if text.startswith("Invalid enum value"):
+        field = text.rpartition(".")[2].rstrip("`").split("[")[0]
+        choices = _enum_choices().get(field)
+        if choices:
+            text += f" (one of: {', '.join(choices)})"
     if where:
         text = text.replace("`$", f"`$.{where}")
     return InventoryError(f"{path}: {where + ': ' if where else ''}{text}")

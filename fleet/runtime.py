@@ -21,7 +21,8 @@ def setup_logging(level: str = "INFO") -> None:
 
 
 def shutdown_event() -> threading.Event:
-    """An Event set by SIGINT or SIGTERM (call from the main thread)."""
+    """An Event set by SIGINT, SIGTERM or SIGHUP (its terminal closed): call from the main
+    thread."""
     stop = threading.Event()
 
     def handler(signum: int, _frame: FrameType | None) -> None:
@@ -30,6 +31,7 @@ def shutdown_event() -> threading.Event:
 
     signal.signal(signal.SIGINT, handler)
     signal.signal(signal.SIGTERM, handler)
+    signal.signal(signal.SIGHUP, handler)
     return stop
 
 

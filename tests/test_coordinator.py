@@ -173,6 +173,28 @@ def test_synchronized_move_starts_together(fleet3_harness: FleetHarness) -> None
     assert max(skews) < 25.0, f"start skew {skews} ms"
 
 
+def test_a_synchronized_move_is_all_or_nothing(fleet3_harness: FleetHarness) -> None:
+    """With one agent down, ``fleet move all --sync`` moved the other two (issue 15)."""
+    client = start_three(fleet3_harness)
+    fleet3_harness.stop("agent-a3")
+    wait_until(lambda: (s := _state(client)) is not None and not s.arms["a3"].online, 10.0)
+    before = {a: j.angles_deg for a, (_s, j) in client.snapshot(wait_s=1.0).items() if j}
+    move = m.MoveJoints(angles_deg=POSE_A, mode=1)
+    refused = client.multi("all", move)
+    assert not refused.ok and refused.replies == {}, refused
+    assert refused.error is not None and refused.error.code == m.ErrorCode.REJECTED
+    assert "a3: its agent is offline" in refused.error.message, refused.error.message
+    time.sleep(1.0)
+    after = {a: j.angles_deg for a, (_s, j) in client.snapshot(wait_s=1.0).items() if j}
+    for arm in ("a1", "a2"):
+        moved = max(abs(x - y) for x, y in zip(after[arm], before[arm]))
+        assert moved < 0.5, f"{arm} moved {moved} deg although the move was refused"
+    partial = client.multi("all", move, partial=True)
+    assert set(partial.replies) == {"a1", "a2", "a3"}
+    assert partial.replies["a1"].ok and partial.replies["a2"].ok
+    assert not partial.replies["a3"].ok
+
+
 def test_lease_refuses_a_second_owner_until_takeover(fleet3_harness: FleetHarness) -> None:
     client = start_three(fleet3_harness, coordinator=False)
     first = client.command("a1", m.MoveJoint(joint=0, angle_deg=10.0, owner="script-1"))

@@ -17,6 +17,7 @@ file and the path: ``dance.toml: step[2].a1: 7 angles expected, got 6``.
 
 from __future__ import annotations
 
+import difflib
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -160,6 +161,16 @@ def _resolve(
     raise _fail(source, where, f"{target!r} is not an arm, a group or 'all' (arms: {list(arms)})")
 
 
+def _unknown_field(key: str, fields: set[str], what: str) -> str:
+    """Name the unknown field, the valid ones and, for a typo, the one meant."""
+    guess = difflib.get_close_matches(key, sorted(fields), n=1)
+    hint = f"; did you mean {guess[0]!r}?" if guess else ""
+    valid = ", ".join(sorted(fields))
+    if what == "a move step":
+        valid += ", and arms, groups or `all` as targets"
+    return f"unknown field(s) in {what}: {key!r} (its fields: {valid}){hint}"
+
+
 def _move(
     raw: Mapping[str, Any],
     arms: Sequence[str],
@@ -168,6 +179,13 @@ def _move(
     source: str,
     where: str,
 ) -> Move:
+    targets_known = {"all", *groups, *arms}
+    for key in raw:
+        typo = difflib.get_close_matches(key, sorted(_MOVE_KEYS), n=1)
+        if key not in _MOVE_KEYS and key not in targets_known and typo:
+            # A misspelt field, not an arm: say so (it would read "not an arm" or, taken as a
+            # target, complain about its value).
+            raise _fail(source, f"{where}.{key}", _unknown_field(key, _MOVE_KEYS, "a move step"))
     duration = _number(raw.get("duration_s"), source, f"{where}.duration_s", 0.1, 3600.0)
     easing = raw.get("easing", "ease_in_out")
     if not isinstance(easing, str) or easing not in EASINGS:
@@ -197,9 +215,8 @@ def _wait(
     where: str,
     involved: Sequence[str],
 ) -> Wait:
-    unknown = set(raw) - _WAIT_KEYS
-    if unknown:
-        raise _fail(source, where, f"unknown field(s) in a wait step: {', '.join(sorted(unknown))}")
+    for key in sorted(set(raw) - _WAIT_KEYS):
+        raise _fail(source, f"{where}.{key}", _unknown_field(key, _WAIT_KEYS, "a wait step"))
     condition = raw["wait"]
     if not isinstance(condition, str) or condition not in ("reached", "grip"):
         raise _fail(source, f"{where}.wait", f"{brief(condition)} is not 'reached' or 'grip'")
@@ -230,8 +247,8 @@ def parse_script(
     if unknown:
         raise _fail(source, "", f"unknown table(s) {', '.join(sorted(unknown))}")
     head = _table(raw.get("choreo", {}), source, "choreo")
-    if set(head) - _CHOREO_KEYS:
-        raise _fail(source, "choreo", f"unknown field(s) {sorted(set(head) - _CHOREO_KEYS)}")
+    for key in sorted(set(head) - _CHOREO_KEYS):
+        raise _fail(source, f"choreo.{key}", _unknown_field(key, _CHOREO_KEYS, "[choreo]"))
     raw_poses = _table(raw.get("poses", {}), source, "poses")
     poses = {k: _pose(v, {}, source, f"poses.{k}") for k, v in raw_poses.items()}
     raw_steps = raw.get("step", [])

@@ -6,6 +6,7 @@ Each takes an arm id, a group name or ``all`` and prints one line per arm with w
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
@@ -41,14 +42,26 @@ def register(
         parser.add_argument(
             "--sync",
             action="store_true",
-            help="through the coordinator: one owner, all arms start at the same time",
+            help="through the coordinator: one owner, all arms start at the same time; refused "
+            "(no arm moves) if any target is offline, not ok or stopped",
+        )
+        parser.add_argument(
+            "--partial",
+            action="store_true",
+            help="with --sync: move the arms that can, even if some cannot",
         )
         return parser
 
     move = arm_parser("move", "move joints: --angles A0..A6, or --joint J --angle A")
-    move.add_argument("--angles", type=float, nargs=7, metavar="DEG")
-    move.add_argument("--joint", type=int)
-    move.add_argument("--angle", type=float, metavar="DEG")
+    move.add_argument(
+        "--angles",
+        type=finite_float,
+        nargs=7,
+        metavar="DEG",
+        help="7 values in degrees: joints 0..5, then the gripper (joint 6)",
+    )
+    move.add_argument("--joint", type=int, help="wire id 0..6 (6 is the gripper)")
+    move.add_argument("--angle", type=finite_float, metavar="DEG", help="degrees")
     move.add_argument(
         "--mode", type=int, choices=(0, 1), default=1, help="0 small, 1 large smoothing"
     )
@@ -82,6 +95,18 @@ def _opts(args: argparse.Namespace) -> dict[str, object]:
     return options
 
 
+def finite_float(text: str) -> float:
+    """An angle from the command line: a finite number (``nan`` or ``inf`` would reach the wire
+    as ``null``)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a finite number of degrees")
+    return value
+
+
 def run_move(args: argparse.Namespace) -> int:
     """``fleet move``."""
     if args.angles is not None:
@@ -112,7 +137,7 @@ def _send(args: argparse.Namespace, command: m.ArmCommand) -> int:
     skew = None
     with FleetClient(inventory, connect_timeout_s=args.connect_timeout) as client:
         if args.sync:
-            multi = client.multi(args.target, command)
+            multi = client.multi(args.target, command, partial=args.partial)
             if multi.error is not None:
                 print(f"FAILED [{multi.error.code}] {multi.error.message}")
                 return 3 if multi.error.code == ErrorCode.NOT_REGISTERED else 1

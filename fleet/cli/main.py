@@ -1,4 +1,4 @@
-"""``fleet``: the fleet's command line. ``fleet <command> --help`` for each command.
+"""fleet: the fleet's command line. fleet <command> --help for each command.
 
 Exit codes: 0 success; 1 a command was refused or failed on an arm; 2 usage or configuration
 error (bad inventory, unknown arm); 3 an arm's agent or the router is unreachable.
@@ -7,7 +7,9 @@ error (bad inventory, unknown arm); 3 an arm's agent or the router is unreachabl
 from __future__ import annotations
 
 import argparse
+import os
 import sys
+from importlib.metadata import PackageNotFoundError, version
 
 from fleet.cli import (
     arm_commands,
@@ -31,6 +33,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="fleet", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
+    parser.add_argument("--version", action="version", version=f"fleet {_version()}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for module in (
         processes,
@@ -46,6 +49,13 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _version() -> str:
+    try:
+        return version("d1-fleet")
+    except PackageNotFoundError:  # run from a source tree that was never installed
+        return "(not installed)"
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``fleet`` console script."""
     args = build_parser().parse_args(argv)
@@ -59,6 +69,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"fleet: {exc}", file=sys.stderr)
         return EXIT_UNREACHABLE
     except KeyboardInterrupt:
+        return EXIT_OK
+    except BrokenPipeError:
+        # `fleet status | head -2`: the reader left, which is no error of ours. Point stdout
+        # at /dev/null so the interpreter's final flush does not raise again.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return EXIT_OK
 
 

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import ctypes
 import logging
 import os
 import random
+import signal
 import socket
 import subprocess
 import sys
@@ -14,10 +16,12 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import zenoh
 
 from fleet.cli.demo_secure import secure_demo_inventory
+from fleet.cli.supervise import Supervisor
 from fleet.client import FleetClient
 from fleet.guard import EXIT_THREAD_FAILED
 from fleet.inventory import Inventory
@@ -155,8 +159,25 @@ def _port_free(endpoint: str) -> bool:
     return True
 
 
-def _spawn(argv: list[str]) -> subprocess.Popen[bytes]:
-    return subprocess.Popen([sys.executable, *argv])
+PR_SET_PDEATHSIG = 1
+
+
+def _die_with_parent(parent: int) -> Callable[[], None]:
+    """For a child, run between fork and exec: the kernel sends it SIGTERM when the demo dies,
+    however it dies (a SIGKILL cannot be handled, so the demo could not stop its children)."""
+
+    def arrange() -> None:
+        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+        if os.getppid() != parent:  # the demo died before the line above: nobody will stop us
+            os._exit(1)
+
+    return arrange
+
+
+def _spawn(argv: list[str], **options: Any) -> subprocess.Popen[Any]:
+    return subprocess.Popen(
+        [sys.executable, *argv], preexec_fn=_die_with_parent(os.getpid()), **options
+    )
 
 
 def _common_argv(args: argparse.Namespace, inventory: Inventory) -> list[str]:
@@ -195,43 +216,52 @@ def _run_demo(args: argparse.Namespace, inventory: Inventory) -> int:
         return 3
     stop = shutdown_event()
     common = _common_argv(args, inventory)
-    children = [_spawn(["-m", "fleet.cli.main", "router", *common])]
+    supervisor = Supervisor(_spawn)
+    supervisor.start("router", ["-m", "fleet.cli.main", "router", *common])
+    children: list[subprocess.Popen[Any]] = []
+    gave_up = None
     try:
         time.sleep(0.5)  # let the router bind before the others connect (they retry anyway)
         simulated = [a.id for a in inventory.arms.values() if a.simulated]
         if simulated:
-            children.append(_spawn(["-m", "fleet.cli.main", "sim", *common]))
+            supervisor.start("simulator", ["-m", "fleet.cli.main", "sim", *common])
         for arm in inventory.arms:
-            children.append(_spawn(["-m", "edge_agent", "--arm", arm, *common]))
-        children.append(_spawn(["-m", "fleet.cli.main", "coordinator", *common]))
-        dancer = None
+            supervisor.start(f"agent of {arm}", ["-m", "edge_agent", "--arm", arm, *common])
+        supervisor.start("coordinator", ["-m", "fleet.cli.main", "coordinator", *common])
         if not args.no_dance:
-            # Loops until the demo stops; after a stop it waits for the operator's reset and
-            # starts over. Not watched like the others: the fleet is fine without it.
-            dance = ["play", args.dance, "--loops", "0", "--quiet", "--ready-s", "30", "--again"]
-            dancer = _spawn(["-m", "fleet.cli.main", *dance, *common])
-            children.append(dancer)
+            # Loops until a stop, which ends it: a reset permits motion, never restarts it (the
+            # operator does, with the command printed below). Not watched like the others: the
+            # fleet is fine without it.
+            dance = ["play", args.dance, "--loops", "0", "--quiet", "--ready-s", "30"]
+            children.append(_spawn(["-m", "fleet.cli.main", *dance, *common]))
         url = "not started (--no-viewer)"
         if not args.no_viewer:
             # The person running the demo operates their own simulated fleet: the viewer acts
             # as 'operator' (reset and jog), not as the read-only default principal 'viewer'.
             viewer_argv = ["-m", "fleet.cli.main", "viewer", "--port", str(args.port)]
             viewer_argv += ["--principal", "operator", *common]
-            viewer = subprocess.Popen(
-                [sys.executable, *viewer_argv], stdout=subprocess.PIPE, text=True
-            )
-            children.append(viewer)  # type: ignore[arg-type]
+            # (A restarted viewer prints its new URL on the demo's own output.)
+            viewer = supervisor.start("viewer", viewer_argv, stdout=subprocess.PIPE, text=True)
             url = _viewer_url(viewer)
         print(
             f"d1-fleet demo: fleet {inventory.fleet!r}, DDS domain {inventory.domain_id}, "
             f"Zenoh router on {', '.join(inventory.endpoints)}\n"
-            f"viewer: {url}\nCtrl-C stops the demo",
+            f"viewer: {url}\n"
+            + (
+                ""
+                if args.no_dance
+                else "a stop ends the dance; after the reset, start it again with: fleet play "
+                f"{args.dance} --loops 0 --endpoint {inventory.endpoints[0]}\n"
+            )
+            + "Ctrl-C stops the demo",
             flush=True,
         )
-        watched = [c for c in children if c is not dancer]
-        _print_status_until(stop, inventory, args.for_s, watched)
+        gave_up = _print_status_until(stop, inventory, args.for_s, supervisor)
     finally:
-        _stop_children(children)
+        _stop_children([*supervisor.processes(), *children])
+    if gave_up is not None:
+        print(f"fleet demo: {gave_up}", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -254,23 +284,27 @@ def _viewer_url(viewer: subprocess.Popen[str], timeout_s: float = 30.0) -> str:
     return found[0] if found else "did not start (see its log above)"
 
 
-def _print_status_until(stop, inventory: Inventory, for_s: float | None, children) -> None:  # type: ignore[no-untyped-def]
+def _print_status_until(
+    stop: threading.Event, inventory: Inventory, for_s: float | None, supervisor: Supervisor
+) -> str | None:
+    """Print the status block once a second and keep the children running; why the demo gave
+    up on a child, or None."""
     from fleet.cli.status import status_lines
 
     deadline = None if for_s is None else time.monotonic() + for_s
     printed = 0
     with FleetClient(inventory) as client:
         while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
-            dead = [c.args for c in children if c.poll() is not None]
-            if dead:
-                print(f"fleet demo: a process exited: {dead[0]}", file=sys.stderr)
-                return
+            gave_up = supervisor.check(time.monotonic())
+            if gave_up is not None:
+                return gave_up
             lines = status_lines(inventory, client.snapshot(wait_s=1.0), client.agents_alive())
             if printed and sys.stdout.isatty():
                 print(f"\033[{printed}F", end="")  # redraw the block in place
             print("\n".join(lines), flush=True)
             printed = len(lines)
             stop.wait(1.0)
+    return None
 
 
 def _stop_children(children: list[subprocess.Popen[bytes]]) -> None:
@@ -283,4 +317,11 @@ def _stop_children(children: list[subprocess.Popen[bytes]]) -> None:
             child.wait(timeout=5.0)
         except subprocess.TimeoutExpired:
             child.kill()
-            child.wait(timeout=5.0)
+            try:
+                child.wait(timeout=5.0)
+            except subprocess.TimeoutExpired:
+                print(
+                    f"fleet demo: could not stop PID {child.pid} ({' '.join(child.args[1:4])}); "
+                    "stop it by hand",
+                    file=sys.stderr,
+                )

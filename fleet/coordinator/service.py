@@ -228,7 +228,7 @@ class Coordinator:
         """Send one command to every arm of ``request.target`` as this coordinator (the owner);
         with sync, all arms get the same start time. Raises InventoryError for a bad target."""
         arms = self.inventory.resolve(request.target)
-        refused = self._avoided(arms, request)
+        refused = self._avoided(arms, request) or self._not_all_ready(arms, request)
         if refused is not None:
             return refused
         # Its own owner and its own stamps: requesters' clocks may disagree, and the agents
@@ -247,6 +247,24 @@ class Coordinator:
         written = [r.written_ns for r in replies.values() if r.ok and r.written_ns is not None]
         skew = round((max(written) - min(written)) / 1e6, 3) if len(written) > 1 else None
         return m.MultiArmReply(all(r.ok for r in replies.values()), replies, skew)
+
+    def _not_all_ready(self, arms: list[str], request: m.MultiArmRequest) -> m.MultiArmReply | None:
+        """A synchronized move is all or nothing: refused before any arm gets a start time
+        when one of them cannot take part (unless the request allows ``partial``)."""
+        if not request.sync or request.partial or len(arms) < 2:
+            return None
+        if isinstance(request.command, (m.Hold, m.Release)):
+            return None  # not a move: each arm on its own is right
+        now = time.monotonic()
+        with self.lock:
+            unready = {a: why for a in arms if (why := self.state.unready(a, now)) is not None}
+        if not unready:
+            return None
+        why = "; ".join(f"{arm}: {reason}" for arm, reason in unready.items())
+        return error_reply(
+            ErrorCode.REJECTED,
+            f"synchronized move refused, no arm moved ({why}); --partial moves the others",
+        )
 
     def _avoided(self, arms: list[str], request: m.MultiArmRequest) -> m.MultiArmReply | None:
         """Declare the request's phase; refuse a target past a place the collision memory

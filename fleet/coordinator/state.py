@@ -54,6 +54,18 @@ class FleetStateTracker:
             view.token and view.heard_s is not None and now - view.heard_s <= self.offline_after_s
         )
 
+    def unready(self, arm: str, now: float) -> str | None:
+        """Why ``arm`` cannot take part in a synchronized move now, or None."""
+        view = self._arms[arm]
+        if not self.online(arm, now):
+            return "its agent is offline"
+        status = view.status
+        if status is None or status.link != "ok":
+            return f"its link is {'unknown' if status is None else status.link}"
+        if status.estopped:
+            return "it is stopped (reset it first)"
+        return None
+
     def summary(self, arm: str, now: float) -> m.ArmSummary:
         """One arm's line of the fleet state."""
         view = self._arms[arm]

@@ -368,6 +368,9 @@ class MultiArmRequest(Struct, frozen=True, forbid_unknown_fields=True):
     lead_s: Lead | None = None
     phase: Literal["approach", "grasp", "lift", "move"] | None = None
     """What the motion is for (contact policy: a contact while ``lift`` stops the arm)."""
+    partial: bool = False
+    """A synchronized move is all or nothing: unless ``partial``, it is refused (and no arm gets
+    a start time) when any target is offline, its link is not ok, or it is stopped."""
 
 
 class MultiArmReply(Struct, frozen=True):

@@ -1,0 +1,89 @@
+"""``fleet demo``'s children, kept running: a child that exits is reported (which one, its code
+or signal) and restarted with back-off; the demo gives up, and exits non-zero, when one keeps
+dying. Meanwhile the fleet shows its arm offline, as for any agent that is gone."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+BACKOFF_S = (1.0, 2.0, 4.0, 8.0, 16.0)
+"""Wait before the 1st, 2nd, ... restart of one child."""
+GIVE_UP_RESTARTS = 5
+"""More restarts than this within GIVE_UP_WINDOW_S and the demo gives up."""
+GIVE_UP_WINDOW_S = 120.0
+
+Spawn = Callable[..., "subprocess.Popen[Any]"]
+
+
+def how_it_ended(returncode: int) -> str:
+    """``exited with code 1`` or ``killed by SIGKILL``."""
+    if returncode < 0:
+        try:
+            return f"killed by {signal.Signals(-returncode).name}"
+        except ValueError:
+            return f"killed by signal {-returncode}"
+    return f"exited with code {returncode}"
+
+
+@dataclass
+class Child:
+    """One supervised process."""
+
+    name: str
+    argv: list[str]
+    process: subprocess.Popen[Any]
+    restarts: list[float] = field(default_factory=list)
+    due_s: float | None = None
+
+
+class Supervisor:
+    """Restarts the demo's children; ``check`` once a second from the demo's loop."""
+
+    def __init__(self, spawn: Spawn) -> None:
+        self._spawn = spawn
+        self.children: list[Child] = []
+
+    def start(self, name: str, argv: list[str], **options: Any) -> subprocess.Popen[Any]:
+        """Start and supervise ``argv`` (``options`` apply to the first start only)."""
+        process = self._spawn(argv, **options)
+        self.children.append(Child(name, argv, process))
+        return process
+
+    def check(self, now: float) -> str | None:
+        """Report and restart children that ended; why it gave up, or None."""
+        for child in self.children:
+            if child.due_s is not None:
+                if now >= child.due_s:
+                    child.due_s = None
+                    child.restarts.append(now)
+                    child.process = self._spawn(child.argv)
+                    print(f"fleet demo: {child.name} restarted (PID {child.process.pid})")
+                continue
+            code = child.process.poll()
+            if code is None:
+                continue
+            recent = [t for t in child.restarts if now - t <= GIVE_UP_WINDOW_S]
+            ended = how_it_ended(code)
+            if len(recent) >= GIVE_UP_RESTARTS:
+                return (
+                    f"{child.name} (PID {child.process.pid}) {ended} again after "
+                    f"{len(recent)} restarts in {GIVE_UP_WINDOW_S:g} s; giving up"
+                )
+            wait_s = BACKOFF_S[min(len(recent), len(BACKOFF_S) - 1)]
+            child.due_s = now + wait_s
+            print(
+                f"fleet demo: {child.name} (PID {child.process.pid}) {ended}; "
+                f"restarting it in {wait_s:g} s",
+                file=sys.stderr,
+                flush=True,
+            )
+        return None
+
+    def processes(self) -> list[subprocess.Popen[Any]]:
+        """Every child's current process, in start order."""
+        return [child.process for child in self.children]
