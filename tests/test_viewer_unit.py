@@ -172,3 +172,24 @@ def test_looks_tint_and_label() -> None:
     assert label_text("a1", NORMAL, False) == "a1"
     assert label_text("a1", OFFLINE, False) == "a1 · OFFLINE"
     assert label_text("a1", STOPPED, True) == "a1 · STOPPED ERROR"
+
+
+def test_the_arm_panel_renders_bold_readouts_a_seconds_axis_and_unwrapped_cells() -> None:
+    """Issue 15's rendering bugs: ``** 29.1**`` shown literally, the plot's x axis as a date,
+    the age cell wrapping."""
+    import viser
+
+    from tests.harness import free_port
+    from viewer.panels import _ArmPanel, fleet_row
+
+    server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
+    try:
+        panel = _ArmPanel(server.gui, "a1", None, plot_on=True, jog=False)  # type: ignore[arg-type]
+        panel.show(np.array([29.1, -5.0, 0.0, 0.0, 0.0, 0.0, 12.0]))
+        assert "j0: **29.1**°" in panel.readout.content
+        assert "** " not in panel.readout.content and " **°" not in panel.readout.content
+        assert panel.plot.scales == {"x": {"time": False}}
+    finally:
+        server.stop()
+    row = fleet_row("a1", None, True, "0.4 s")
+    assert row.count("white-space:nowrap") == 8

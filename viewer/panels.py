@@ -62,7 +62,10 @@ def fleet_row(arm: str, status: m.ArmStatus | None, online: bool, age: str) -> s
         "STOPPED" if status is not None and status.estopped else "no",
         age,
     ]
-    tds = "".join(f"<td style='padding:0 6px'>{html.escape(c)}</td>" for c in cells)
+    # nowrap: "0.4 s" broke over two lines, and a STOPPED row pushed the age out of view
+    tds = "".join(
+        f"<td style='padding:0 6px;white-space:nowrap'>{html.escape(c)}</td>" for c in cells
+    )
     colour = "#f3d0d0" if (status is not None and status.estopped) else ""
     colour = "#dddddd" if not online else colour
     style = f" style='background:{colour}'" if colour else ""
@@ -92,7 +95,9 @@ class FleetTable:
                 self._rows[arm] = cached
             rows.append(cached[1])
         body = "".join(rows)
-        return f"<table id='fleet-table' style='font-size:0.8em'><tr>{self.HEAD}</tr>{body}</table>"
+        head = f"<tr>{self.HEAD}</tr>"
+        table = f"<table id='fleet-table' style='font-size:0.8em'>{head}{body}</table>"
+        return f"<div style='overflow-x:auto'>{table}</div>"  # scrolls rather than clips
 
 
 class _ArmPanel:
@@ -119,6 +124,8 @@ class _ArmPanel:
                     ),
                 ),
                 title=f"{arm} joints (deg)",
+                # uPlot reads x as a Unix time unless told: -10..0 s read "12/31/69 11:59pm".
+                scales={"x": {"time": False}},
                 aspect=1.6,
                 visible=plot_on,
             )
@@ -153,7 +160,9 @@ class _ArmPanel:
     def show(self, angles: npt.NDArray[np.float64]) -> None:
         """Refresh the readout (and, once, the sliders) from measured angles."""
         text = "  \n".join(
-            f"j{j}: **{a:7.1f}**°" for j, a in enumerate(np.round(angles, 1).tolist())
+            # No padding inside the markers: "** 29.1**" is not bold in Markdown, it is literal.
+            f"j{j}: **{a:.1f}**°"
+            for j, a in enumerate(np.round(angles, 1).tolist())
         )
         if text != self.readout_text:
             self.readout_text = text
