@@ -278,6 +278,24 @@ class FleetClient:
         with lock:
             return {a: (statuses.get(a), joints.get(a)) for a in wanted}
 
+    def fleet_state(self, wait_s: float = 0.5) -> m.FleetState | None:
+        """The coordinator's latest fleet state (it publishes 5 times a second), or None when
+        no coordinator spoke within ``wait_s``."""
+        got: list[m.FleetState] = []
+        ready = threading.Event()
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            try:
+                got.append(payloads.STATE.decode(sample.payload.to_bytes()))
+            except payloads.PayloadError:
+                return  # a foreign payload: not ours to report
+            ready.set()
+
+        sub = self.session.declare_subscriber(self.keys.state, on_sample)
+        ready.wait(wait_s)
+        sub.undeclare()
+        return got[-1] if got else None
+
     def close(self) -> None:
         """Close the session if this client opened it (idempotent)."""
         if self._own_session and not self.session.is_closed():

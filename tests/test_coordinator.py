@@ -10,6 +10,7 @@ import threading
 import time
 
 import msgspec
+import pytest
 import zenoh
 
 from fleet.client import FleetClient
@@ -241,3 +242,23 @@ def test_a_stop_cancels_a_synchronized_start_not_yet_written(fleet3_harness: Fle
     snap = client.snapshot(["a1"])["a1"]
     assert snap[0] is not None and snap[0].estopped
     assert snap[1] is not None and abs(snap[1].angles_deg[0]) < 1.0, "the arm moved while stopped"
+
+
+def test_fleet_status_shows_contact_and_the_stop_reason(
+    fleet3_harness: FleetHarness, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Contact was in neither ``fleet status`` nor the viewer's table, nor the stop's reason."""
+    from fleet.cli.main import main
+
+    client = start_three(fleet3_harness)
+    request = client.stop_request(reason="snag on the fixture", source="test")
+    client.put_stop(request, arm="a2")
+    wait_until(lambda: (s := client.snapshot(["a2"], wait_s=0.5)["a2"][0]) and s.estopped, 5.0)
+    code = main(["status", "--inventory", str(fleet3_harness.inventory_path)])
+    out = capsys.readouterr().out.splitlines()
+    assert code == 0
+    assert "contact" in out[0]
+    rows = {words[0]: words for words in (line.split() for line in out[1:]) if words}
+    assert rows["a1"][7] == "no" and rows["a2"][6] == "YES", out  # contact known: coordinator up
+    reason = out[out.index(next(line for line in out if line.startswith("a2"))) + 1]
+    assert "snag on the fixture" in reason, out

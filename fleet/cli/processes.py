@@ -298,7 +298,8 @@ def _print_status_until(
             gave_up = supervisor.check(time.monotonic())
             if gave_up is not None:
                 return gave_up
-            lines = status_lines(inventory, client.snapshot(wait_s=1.0), client.agents_alive())
+            snapshot, alive = client.snapshot(wait_s=1.0), client.agents_alive()
+            lines = status_lines(inventory, snapshot, alive, client.fleet_state(wait_s=0.3))
             if printed and sys.stdout.isatty():
                 print(f"\033[{printed}F", end="")  # redraw the block in place
             print("\n".join(lines), flush=True)

@@ -37,18 +37,31 @@ def _flag(value: bool | None, yes: str, no: str) -> str:
     return "?" if value is None else (yes if value else no)
 
 
-def status_lines(inventory: Inventory, snapshot: Snapshot, alive: set[str]) -> list[str]:
-    """A header and one fixed-width line per arm."""
+def _contact(state: m.FleetState | None, arm: str) -> str:
+    """From the coordinator's state, which aggregates the agents' contact reports: ``?``
+    without a coordinator, ``no`` for an arm that never reported one."""
+    summary = None if state is None else state.arms.get(arm)
+    if summary is None:
+        return "?"
+    return "YES" if summary.contact else "no"
+
+
+def status_lines(
+    inventory: Inventory, snapshot: Snapshot, alive: set[str], state: m.FleetState | None = None
+) -> list[str]:
+    """A header and one fixed-width line per arm (the stop's reason under a stopped arm)."""
     lines = [
         f"{'arm':<8} {'agent':<7} {'link':<6} {'power':<6} {'torque':<7} {'error':<6} "
-        f"{'stop':<5} {'age_s':>6}  angles_deg"
+        f"{'stop':<5} {'contact':<7} {'age_s':>6}  angles_deg"
     ]
     for arm in inventory.arms:
         status, joints = snapshot.get(arm, (None, None))
         agent = "up" if arm in alive else "DOWN"
+        contact = _contact(state, arm)
         if status is None:
             lines.append(
-                f"{arm:<8} {agent:<7} {'-':<6} {'-':<6} {'-':<7} {'-':<6} {'-':<5} {'-':>6}  -"
+                f"{arm:<8} {agent:<7} {'-':<6} {'-':<6} {'-':<7} {'-':<6} {'-':<5} "
+                f"{contact:<7} {'-':>6}  -"
             )
             continue
         age = "-" if status.feedback_age_s is None else f"{status.feedback_age_s:.2f}"
@@ -56,8 +69,10 @@ def status_lines(inventory: Inventory, snapshot: Snapshot, alive: set[str]) -> l
         lines.append(
             f"{arm:<8} {agent:<7} {status.link:<6} {_flag(status.powered, 'on', 'off'):<6} "
             f"{_flag(status.enabled, 'on', 'free'):<7} {_flag(status.error, 'ERROR', 'ok'):<6} "
-            f"{'YES' if status.estopped else 'no':<5} {age:>6}  {angles}"
+            f"{'YES' if status.estopped else 'no':<5} {contact:<7} {age:>6}  {angles}"
         )
+        if status.estopped and status.stop_reason:
+            lines.append(f"{'':<8} {status.stop_reason[:110]}")
     return lines
 
 
@@ -83,6 +98,7 @@ def run_status(args: argparse.Namespace) -> int:
         while True:
             snapshot = client.snapshot()
             alive = client.agents_alive()
+            state = client.fleet_state()
             healthy = all(
                 arm in alive and status is not None and status.link == "ok"
                 for arm, (status, _j) in snapshot.items()
@@ -90,7 +106,7 @@ def run_status(args: argparse.Namespace) -> int:
             if args.json:
                 print(_as_json(snapshot, alive), flush=True)
             else:
-                lines = status_lines(inventory, snapshot, alive)
+                lines = status_lines(inventory, snapshot, alive, state)
                 if printed and sys.stdout.isatty():
                     print(f"\033[{printed}F", end="")  # redraw in place
                 print("\n".join(lines), flush=True)
