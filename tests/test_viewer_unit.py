@@ -192,4 +192,27 @@ def test_the_arm_panel_renders_bold_readouts_a_seconds_axis_and_unwrapped_cells(
     finally:
         server.stop()
     row = fleet_row("a1", None, True, "0.4 s")
-    assert row.count("white-space:nowrap") == 8
+    assert row.count("white-space:nowrap") == 9
+
+
+def test_the_fleet_table_shows_contact_and_the_stop_reason() -> None:
+    """Contact and the stop's reason were nowhere in the viewer's table (issue 15)."""
+    from fleet.wire import messages as m
+    from viewer.panels import FleetTable
+    from viewer.state import Snapshot
+
+    stopped = m.ArmStatus(stamp_ns=1, link="ok", estopped=True, stop_reason="stopped by ann: snag")
+    contact = np.zeros((2, 7), dtype=bool)
+    contact[1, 2] = contact[1, 3] = True
+    snapshot = Snapshot(
+        arms=("a1", "a2"),
+        angles_deg=np.zeros((2, 7)),
+        joints_age_s=np.array([0.1, 0.1]),
+        status=(stopped, m.ArmStatus(stamp_ns=1, link="ok")),
+        online=np.array([True, True]),
+        contact=contact,
+    )
+    table = FleetTable().html(snapshot)
+    assert "<th style='padding:0 6px;text-align:left'>contact</th>" in table
+    assert ">j2 j3</td>" in table and ">no</td>" in table
+    assert "a1: stopped by ann: snag" in table

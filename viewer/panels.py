@@ -50,8 +50,16 @@ def age_text(age_s: float) -> str:
     return "< 0.5 s" if age_s < 0.5 else f"{age_s:.0f} s" if age_s >= 10 else f"{age_s:.1f} s"
 
 
-def fleet_row(arm: str, status: m.ArmStatus | None, online: bool, age: str) -> str:
-    """One ``<tr>`` of the fleet table (``data-arm``/``data-online`` for scripts and tests)."""
+def contact_text(joints_in_contact: tuple[bool, ...]) -> str:
+    """``j2 j3`` for the joints in confirmed contact, ``no`` for none."""
+    return " ".join(f"j{j}" for j, on in enumerate(joints_in_contact) if on) or "no"
+
+
+def fleet_row(
+    arm: str, status: m.ArmStatus | None, online: bool, age: str, contact: str = "no"
+) -> str:
+    """One ``<tr>`` of the fleet table (``data-arm``/``data-online`` for scripts and tests);
+    a stopped arm's stop cell carries the stop's reason (shown below the table too)."""
     cells = [
         arm,
         "online" if online else "OFFLINE",
@@ -60,6 +68,7 @@ def fleet_row(arm: str, status: m.ArmStatus | None, online: bool, age: str) -> s
         _yes(None if status is None else status.powered),
         _yes(None if status is None else status.error, "ERROR", "no"),
         "STOPPED" if status is not None and status.estopped else "no",
+        contact,
         age,
     ]
     # nowrap: "0.4 s" broke over two lines, and a STOPPED row pushed the age out of view
@@ -78,7 +87,7 @@ class FleetTable:
 
     HEAD = "".join(
         f"<th style='padding:0 6px;text-align:left'>{h}</th>"
-        for h in ("arm", "agent", "link", "enabled", "powered", "error", "stop", "age")
+        for h in ("arm", "agent", "link", "enabled", "powered", "error", "stop", "contact", "age")
     )
 
     def __init__(self) -> None:
@@ -87,17 +96,28 @@ class FleetTable:
     def html(self, snapshot: Snapshot) -> str:
         """The whole table for ``snapshot``."""
         rows = []
+        reasons = []
+        contact = snapshot.contact_rows()
         for i, arm in enumerate(snapshot.arms):
-            key = (snapshot.status[i], bool(snapshot.online[i]), age_text(snapshot.joints_age_s[i]))
+            status = snapshot.status[i]
+            key = (
+                status,
+                bool(snapshot.online[i]),
+                age_text(snapshot.joints_age_s[i]),
+                contact_text(tuple(bool(c) for c in contact[i])),
+            )
             cached = self._rows.get(arm)
             if cached is None or cached[0] != key:
-                cached = (key, fleet_row(arm, key[0], key[1], key[2]))
+                cached = (key, fleet_row(arm, key[0], key[1], key[2], key[3]))
                 self._rows[arm] = cached
             rows.append(cached[1])
+            if status is not None and status.estopped and status.stop_reason:
+                reasons.append(f"<div>{html.escape(arm)}: {html.escape(status.stop_reason)}</div>")
         body = "".join(rows)
         head = f"<tr>{self.HEAD}</tr>"
         table = f"<table id='fleet-table' style='font-size:0.8em'>{head}{body}</table>"
-        return f"<div style='overflow-x:auto'>{table}</div>"  # scrolls rather than clips
+        why = f"<div id='stop-reasons' style='font-size:0.8em'>{''.join(reasons)}</div>"
+        return f"<div style='overflow-x:auto'>{table}</div>{why}"  # scrolls rather than clips
 
 
 class _ArmPanel:
