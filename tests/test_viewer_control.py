@@ -7,6 +7,7 @@ Zenoh router.
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -42,7 +43,7 @@ class RecordingCommander:
         self.resets += 1
         return True
 
-    def jog(self, arm: str, joint: int, angle_deg: float) -> bool:
+    def jog(self, arm: str, joint: int, angle_deg: float, measured_deg: float) -> bool:
         self.jogs.append((arm, joint, angle_deg))
         return True
 
@@ -190,7 +191,7 @@ def test_an_observer_viewer_only_stops(
     space = recorder.keys
     with commander_as(fleet_harness.inventory, "viewer") as viewer:
         assert viewer.read_only
-        assert viewer.jog("a1", 0, 10.0) is False
+        assert viewer.jog("a1", 0, 10.0, 0.0) is False
         assert viewer.reset_all() is False
         assert viewer.refusals["jog"] == 1 and viewer.refusals["reset"] == 1
         stop = viewer.stop_all()
@@ -207,13 +208,40 @@ def test_read_only_flag_and_an_operator_viewer(
     space, inventory = recorder.keys, fleet_harness.inventory
     with commander_as(inventory, "operator", read_only=True) as flagged:
         assert flagged.read_only
-        assert flagged.jog("a1", 0, 10.0) is False and flagged.reset_all() is False
+        assert flagged.jog("a1", 0, 10.0, 0.0) is False and flagged.reset_all() is False
     with commander_as(inventory, "operator") as operator:
         assert not operator.read_only
-        assert operator.jog("a1", 2, 15.0) is True
+        assert operator.jog("a1", 2, 15.0, 0.0) is True
         wait_until(lambda: recorder.seen()[1], 10.0)
         assert operator.reset_all() is True
         wait_until(lambda: space.reset in recorder.seen()[0], 10.0)
     # The jog went under the viewer's principal (arm/a1/cmd/operator); the read-only one sent
     # nothing.
     assert recorder.seen()[1] == [space.command("a1", "operator")]
+
+
+def test_a_jog_is_one_bounded_step_from_the_measured_pose_under_the_viewers_lease(
+    fleet_harness: FleetHarness,
+) -> None:
+    """Typing 1 into a slider that showed a stale -37 moved j1 38 deg in one step (issue 15)."""
+    from viewer.commands import MAX_JOG_STEP_DEG, jog_target
+
+    assert jog_target(1, 1.0, -37.0) == -37.0 + MAX_JOG_STEP_DEG
+    assert jog_target(1, -37.5, -37.0) == -37.5
+    h = fleet_harness
+    client = h.start_fleet()
+
+    def joint0() -> float:
+        joints = client.snapshot(["a1"], wait_s=0.5)["a1"][1]
+        assert joints is not None
+        return joints.angles_deg[0]
+
+    start = joint0()
+    with commander_as(h.inventory, "operator") as operator:
+        assert operator.jog("a1", 0, start + 90.0, start)  # a slider far from the arm
+        wait_until(lambda: abs(joint0() - start) > MAX_JOG_STEP_DEG * 0.8, 10.0)
+        time.sleep(1.0)  # it settles where the one step ends, not at the slider
+        assert abs(joint0() - (start + MAX_JOG_STEP_DEG)) < 1.0, (start, joint0())
+        other = client.command("a1", m.MoveJoint(joint=0, angle_deg=start, owner="script"))
+        assert not other.ok and other.error is not None
+        assert other.error.code == m.ErrorCode.LEASE_EXISTS and "viewer@" in other.error.message

@@ -18,8 +18,11 @@ stop: ``jog`` and ``reset_all`` refuse here, whatever the browser sends.
 from __future__ import annotations
 
 import logging
+import os
 import queue
+import socket
 import threading
+import time
 from collections.abc import Callable
 
 import zenoh
@@ -55,6 +58,21 @@ def clamp_to_limits(joint: int, angle_deg: float) -> float:
     return min(max(angle_deg, low), high)
 
 
+MAX_JOG_STEP_DEG = 10.0
+"""One jog moves a joint at most this far from where the arm measures it: typing 1 into a slider
+that showed a stale -37 moved the joint 38 deg in one step."""
+JOG_INTERVAL_S = 0.25
+"""At most one jog per arm in this interval (the newest target wins): with the step above, a
+dragged slider moves a joint at most 40 deg/s."""
+
+
+def jog_target(joint: int, requested_deg: float, measured_deg: float) -> float:
+    """Where a jog may go: towards ``requested_deg``, at most MAX_JOG_STEP_DEG from the measured
+    angle, inside the joint's limits."""
+    step = min(max(requested_deg - measured_deg, -MAX_JOG_STEP_DEG), MAX_JOG_STEP_DEG)
+    return clamp_to_limits(joint, measured_deg + step)
+
+
 class Commander:
     """The viewer's outgoing side on the key space. A context manager; ``close()`` idempotent."""
 
@@ -74,6 +92,10 @@ class Commander:
         self._notify = notify
         self._lock = threading.Lock()  # guards _pending only
         self._pending: dict[tuple[str, int], float] = {}
+        self._last_jog_s: dict[str, float] = {}
+        # The viewer moves arms as an owner like any other: its jogs take the arm's lease, so a
+        # script cannot move the arm under the operator's hand (nor the viewer under a script's).
+        self.owner = f"viewer@{socket.gethostname()}:{os.getpid()}"
         self._wake = threading.Event()
         self._closing = threading.Event()
         self._stops: queue.SimpleQueue[m.StopRequest | None] = queue.SimpleQueue()
@@ -134,13 +156,14 @@ class Commander:
 
     # ------------------------------------------------------------------ jog
 
-    def jog(self, arm: str, joint: int, angle_deg: float) -> bool:
-        """Ask for ``arm``'s ``joint`` at ``angle_deg`` (clamped); returns at once. False,
-        sending nothing, when the viewer is read-only."""
+    def jog(self, arm: str, joint: int, angle_deg: float, measured_deg: float) -> bool:
+        """Ask for ``arm``'s ``joint`` towards ``angle_deg``, one bounded step from the measured
+        ``measured_deg`` (``jog_target``); returns at once. False, sending nothing, when the
+        viewer is read-only."""
         if self._refused("jog"):
             return False
         with self._lock:
-            self._pending[(arm, joint)] = clamp_to_limits(joint, angle_deg)
+            self._pending[(arm, joint)] = jog_target(joint, angle_deg, measured_deg)
         self._wake.set()
         return True
 
@@ -149,15 +172,27 @@ class Commander:
             if not self._wake.wait(0.2):
                 continue
             self._wake.clear()
+            now = time.monotonic()
             with self._lock:
-                batch, self._pending = self._pending, {}
-            for (arm, joint), angle in batch.items():
+                due = {k: v for k, v in self._pending.items() if self._jog_due(k[0], now)}
+                for key in due:
+                    del self._pending[key]
+                if self._pending:
+                    self._wake.set()  # the rest when their arm's interval has passed
+            for (arm, joint), angle in due.items():
                 if self._closing.is_set():
                     return
+                self._last_jog_s[arm] = now
                 self._send_jog(arm, joint, angle)
+            if self._pending:
+                time.sleep(JOG_INTERVAL_S / 5)
+
+    def _jog_due(self, arm: str, now: float) -> bool:
+        return now - self._last_jog_s.get(arm, -JOG_INTERVAL_S) >= JOG_INTERVAL_S
 
     def _send_jog(self, arm: str, joint: int, angle_deg: float) -> None:
-        reply = self.client.command(arm, m.MoveJoint(joint=joint, angle_deg=angle_deg))
+        command = m.MoveJoint(joint=joint, angle_deg=angle_deg, owner=self.owner)
+        reply = self.client.command(arm, command)
         if reply.ok:
             return
         why = reply.error.message if reply.error else "refused"

@@ -23,7 +23,7 @@ import viser
 from fleet.d1.limits import JOINT_COUNT, JOINT_RANGE_DEG
 from fleet.inventory import Inventory
 from fleet.wire import messages as m
-from viewer.commands import Commander
+from viewer.commands import JOG_INTERVAL_S, MAX_JOG_STEP_DEG, Commander
 from viewer.confirm import Confirmations
 from viewer.refusals import Refusals
 from viewer.state import Snapshot
@@ -37,6 +37,11 @@ READOUTS_PER_TICK = 12
 """Arm folders refreshed per panel tick (round robin): fleets up to this size refresh every
 arm every tick; a 200-arm fleet refreshes each arm's readout about every 4 s."""
 JOINT_COLOURS = ("#e6194b", "#3cb44b", "#4363d8", "#f58231", "#911eb4", "#008080", "#9a6324")
+
+
+SLIDER_HOLD_S = 1.5
+"""After the operator touched a slider, the sliders stop following the arm this long (so the
+slider under the hand does not jump while the arm moves)."""
 
 
 def _yes(value: bool | None, yes: str = "yes", no: str = "no") -> str:
@@ -127,8 +132,9 @@ class _ArmPanel:
         self, gui: viser.GuiApi, arm: str, commander: Commander, plot_on: bool, jog: bool
     ) -> None:
         self.arm = arm
-        self.synced = False
         self.blocked: bool | None = None
+        self.measured: npt.NDArray[np.float64] | None = None
+        self.jogged_s = -SLIDER_HOLD_S
         self.readout_text = ""
         with gui.add_folder(f"Arm {arm}", expand_by_default=False):
             self.readout = gui.add_markdown("no feedback yet")
@@ -159,14 +165,19 @@ class _ArmPanel:
                 )
                 slider.on_update(self._on_slide(commander, joint))
                 self.sliders.append(slider)
-            sync = gui.add_button("sliders to measured", hint="set the sliders to the arm")
-            sync.on_click(lambda _e: setattr(self, "synced", False))
+            gui.add_markdown(
+                f"Jog: each move goes at most {MAX_JOG_STEP_DEG:g}° from the measured angle, "
+                f"one every {JOG_INTERVAL_S:g} s, and takes the arm's lease (a script holding "
+                "it refuses the jog, naming itself). The sliders follow the arm."
+            )
 
     def _on_slide(self, commander: Commander, joint: int):  # type: ignore[no-untyped-def]
         def on_update(event: viser.GuiEvent) -> None:
-            if event.client is None or self.blocked:
-                return  # our own sync from feedback, or a stale click on a disabled arm
-            commander.jog(self.arm, joint, float(event.target.value))
+            if event.client is None or self.blocked or self.measured is None:
+                return  # our own sync from feedback, a stale click, or nothing measured yet
+            self.jogged_s = time.monotonic()
+            measured = float(self.measured[joint])
+            commander.jog(self.arm, joint, float(event.target.value), measured)
 
         return on_update
 
@@ -178,7 +189,9 @@ class _ArmPanel:
                 slider.disabled = blocked
 
     def show(self, angles: npt.NDArray[np.float64]) -> None:
-        """Refresh the readout (and, once, the sliders) from measured angles."""
+        """Refresh the readout, and the sliders unless the operator is using them, from the
+        measured angles: a jog always starts from where the arm is."""
+        self.measured = angles.copy()
         text = "  \n".join(
             # No padding inside the markers: "** 29.1**" is not bold in Markdown, it is literal.
             f"j{j}: **{a:.1f}**°"
@@ -187,10 +200,11 @@ class _ArmPanel:
         if text != self.readout_text:
             self.readout_text = text
             self.readout.content = text
-        if not self.synced and self.sliders:
-            self.synced = True
+        if self.sliders and time.monotonic() - self.jogged_s >= SLIDER_HOLD_S:
             for slider, angle in zip(self.sliders, angles.tolist(), strict=True):
-                slider.value = float(np.clip(round(angle * 2) / 2, slider.min, slider.max))
+                value = float(np.clip(round(angle * 2) / 2, slider.min, slider.max))
+                if value != slider.value:
+                    slider.value = value
 
 
 class FleetPanels:
