@@ -216,3 +216,14 @@ def test_the_fleet_table_shows_contact_and_the_stop_reason() -> None:
     assert "<th style='padding:0 6px;text-align:left'>contact</th>" in table
     assert ">j2 j3</td>" in table and ">no</td>" in table
     assert "a1: stopped by ann: snag" in table
+
+
+def test_the_legend_explains_every_colour_of_the_scene() -> None:
+    """The amber link (contact) and the tints were explained nowhere (issue 15)."""
+    from viewer.scene import CONTACT_RGB, OFFLINE_RGB, STALE_RGB, STOP_RGB, legend_html
+
+    legend = legend_html()
+    for rgb, word in ((STALE_RGB, "stale"), (OFFLINE_RGB, "OFFLINE"), (STOP_RGB, "STOPPED"),
+                      (CONTACT_RGB, "contact")):  # fmt: skip
+        swatch = "#" + "".join(f"{int(c):02x}" for c in rgb)
+        assert swatch in legend and f"<b>{word}</b>" in legend, (word, legend)

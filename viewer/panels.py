@@ -26,6 +26,7 @@ from fleet.wire import messages as m
 from viewer.commands import JOG_INTERVAL_S, MAX_JOG_STEP_DEG, Commander
 from viewer.confirm import Confirmations
 from viewer.refusals import Refusals
+from viewer.scene import legend_html
 from viewer.state import Snapshot
 
 PLOT_WINDOW_S = 10.0
@@ -239,6 +240,8 @@ class FleetPanels:
         self._next_readout = 0
         with gui.add_folder("Fleet"):
             self.table = gui.add_html("")
+        with gui.add_folder("Legend", expand_by_default=False):
+            gui.add_html(legend_html())
         plot_on = len(self.arms) <= PLOTS_ON_BY_DEFAULT_UP_TO
         self.arm_panels = [
             _ArmPanel(gui, arm, commander, plot_on, jog=not self.read_only) for arm in self.arms

@@ -26,7 +26,7 @@ from viewer.kinematics import (
     wire_to_q,
 )
 from viewer.meshes import LinkMesh
-from viewer.state import Snapshot
+from viewer.state import STALE_S, Snapshot
 
 DEADBAND_DEG = 0.05
 """Joint changes smaller than this are not drawn (feedback jitter would resend every tick)."""
@@ -60,6 +60,26 @@ def tinted(rgb: tuple[int, int, int], code: npt.NDArray[np.int8]) -> npt.NDArray
     out[code == OFFLINE] = 0.15 * base + 0.85 * OFFLINE_RGB
     out[code == STOPPED] = 0.45 * base + 0.55 * STOP_RGB
     return np.clip(out, 0, 255).astype(np.uint8)
+
+
+LEGEND = (
+    (STALE_RGB, "stale", f"no joints for {STALE_S:g} s, or the agent reports the link not ok"),
+    (OFFLINE_RGB, "OFFLINE", "the arm's agent is gone (its liveliness token vanished)"),
+    (STOP_RGB, "STOPPED", "a protective stop is latched: only a reset releases it"),
+    (CONTACT_RGB, "contact", "that link's joint is in confirmed contact (amber, any look)"),
+)
+
+
+def legend_html() -> str:
+    """What every colour of the scene means (built from the colours themselves)."""
+    rows = "".join(
+        f"<div><span style='display:inline-block;width:0.9em;height:0.9em;"
+        f"background:#{int(r):02x}{int(g):02x}{int(b):02x};margin-right:6px'></span>"
+        f"<b>{word}</b>: {meaning}</div>"
+        for (r, g, b), word, meaning in LEGEND
+    )
+    normal = "<div>the links' own colours: normal, everything fresh and ok</div>"
+    return f"<div id='legend' style='font-size:0.8em'>{normal}{rows}</div>"
 
 
 def label_text(arm: str, code: int, error: bool) -> str:
