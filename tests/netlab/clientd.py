@@ -83,13 +83,19 @@ class Daemon:
         self._streams: dict[str, tuple[threading.Thread, threading.Event, list[Any]]] = {}
 
     def ready(self, timeout_s: float = 30.0) -> dict[str, Any]:
-        """Wait until every arm reports link ok and every agent's token is present."""
+        """Wait until every arm reports link ok, every agent's token is present and the
+        coordinator publishes its fleet state (a coordinator a test killed and the lab restarted
+        may still be connecting: a multi-arm request then found nobody to answer it)."""
         arms = list(self.client.inventory.arms)
         deadline = time.monotonic() + timeout_s
         while True:
             snap = self.client.snapshot(arms, wait_s=1.0)
             ok = all(s is not None and s.link == "ok" for s, _j in snap.values())
-            if ok and self.client.agents_alive() >= set(arms):
+            if (
+                ok
+                and self.client.agents_alive() >= set(arms)
+                and self.client.fleet_state(wait_s=1.0) is not None
+            ):
                 return {"ready": True}
             if time.monotonic() > deadline:
                 return {"ready": False, "snapshot": _builtins(snap)}
