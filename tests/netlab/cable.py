@@ -45,7 +45,7 @@ MAX_QUEUED = 20000
 netem queue (its default limit is 1000 per qdisc)."""
 
 
-@dataclass
+@dataclass(frozen=True)
 class Impairment:
     """What one link does to every frame (the same both ways, like netem on both veth ends)."""
 

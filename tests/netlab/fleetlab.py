@@ -173,10 +173,7 @@ def one_router(tmp_path: Path, arms: int, extra: str = "") -> LabFleet:
         fleet.start_router("router")
         for arm in arm_ids:
             fleet.start_arm_host(arm, [endpoint])
-        fleet.start_coordinator([endpoint])
-        client = fleet.start_client("client", "client", [endpoint])
-        _wait_ready(fleet, client)
-        return fleet
+        return _with_coordinator_and_client(fleet, endpoint)
     except BaseException:
         lab.close()
         raise
@@ -202,13 +199,18 @@ def site_routers(tmp_path: Path, sites: dict[str, list[str]], extra: str = "") -
             fleet.start_router(site)
             for arm in arms:
                 fleet.start_arm_host(arm, [endpoint])
-        fleet.start_coordinator([central])
-        client = fleet.start_client("client", "client", [central])
-        _wait_ready(fleet, client)
-        return fleet
+        return _with_coordinator_and_client(fleet, central)
     except BaseException:
         lab.close()
         raise
+
+
+def _with_coordinator_and_client(fleet: LabFleet, endpoint: str) -> LabFleet:
+    """Start the coordinator and the client on the router at ``endpoint``; wait until ready."""
+    fleet.start_coordinator([endpoint])
+    client = fleet.start_client("client", "client", [endpoint])
+    _wait_ready(fleet, client)
+    return fleet
 
 
 def _wait_ready(fleet: LabFleet, client: RemoteClient) -> None:

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from tests.harness import FleetHarness, wait_until
+from tests.netlab.cable import Impairment
 
 SUBNET = "192.168.123"
 PREFIX = "d1nl"
@@ -104,18 +105,6 @@ class Host:
     def endpoint(self) -> str:
         """The Zenoh endpoint a router on this host listens on."""
         return f"tcp/{self.ip}:{ZENOH_PORT}"
-
-
-@dataclass(frozen=True)
-class Impairment:
-    """What a link does to each frame, each way (see cable.py)."""
-
-    loss: float = 0.0
-    delay_ms: float = 0.0
-    jitter_ms: float = 0.0
-    duplicate: float = 0.0
-    reorder: float = 0.0
-    down: bool = False
 
 
 class Cable:
