@@ -60,6 +60,8 @@ class Lease:
 
     owner: str
     expires_s: float
+    since_s: float
+    """When this owner took the arm (kept while it renews the lease)."""
 
 
 class LeaseRefused(Exception):
@@ -186,9 +188,15 @@ class ArmSafety:
         if self.watched_by is not None and owner != self.watched_by:
             self.watched_by = None  # someone else commands the arm now
         if owner is not None:
-            self.lease = Lease(owner, now_s + self.lease_s)
+            since_s = lease.since_s if lease is not None and lease.owner == owner else now_s
+            self.lease = Lease(owner, now_s + self.lease_s, since_s)
         elif takeover:
             self.lease = None
+
+    def holder(self, now_s: float) -> Lease | None:
+        """The lease in force at ``now_s`` (None when nobody holds the arm or it expired)."""
+        lease = self.lease
+        return lease if lease is not None and lease.expires_s > now_s else None
 
     def release(self, owner: str) -> bool:
         """``owner`` gives the arm up (and ends its watch); False if it did not hold it."""

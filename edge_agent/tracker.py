@@ -176,6 +176,7 @@ class ArmTracker:
     def status(self, now: float, stamp_ns: int) -> ArmStatus:
         """The ``arm/<arm>/status`` payload."""
         age = self.feedback_age_s(now)
+        lease = self.safety.holder(now)
         return ArmStatus(
             stamp_ns=stamp_ns,
             link=self.link,
@@ -186,6 +187,9 @@ class ArmTracker:
             estopped=self.safety.latched,
             feedback_age_s=None if age is None else round(age, 3),
             stop_reason=self.safety.last_reason if self.safety.latched else None,
+            owner=None if lease is None else lease.owner,
+            owned_s=None if lease is None else round(now - lease.since_s, 1),
+            lease_left_s=None if lease is None else round(lease.expires_s - now, 1),
         )
 
     def diag(self, now: float, stamp_ns: int) -> Diag:

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 
+from tests.browser import Browser, open_browser
 from tests.harness import FleetHarness
 
 
@@ -22,3 +23,9 @@ def fleet3_harness(tmp_path: Path) -> Iterator[FleetHarness]:
     """A harness with three simulated arms (a1, a2, a3)."""
     with FleetHarness(tmp_path, arms=3) as harness:
         yield harness
+
+
+@pytest.fixture
+def browser(tmp_path: Path) -> Iterator[Browser]:
+    """One page of a real headless Chromium in a fresh profile."""
+    yield from open_browser(tmp_path)

@@ -157,6 +157,22 @@ def test_one_owner_at_a_time_until_its_lease_expires() -> None:
     assert safety.lease is not None and safety.lease.owner == "operator/b"
 
 
+def test_the_holder_and_since_when_are_kept_across_renewals() -> None:
+    """The viewer shows who holds an arm and for how long (issue 15): a renewal keeps the
+    start, a new owner starts again, an expired lease holds nothing."""
+    safety = _safety()
+    assert safety.holder(0.0) is None
+    safety.check_owner("operator/a", takeover=False, now_s=10.0)
+    safety.check_owner("operator/a", takeover=False, now_s=12.0)
+    lease = safety.holder(12.5)
+    assert lease is not None and lease.owner == "operator/a"
+    assert lease.since_s == 10.0 and lease.expires_s == 12.0 + LEASE_S
+    safety.check_owner("operator/b", takeover=True, now_s=13.0)
+    lease = safety.holder(13.0)
+    assert lease is not None and lease.owner == "operator/b" and lease.since_s == 13.0
+    assert safety.holder(13.0 + LEASE_S + 0.1) is None
+
+
 def test_a_takeover_takes_the_lease_and_a_release_frees_it() -> None:
     safety = _safety()
     safety.check_owner("operator/a", takeover=False, now_s=0.0)

@@ -7,101 +7,24 @@ Screenshots are kept under artifacts/viewer/.
 
 from __future__ import annotations
 
-import io
 import json
 import socket
 import threading
 import time
-from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
 
 import msgspec
 import numpy as np
-import pytest
 import zenoh
-from PIL import Image
-from playwright.sync_api import Page, sync_playwright
 from viser import _messages
 from websockets.sync.client import ClientConnection
 
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
 from fleet.wire.session import open_client
+from tests.browser import ARTIFACTS, Browser
 from tests.harness import FleetHarness, free_port, wait_until
 from tests.test_viewer_access import loopback_only, ws
-
-CHROMIUM = Path("/usr/bin/chromium")
-CHROMIUM_ARGS = [
-    "--headless",
-    "--no-sandbox",
-    "--enable-unsafe-swiftshader",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--no-first-run",
-]
-ARTIFACTS = Path(__file__).resolve().parents[1] / "artifacts" / "viewer"
-
-
-class Browser:
-    """One page in a fresh Chromium profile; counts the viewer's websocket frames."""
-
-    def __init__(self, page: Page) -> None:
-        self.page = page
-        self.frames = 0
-        self.bytes = 0
-        self.requests: list[str] = []
-        """Every URL the page asked for (HTTP requests and WebSockets)."""
-        page.on("websocket", self._on_websocket)
-        page.on("request", lambda request: self.requests.append(request.url))
-
-    def _on_websocket(self, socket: Any) -> None:
-        def on_frame(payload: str | bytes) -> None:
-            self.frames += 1
-            self.bytes += len(payload)
-
-        self.requests.append(socket.url)
-        socket.on("framereceived", on_frame)
-
-    def elsewhere(self, origin: str) -> list[str]:
-        """URLs the page asked for outside ``origin`` (inline data excepted)."""
-        ws_origin = origin.replace("http://", "ws://", 1)
-        own = (origin + "/", ws_origin + "/", "data:", "blob:")
-        return [url for url in self.requests if not url.startswith(own)]
-
-    def canvas(self, name: str) -> np.ndarray:
-        """A screenshot of the 3D canvas (kept as an artefact) as an RGB array."""
-        png = self.page.locator("canvas").first.screenshot()
-        ARTIFACTS.mkdir(parents=True, exist_ok=True)
-        (ARTIFACTS / f"{name}.png").write_bytes(png)
-        return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), dtype=np.int16)
-
-    def save_page(self, name: str) -> None:
-        ARTIFACTS.mkdir(parents=True, exist_ok=True)
-        self.page.screenshot(path=str(ARTIFACTS / f"{name}.png"))
-
-    def arm_online(self, arm: str) -> str | None:
-        row = self.page.locator(f"tr[data-arm='{arm}']")
-        return row.get_attribute("data-online") if row.count() else None
-
-
-@pytest.fixture
-def browser(tmp_path: Path) -> Iterator[Browser]:
-    if not CHROMIUM.exists():
-        pytest.fail("no /usr/bin/chromium: run scripts/ensure-chromium (make test does)")
-    with sync_playwright() as playwright:
-        context = playwright.chromium.launch_persistent_context(
-            str(tmp_path / "chromium-profile"),  # a fresh user-data dir per test
-            executable_path=str(CHROMIUM),
-            headless=True,
-            args=CHROMIUM_ARGS,
-            viewport={"width": 1280, "height": 800},
-        )
-        try:
-            yield Browser(context.new_page())
-        finally:
-            context.close()
 
 
 def start_viewer(harness: FleetHarness, *options: str) -> str:
@@ -223,6 +146,10 @@ def test_the_fleet_panel_shows_a_killed_agent_as_offline(browser: Browser, tmp_p
         assert browser.arm_online("a1") == "yes"
         row = browser.page.locator("tr[data-arm='a2']").inner_text()
         assert "OFFLINE" in row
+        # The event log says when it went (newest first, after both came online).
+        kinds = browser.page.locator("#event-log tr[data-kind]")
+        wait_until(lambda: kinds.first.get_attribute("data-kind") == "offline", 5.0)
+        assert "a2" in kinds.first.inner_text() and "agent gone" in kinds.first.inner_text()
         time.sleep(0.5)
         browser.save_page("05-page-a2-offline")
         assert not_blank(browser.canvas("05-a2-offline"))

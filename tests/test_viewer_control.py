@@ -24,6 +24,7 @@ from tests.harness import FleetHarness, free_port, wait_until
 from viewer.access import AccessGuard, AccessPolicy
 from viewer.commands import Commander, may_command
 from viewer.confirm import Confirmations
+from viewer.events import EventLog
 from viewer.panels import FleetPanels
 from viewer.server import ViewerServer, start_server
 
@@ -37,10 +38,12 @@ class RecordingCommander:
         self.read_only = read_only
         self.principal = "viewer" if read_only else "operator"
         self.resets = 0
+        self.reset_targets: list[str | None] = []
         self.jogs: list[tuple[str, int, float]] = []
 
-    def reset_all(self) -> bool:
+    def reset(self, arm: str | None = None) -> bool:
         self.resets += 1
+        self.reset_targets.append(arm)
         return True
 
     def jog(self, arm: str, joint: int, angle_deg: float, measured_deg: float) -> bool:
@@ -51,7 +54,8 @@ class RecordingCommander:
 def panels_on(server: ViewerServer, read_only: bool) -> tuple[FleetPanels, RecordingCommander]:
     """The viewer's real panels for the repository's inventory on ``server``."""
     commander = RecordingCommander(read_only)
-    panels = FleetPanels(server, load_inventory(INVENTORY), commander)  # type: ignore[arg-type]
+    arms = tuple(load_inventory(INVENTORY).arms)
+    panels = FleetPanels(server, arms, commander, EventLog())  # type: ignore[arg-type]
     return panels, commander
 
 
@@ -192,9 +196,9 @@ def test_an_observer_viewer_only_stops(
     with commander_as(fleet_harness.inventory, "viewer") as viewer:
         assert viewer.read_only
         assert viewer.jog("a1", 0, 10.0, 0.0) is False
-        assert viewer.reset_all() is False
+        assert viewer.reset() is False
         assert viewer.refusals["jog"] == 1 and viewer.refusals["reset"] == 1
-        stop = viewer.stop_all()
+        stop = viewer.stop()
         wait_until(lambda: space.estop in recorder.seen()[0], 10.0)
     puts, queries = recorder.seen()
     assert space.reset not in puts and queries == []
@@ -208,12 +212,12 @@ def test_read_only_flag_and_an_operator_viewer(
     space, inventory = recorder.keys, fleet_harness.inventory
     with commander_as(inventory, "operator", read_only=True) as flagged:
         assert flagged.read_only
-        assert flagged.jog("a1", 0, 10.0, 0.0) is False and flagged.reset_all() is False
+        assert flagged.jog("a1", 0, 10.0, 0.0) is False and flagged.reset() is False
     with commander_as(inventory, "operator") as operator:
         assert not operator.read_only
         assert operator.jog("a1", 2, 15.0, 0.0) is True
         wait_until(lambda: recorder.seen()[1], 10.0)
-        assert operator.reset_all() is True
+        assert operator.reset() is True
         wait_until(lambda: space.reset in recorder.seen()[0], 10.0)
     # The jog went under the viewer's principal (arm/a1/cmd/operator); the read-only one sent
     # nothing.

@@ -180,11 +180,13 @@ def test_the_arm_panel_renders_bold_readouts_a_seconds_axis_and_unwrapped_cells(
     import viser
 
     from tests.harness import free_port
-    from viewer.panels import _ArmPanel, fleet_row
+    from viewer.arm_panel import ArmControls, ArmPanel
+    from viewer.panels import fleet_row
 
     server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
     try:
-        panel = _ArmPanel(server.gui, "a1", None, plot_on=True, jog=False)  # type: ignore[arg-type]
+        none = ArmControls(stop=False, reset=False, jog=False)
+        panel = ArmPanel(server.gui, "a1", None, True, none, print, print)  # type: ignore[arg-type]
         panel.show(np.array([29.1, -5.0, 0.0, 0.0, 0.0, 0.0, 12.0]))
         assert "j0: **29.1**°" in panel.readout.content
         assert "** " not in panel.readout.content and " **°" not in panel.readout.content
@@ -192,7 +194,7 @@ def test_the_arm_panel_renders_bold_readouts_a_seconds_axis_and_unwrapped_cells(
     finally:
         server.stop()
     row = fleet_row("a1", None, True, "0.4 s")
-    assert row.count("white-space:nowrap") == 9
+    assert row.count("white-space:nowrap") == 10
 
 
 def test_the_fleet_table_shows_contact_and_the_stop_reason() -> None:

@@ -1,9 +1,11 @@
-"""The viewer process: a viser server, the fleet state from Zenoh, the scene and the panels.
+"""The viewer process: a viser server, the fleet state (live from Zenoh, or a recording's
+timeline), the scene and the panels.
 
 Threads: Zenoh's (callbacks store the newest sample and return), viser's event loop and its
 callback pool, ``viewer-render`` (ours: snapshot -> scene at ``rate_hz``, panels at
-``panel_rate_hz``), ``viewer-jog`` and ``viewer-stop`` (see viewer/commands.py). No lock is held
-across a viser update or a Zenoh put: the render thread works on a snapshot copy.
+``panel_rate_hz``; in a replay it also moves the timeline), ``viewer-jog`` and ``viewer-stop``
+(see viewer/commands.py). No lock is held across a viser update or a Zenoh put: the render
+thread works on a snapshot copy. A replay opens no Zenoh session and builds no command control.
 
 Access: the web server answers only requests carrying this run's token, and WebSockets only
 from the viewer's own origins (viewer/access.py, installed by viewer/server.py). The viewer acts
@@ -17,14 +19,19 @@ import threading
 import time
 from collections.abc import Sequence
 
+import viser
+
 from fleet.guard import ThreadGuard
 from fleet.inventory import Inventory
+from fleet.record.layout import FleetLayout
 from fleet.security.session import open_session
 from viewer.access import AccessGuard, AccessPolicy, new_token, url_host
 from viewer.commands import Commander
+from viewer.events import REFUSED
 from viewer.kinematics import ArmModel, load_urdf
 from viewer.meshes import link_meshes
 from viewer.panels import FleetPanels
+from viewer.replay import ReplaySource, ReplayTimeline
 from viewer.scene import FleetScene
 from viewer.server import start_server
 from viewer.state import ViewerFleet
@@ -39,22 +46,27 @@ PANEL_RATE_HZ = 4.0
 
 
 class Viewer:
-    """The running viewer. A context manager; ``close()`` is idempotent."""
+    """The running viewer: of the live fleet of ``inventory``, or of a recording (``replay``).
+    A context manager; ``close()`` is idempotent."""
 
     def __init__(
         self,
-        inventory: Inventory,
+        inventory: Inventory | None = None,
         host: str = DEFAULT_HOST,
         port: int = DEFAULT_PORT,
         rate_hz: float = DEFAULT_RATE_HZ,
         token: str | None = None,
         allow_origins: Sequence[str] = (),
         read_only: bool = False,
+        replay: ReplaySource | None = None,
     ) -> None:
         """``token``: the access token (a random one if None); ``allow_origins``: origins
         besides the viewer's own whose pages may open its WebSocket; ``read_only``: STOP ALL
-        only (also the case when ``inventory.principal`` may not command). Raises ValueError
-        for a malformed token or origin."""
+        only (also the case when ``inventory.principal`` may not command); ``replay``: show
+        this recording instead of the live fleet (``inventory`` is then not used). Raises
+        ValueError for a malformed token or origin."""
+        if (inventory is None) == (replay is None):
+            raise ValueError("a viewer shows either a live inventory or a replay")
         self.inventory = inventory
         self.rate_hz = rate_hz
         self.access = AccessGuard(
@@ -67,22 +79,46 @@ class Viewer:
         # viewer that shows a frozen fleet or a STOP ALL that confirms nothing; it exits instead.
         self.guard = ThreadGuard("viewer")
         self.failed = self.guard.failed
-        self.server = start_server(host, port, f"d1-fleet · {inventory.fleet}", self.access)
+        fleet = inventory.fleet if inventory is not None else replay.layout.fleet  # type: ignore[union-attr]
+        title = f"d1-fleet · {fleet}" + ("" if replay is None else " · replay")
+        self.server = start_server(host, port, title, self.access)
         self.host = host
         self.port = self.server.get_port()  # viser silently takes the next free port
+        self.session = None
+        self.commander: Commander | None = None
+        self.timeline: ReplayTimeline | None = None
         try:
-            self.session = open_session(inventory)
+            if replay is not None:
+                self.timeline = ReplayTimeline(replay)
+                self.state = self.timeline.state
+                placements: FleetLayout | Inventory = replay.layout
+                arms = tuple(replay.layout.arms)
+            else:
+                assert inventory is not None
+                self.session = open_session(inventory)
+                self.state = ViewerFleet(tuple(inventory.arms), inventory.fleet, self.session)
+                self.commander = Commander(
+                    inventory,
+                    self.session,
+                    notify=self._notify,
+                    guard=self.guard,
+                    read_only=read_only,
+                )
+                placements = inventory
+                arms = tuple(inventory.arms)
         except BaseException:
             self.server.stop()
             raise
-        self.state = ViewerFleet(inventory, self.session)
-        self.commander = Commander(
-            inventory, self.session, notify=self._notify, guard=self.guard, read_only=read_only
+        self.read_only = self.commander is None or self.commander.read_only
+        self.scene = FleetScene(self.server, placements.arms, model, meshes)
+        self.panels = FleetPanels(
+            self.server, arms, self.commander, self.state.events, self.scene.fit, self.timeline
         )
-        self.read_only = self.commander.read_only
-        self.panels = FleetPanels(self.server, inventory, self.commander)
-        self.scene = FleetScene(self.server, inventory, model, meshes)
-        self.state.start(self.guard)
+        self._framed: set[int] = set()
+        self.server.on_client_connect(self._on_connect)
+        self.server.on_client_disconnect(lambda client: self._framed.discard(client.client_id))
+        if self.session is not None:
+            self.state.start(self.guard)
         self._closing = threading.Event()
         self._closed = False
         self._thread = self.guard.thread(self._render_loop, "viewer-render")
@@ -99,17 +135,34 @@ class Viewer:
         return f"{self.base_url}?token={self.access.policy.token}"
 
     def _notify(self, title: str, body: str, is_error: bool) -> None:
+        if is_error:
+            self.state.events.add(REFUSED, None, f"{title}: {body}")
         self.panels.notify(title, body, is_error)
+
+    def _on_connect(self, client: viser.ClientHandle) -> None:
+        """Frame the fleet for this browser once it has told its canvas size (its first camera
+        message): the initial camera assumed an aspect, this one knows it."""
+
+        def first_camera(_camera: viser.CameraHandle) -> None:
+            if client.client_id in self._framed:
+                return
+            self._framed.add(client.client_id)
+            self.scene.fit(client)
+
+        client.camera.on_update(first_camera)
 
     def _render_loop(self) -> None:
         period = 1.0 / self.rate_hz
         next_panels = 0.0
-        next_tick = time.monotonic()
+        next_tick = last = time.monotonic()
         while not self._closing.wait(max(0.0, next_tick - time.monotonic())):
             now = time.monotonic()
             # Fixed-rate ticks that skip, never catch up: a late tick is not followed by a
             # burst; the newest snapshot is all that is drawn.
             next_tick = max(next_tick + period, now)
+            if self.timeline is not None:
+                self.timeline.tick(now - last)
+            last = now
             snapshot = self.state.snapshot()
             self.scene.render(snapshot)
             self.panels.record(snapshot, now)
@@ -125,9 +178,11 @@ class Viewer:
         self._closed = True
         self._closing.set()
         self._thread.join(timeout=5.0)
-        self.commander.close()
+        if self.commander is not None:
+            self.commander.close()
         self.state.close()
-        self.session.close()
+        if self.session is not None:
+            self.session.close()
         self.server.stop()
 
     def __enter__(self) -> Viewer:

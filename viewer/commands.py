@@ -1,4 +1,4 @@
-"""What the viewer sends: STOP ALL, reset, and jog (``move_joint``) commands.
+"""What the viewer sends: STOP ALL or one arm's stop, resets, and jog (``move_joint``) commands.
 
 Jogs go through ``FleetClient.command`` on the viewer's own ``viewer-jog`` thread: a slider
 callback only records the newest target per (arm, joint) and returns (latest wins: dragging a
@@ -98,7 +98,9 @@ class Commander:
         self.owner = f"viewer@{socket.gethostname()}:{os.getpid()}"
         self._wake = threading.Event()
         self._closing = threading.Event()
-        self._stops: queue.SimpleQueue[m.StopRequest | None] = queue.SimpleQueue()
+        self._stops: queue.SimpleQueue[tuple[m.StopRequest, str | None] | None] = (
+            queue.SimpleQueue()
+        )
         guard = guard or ThreadGuard("viewer")
         self._threads = [
             guard.thread(self._jog_loop, "viewer-jog"),
@@ -109,24 +111,28 @@ class Commander:
 
     # ------------------------------------------------------------------ stop and reset
 
-    def stop_all(self, reason: str = "STOP ALL pressed in the viewer") -> m.StopRequest:
-        """Put a fleet-wide StopRequest now; its repeats and confirmation follow on the
-        ``viewer-stop`` thread. Drops pending jogs."""
+    def stop(self, arm: str | None = None, reason: str = "") -> m.StopRequest:
+        """Put a StopRequest for ``arm`` (None: every arm) now; its repeats and confirmation
+        follow on the ``viewer-stop`` thread. Drops pending jogs (of that arm)."""
+        where = "every arm" if arm is None else arm
+        reason = reason or f"{'STOP ALL' if arm is None else 'stop ' + arm} pressed in the viewer"
         with self._lock:
-            self._pending.clear()
+            for key in [k for k in self._pending if arm is None or k[0] == arm]:
+                del self._pending[key]
         request = self.client.stop_request(reason, source="viewer")
-        self.client.put_stop(request)
-        self._stops.put(request)
-        log.warning("STOP ALL sent (stop_id %s)", request.stop_id)
+        self.client.put_stop(request, arm)
+        self._stops.put((request, arm))
+        log.warning("stop of %s sent (stop_id %s)", where, request.stop_id)
         return request
 
-    def reset_all(self) -> bool:
-        """Put a fleet-wide ResetRequest (the operator confirmed it); False, sending nothing,
-        when the viewer is read-only."""
+    def reset(self, arm: str | None = None) -> bool:
+        """Put a ResetRequest for ``arm`` (None: every arm; the operator confirmed it); False,
+        sending nothing, when the viewer is read-only."""
         if self._refused("reset"):
             return False
-        self.client.reset(source="viewer")
-        log.warning("reset sent to the whole fleet (principal %s)", self.principal)
+        self.client.reset(arm, source="viewer")
+        where = "the whole fleet" if arm is None else arm
+        log.warning("reset sent to %s (principal %s)", where, self.principal)
         return True
 
     def _refused(self, what: str) -> bool:
@@ -139,20 +145,23 @@ class Commander:
 
     def _stop_loop(self) -> None:
         while True:
-            request = self._stops.get()
-            if request is None or self._closing.is_set():
+            item = self._stops.get()
+            if item is None or self._closing.is_set():
                 return
-            acks = self.client.estop(request=request, timeout_s=STOP_CONFIRM_S)
+            request, arm = item
+            acks = self.client.estop(arm, request=request, timeout_s=STOP_CONFIRM_S)
             unconfirmed = [a for a, ack in acks.items() if ack is None or not ack.done]
+            title = "STOP ALL" if arm is None else f"stop {arm}"
             if unconfirmed:
                 self._notify(
-                    "STOP not confirmed",
+                    f"{title}: not confirmed",
                     f"no acknowledgment or standstill from {', '.join(unconfirmed)}: "
                     "check those arms (their agents may be down)",
                     True,
                 )
             else:
-                self._notify("STOP ALL", "every arm acknowledged and is still", False)
+                every = "every arm" if arm is None else arm
+                self._notify(title, f"{every} acknowledged and is still", False)
 
     # ------------------------------------------------------------------ jog
 

@@ -1,12 +1,14 @@
-"""The GUI panels: STOP ALL, reset (confirmed), the fleet table, and one folder per arm with
-live joint readouts, a plot of the last seconds and jog sliders.
+"""The GUI panels: STOP ALL, reset (confirmed), "Fit view", the fleet table, the event log, the
+legend, and one folder per arm (viewer/arm_panel.py); in a replay, the timeline instead of every
+command control (viewer/replay_panel.py).
 
 ``update(snapshot)`` runs on the viewer thread at the panel rate and only sends what changed.
 GUI callbacks run on viser's threads: they call ``Commander`` methods, which return at once.
 
-A read-only viewer (``commander.read_only``) shows STOP ALL, the table and the readouts, and
-builds no reset button and no sliders; the commander refuses resets and jogs anyway. The reset
-needs both steps on the server (viewer/confirm.py), not only the browser's dialog. The share
+A read-only viewer (``commander.read_only``) shows STOP ALL and each arm's stop, the table and
+the readouts, and builds no reset button and no sliders; the commander refuses resets and jogs
+anyway. A reset (fleet or one arm) needs both steps on the server (viewer/confirm.py), not only
+the browser's dialog. A replay (no commander) builds no command control at all. The share
 button (a public tunnel) is hidden; viewer/server.py refuses the request behind it.
 """
 
@@ -15,45 +17,40 @@ from __future__ import annotations
 import html
 import logging
 import time
+from collections.abc import Callable
 
 import numpy as np
-import numpy.typing as npt
 import viser
 
-from fleet.d1.limits import JOINT_COUNT, JOINT_RANGE_DEG
-from fleet.inventory import Inventory
+from fleet.d1.limits import JOINT_COUNT
 from fleet.wire import messages as m
-from viewer.commands import JOG_INTERVAL_S, MAX_JOG_STEP_DEG, Commander
-from viewer.confirm import Confirmations
+from viewer.arm_panel import (
+    PLOT_RATE_HZ,
+    PLOT_WINDOW_S,
+    ArmControls,
+    ArmPanel,
+    age_text,
+    arm_info_html,
+)
+from viewer.commands import Commander
+from viewer.confirm import FLEET, Confirmations
+from viewer.events import EventLog
 from viewer.refusals import Refusals
+from viewer.replay import ReplayTimeline
+from viewer.replay_panel import ReplayControls
 from viewer.scene import legend_html
 from viewer.state import Snapshot
 
-PLOT_WINDOW_S = 10.0
-PLOT_RATE_HZ = 10.0
 PLOTS_ON_BY_DEFAULT_UP_TO = 10
 """Fleets up to this many arms show every arm's plot at start; larger ones start with plots off
 (each can be switched on in its folder): 200 live plots would cost the browser more than the 3D."""
 READOUTS_PER_TICK = 12
 """Arm folders refreshed per panel tick (round robin): fleets up to this size refresh every
 arm every tick; a 200-arm fleet refreshes each arm's readout about every 4 s."""
-JOINT_COLOURS = ("#e6194b", "#3cb44b", "#4363d8", "#f58231", "#911eb4", "#008080", "#9a6324")
-
-
-SLIDER_HOLD_S = 1.5
-"""After the operator touched a slider, the sliders stop following the arm this long (so the
-slider under the hand does not jump while the arm moves)."""
 
 
 def _yes(value: bool | None, yes: str = "yes", no: str = "no") -> str:
     return "?" if value is None else (yes if value else no)
-
-
-def age_text(age_s: float) -> str:
-    """Feedback age, coarse enough that the table does not change every tick at 10 Hz."""
-    if not np.isfinite(age_s):
-        return "-"
-    return "< 0.5 s" if age_s < 0.5 else f"{age_s:.0f} s" if age_s >= 10 else f"{age_s:.1f} s"
 
 
 def contact_text(joints_in_contact: tuple[bool, ...]) -> str:
@@ -75,6 +72,7 @@ def fleet_row(
         _yes(None if status is None else status.error, "ERROR", "no"),
         "STOPPED" if status is not None and status.estopped else "no",
         contact,
+        "-" if status is None or status.owner is None else status.owner,
         age,
     ]
     # nowrap: "0.4 s" broke over two lines, and a STOPPED row pushed the age out of view
@@ -93,7 +91,18 @@ class FleetTable:
 
     HEAD = "".join(
         f"<th style='padding:0 6px;text-align:left'>{h}</th>"
-        for h in ("arm", "agent", "link", "enabled", "powered", "error", "stop", "contact", "age")
+        for h in (
+            "arm",
+            "agent",
+            "link",
+            "enabled",
+            "powered",
+            "error",
+            "stop",
+            "contact",
+            "owner",
+            "age",
+        )
     )
 
     def __init__(self) -> None:
@@ -126,152 +135,106 @@ class FleetTable:
         return f"<div style='overflow-x:auto'>{table}</div>{why}"  # scrolls rather than clips
 
 
-class _ArmPanel:
-    """The folder of one arm."""
+class FleetPanels:
+    """Every GUI element of the viewer (shared by all browsers). ``commander`` None: a replay
+    (``timeline`` drives it); ``fit(client)`` frames the fleet in that browser."""
 
     def __init__(
-        self, gui: viser.GuiApi, arm: str, commander: Commander, plot_on: bool, jog: bool
+        self,
+        server: viser.ViserServer,
+        arms: tuple[str, ...],
+        commander: Commander | None,
+        events: EventLog,
+        fit: Callable[[viser.ClientHandle], None] | None = None,
+        timeline: ReplayTimeline | None = None,
     ) -> None:
-        self.arm = arm
-        self.blocked: bool | None = None
-        self.measured: npt.NDArray[np.float64] | None = None
-        self.jogged_s = -SLIDER_HOLD_S
-        self.readout_text = ""
-        with gui.add_folder(f"Arm {arm}", expand_by_default=False):
-            self.readout = gui.add_markdown("no feedback yet")
-            self.show_plot = gui.add_checkbox("plot", initial_value=plot_on)
-            n = int(PLOT_WINDOW_S * PLOT_RATE_HZ)
-            self.plot = gui.add_uplot(
-                data=(np.linspace(-PLOT_WINDOW_S, 0.0, n), *(np.zeros(n),) * JOINT_COUNT),
-                series=(
-                    {"label": "t (s)"},
-                    *(
-                        {"label": f"j{j}", "stroke": JOINT_COLOURS[j], "width": 1}
-                        for j in range(JOINT_COUNT)
-                    ),
-                ),
-                title=f"{arm} joints (deg)",
-                # uPlot reads x as a Unix time unless told: -10..0 s read "12/31/69 11:59pm".
-                scales={"x": {"time": False}},
-                aspect=1.6,
-                visible=plot_on,
-            )
-            self.show_plot.on_update(lambda _e: setattr(self.plot, "visible", self.show_plot.value))
-            self.sliders = []
-            if not jog:
-                return  # read-only: no sliders at all (the commander would refuse them anyway)
-            for joint, (low, high) in enumerate(JOINT_RANGE_DEG):
-                slider = gui.add_slider(
-                    f"jog j{joint}", min=low, max=high, step=0.5, initial_value=0.0, disabled=True
-                )
-                slider.on_update(self._on_slide(commander, joint))
-                self.sliders.append(slider)
-            gui.add_markdown(
-                f"Jog: each move goes at most {MAX_JOG_STEP_DEG:g}° from the measured angle, "
-                f"one every {JOG_INTERVAL_S:g} s, and takes the arm's lease (a script holding "
-                "it refuses the jog, naming itself). The sliders follow the arm."
-            )
-
-    def _on_slide(self, commander: Commander, joint: int):  # type: ignore[no-untyped-def]
-        def on_update(event: viser.GuiEvent) -> None:
-            if event.client is None or self.blocked or self.measured is None:
-                return  # our own sync from feedback, a stale click, or nothing measured yet
-            self.jogged_s = time.monotonic()
-            measured = float(self.measured[joint])
-            commander.jog(self.arm, joint, float(event.target.value), measured)
-
-        return on_update
-
-    def set_blocked(self, blocked: bool) -> None:
-        """Disable the jog sliders while the arm is stopped, stale or offline."""
-        if blocked != self.blocked:
-            self.blocked = blocked
-            for slider in self.sliders:
-                slider.disabled = blocked
-
-    def show(self, angles: npt.NDArray[np.float64]) -> None:
-        """Refresh the readout, and the sliders unless the operator is using them, from the
-        measured angles: a jog always starts from where the arm is."""
-        self.measured = angles.copy()
-        text = "  \n".join(
-            # No padding inside the markers: "** 29.1**" is not bold in Markdown, it is literal.
-            f"j{j}: **{a:.1f}**°"
-            for j, a in enumerate(np.round(angles, 1).tolist())
-        )
-        if text != self.readout_text:
-            self.readout_text = text
-            self.readout.content = text
-        if self.sliders and time.monotonic() - self.jogged_s >= SLIDER_HOLD_S:
-            for slider, angle in zip(self.sliders, angles.tolist(), strict=True):
-                value = float(np.clip(round(angle * 2) / 2, slider.min, slider.max))
-                if value != slider.value:
-                    slider.value = value
-
-
-class FleetPanels:
-    """Every GUI element of the viewer (shared by all browsers)."""
-
-    def __init__(self, server: viser.ViserServer, inventory: Inventory, commander: Commander):
         self.server = server
         self.commander = commander
-        self.arms = tuple(inventory.arms)
-        self.read_only = commander.read_only
+        self.arms = arms
+        self.events = events
+        self.read_only = commander is None or commander.read_only
         self.confirmations = Confirmations()
         self.refusals = Refusals(logging.getLogger("viewer.panels"))
         gui = server.gui
         # The share button would ask for a public tunnel to the viewer: never shown.
         gui.configure_theme(control_width="large", show_share_button=False)
-        self.stop_button = gui.add_button(
-            "STOP ALL", color="red", icon=viser.Icon.HAND_STOP, hint="protective stop, every arm"
-        )
-        self.stop_button.on_click(lambda _e: self._on_stop())
+        self.stop_button: viser.GuiButtonHandle | None = None
         self.reset_button: viser.GuiButtonHandle | None = None
-        if self.read_only:
-            gui.add_markdown(
-                f"Read-only viewer (principal `{commander.principal}`): STOP ALL only. "
-                "`fleet viewer --principal operator` gives reset and jog."
+        self.replay = None if timeline is None else ReplayControls(gui, timeline)
+        if commander is not None:
+            self.stop_button = gui.add_button(
+                "STOP ALL",
+                color="red",
+                icon=viser.Icon.HAND_STOP,
+                hint="protective stop, every arm",
             )
-        else:
-            self.reset_button = gui.add_button("Reset stop…", color="gray")
-            self.reset_button.on_click(self._on_reset)
+            self.stop_button.on_click(lambda _e: self._on_stop(None))
+            if self.read_only:
+                gui.add_markdown(
+                    f"Read-only viewer (principal `{commander.principal}`): stop only. "
+                    "`fleet viewer --principal operator` gives reset and jog."
+                )
+            else:
+                self.reset_button = gui.add_button("Reset stop…", color="gray")
+                self.reset_button.on_click(lambda e: self._on_reset(e, None))
+        self.fit_button = gui.add_button(
+            "Fit view", icon=viser.Icon.FOCUS_2, hint="frame every arm"
+        )
+        self.fit_button.on_click(lambda e: fit(e.client) if fit and e.client else None)
         self.stop_info = gui.add_markdown("")
         self.table_html = ""
+        self.events_version = -1
         self.fleet_table = FleetTable()
         self._next_readout = 0
         with gui.add_folder("Fleet"):
             self.table = gui.add_html("")
+        with gui.add_folder("Events"):
+            self.event_log = gui.add_html(events.html())
         with gui.add_folder("Legend", expand_by_default=False):
             gui.add_html(legend_html())
         plot_on = len(self.arms) <= PLOTS_ON_BY_DEFAULT_UP_TO
+        controls = ArmControls.for_viewer(commander)
         self.arm_panels = [
-            _ArmPanel(gui, arm, commander, plot_on, jog=not self.read_only) for arm in self.arms
+            ArmPanel(gui, arm, commander, plot_on, controls, self._on_stop, self._on_reset)
+            for arm in self.arms
         ]
         n = int(PLOT_WINDOW_S * PLOT_RATE_HZ)
         self._history = np.zeros((len(self.arms), n, JOINT_COUNT))
         self._history_t = np.linspace(-PLOT_WINDOW_S, 0.0, n)
         self._next_sample = 0.0
 
-    def _on_stop(self) -> None:
-        request = self.commander.stop_all()
-        self.stop_info.content = f"STOP ALL sent at {time.strftime('%H:%M:%S')} ({request.stop_id})"
+    def _on_stop(self, arm: str | None) -> None:
+        if self.commander is None:
+            return
+        request = self.commander.stop(arm)
+        what = "STOP ALL" if arm is None else f"stop {arm}"
+        self.stop_info.content = f"{what} sent at {time.strftime('%H:%M:%S')} ({request.stop_id})"
 
-    def _on_reset(self, event: viser.GuiEvent) -> None:
+    def _on_reset(self, event: viser.GuiEvent, arm: str | None) -> None:
         client = event.client
         if client is None or self.read_only:
             return
-        nonce = self.confirmations.request(client.client_id)
-        with client.gui.add_modal("Reset the fleet's stop?") as modal:
+        target = FLEET if arm is None else arm
+        nonce = self.confirmations.request(client.client_id, target)
+        title = "Reset the fleet's stop?" if arm is None else f"Reset the stop of {arm}?"
+        whose = "of **every** arm" if arm is None else f"of **{arm}** only"
+        with client.gui.add_modal(title) as modal:
             client.gui.add_markdown(
-                "Releases the latched stop of **every** arm. Arms do not move: each holds its "
-                "measured pose. Check the cell is clear first."
+                f"Releases the latched stop {whose}. It does not move anything: each arm holds "
+                "its measured pose until someone commands it (the demo's dance does not start "
+                "again by itself). Check the cell is clear first."
             )
-            confirm = client.gui.add_button("Reset every arm", color="red")
+            confirm = client.gui.add_button(
+                "Reset every arm" if arm is None else f"Reset {arm}", color="red"
+            )
             cancel = client.gui.add_button("Cancel")
 
             def do_reset(e: viser.GuiEvent) -> None:
                 modal.close()
                 # The client that clicked, not the one the dialog was made for: they must match.
-                if not self.confirm_reset(-1 if e.client is None else e.client.client_id, nonce):
+                if not self.confirm_reset(
+                    -1 if e.client is None else e.client.client_id, nonce, arm
+                ):
                     client.add_notification(
                         "Reset not sent",
                         "the confirmation expired or was already used: press Reset again",
@@ -286,17 +249,20 @@ class FleetPanels:
             confirm.on_click(do_reset)
             cancel.on_click(do_cancel)
 
-    def confirm_reset(self, client_id: int, nonce: str) -> bool:
-        """Step two of the reset: sends it only if ``client_id`` asked (step one, ``nonce``)
-        within the confirmation window and the viewer may reset."""
-        if not self.confirmations.confirm(client_id, nonce):
+    def confirm_reset(self, client_id: int, nonce: str, arm: str | None = None) -> bool:
+        """Step two of a reset of ``arm`` (None: the fleet): sends it only if ``client_id``
+        asked about that very target (step one, ``nonce``) within the confirmation window and
+        the viewer may reset."""
+        target = FLEET if arm is None else arm
+        if self.commander is None or not self.confirmations.confirm(client_id, nonce, target):
             self.refusals.refuse(
                 "reset", f"a reset confirmation from client {client_id} with no pending request"
             )
             return False
-        if not self.commander.reset_all():
+        if not self.commander.reset(arm):
             return False
-        self.stop_info.content = f"reset sent at {time.strftime('%H:%M:%S')}"
+        what = "reset" if arm is None else f"reset of {arm}"
+        self.stop_info.content = f"{what} sent at {time.strftime('%H:%M:%S')}"
         return True
 
     def record(self, snapshot: Snapshot, now: float) -> None:
@@ -308,23 +274,41 @@ class FleetPanels:
         self._history[:, -1] = snapshot.angles_deg
 
     def update(self, snapshot: Snapshot) -> None:
-        """Refresh the table, readouts, plots and slider states (only what changed)."""
+        """Refresh the table, the event log, readouts, plots and slider states (only what
+        changed)."""
         table = self.fleet_table.html(snapshot)
         if table != self.table_html:
             self.table_html = table
             self.table.content = table
+        if self.events.version != self.events_version:
+            self.events_version = self.events.version
+            self.event_log.content = self.events.html()
+        if self.replay is not None:
+            self.replay.update()
         has = np.isfinite(snapshot.joints_age_s)
         blocked = snapshot.estopped | ~snapshot.online | snapshot.stale
         for i, panel in enumerate(self.arm_panels):
             panel.set_blocked(bool(blocked[i]))
+        contact = snapshot.contact_rows()
         # Readouts and plots: at most READOUTS_PER_TICK arms per tick, round robin, so a large
         # fleet costs the same per tick as a small one (each arm refreshes less often).
         count = min(READOUTS_PER_TICK, len(self.arm_panels))
         for k in range(count):
             i = (self._next_readout + k) % len(self.arm_panels)
             panel = self.arm_panels[i]
+            in_contact = tuple(bool(c) for c in contact[i])
+            panel.show_info(
+                arm_info_html(
+                    panel.arm,
+                    snapshot.status[i],
+                    snapshot.diag_of(i),
+                    bool(snapshot.online[i]),
+                    float(snapshot.joints_age_s[i]),
+                    in_contact,
+                )
+            )
             if has[i]:
-                panel.show(snapshot.angles_deg[i])
+                panel.show(snapshot.angles_deg[i], in_contact)
                 if panel.show_plot.value:
                     panel.plot.data = (self._history_t, *self._history[i].T.copy())
         self._next_readout = (self._next_readout + count) % max(1, len(self.arm_panels))

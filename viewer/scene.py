@@ -12,12 +12,21 @@ says the same in words.
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
+from typing import Protocol
+
 import numpy as np
 import numpy.typing as npt
 import viser
 
 from fleet.d1.limits import GRIPPER_JOINT
-from fleet.inventory import Inventory
+from viewer.camera import (
+    DEFAULT_ASPECT,
+    DEFAULT_WIDTH_PX,
+    FOV_RAD,
+    fit_view,
+    usable_right_edge,
+)
 from viewer.kinematics import (
     ArmModel,
     base_transforms,
@@ -90,20 +99,32 @@ def label_text(arm: str, code: int, error: bool) -> str:
     return f"{arm} · {words}" if words else arm
 
 
+class Placement(Protocol):
+    """Where an arm stands: an inventory's ``ArmConfig`` or a recording's ``ArmPlacement``."""
+
+    @property
+    def base_xyz(self) -> Sequence[float]: ...
+    @property
+    def base_rpy_deg(self) -> Sequence[float]: ...
+    @property
+    def joint_sign(self) -> Sequence[int]: ...
+
+
 class FleetScene:
-    """Scene nodes of the whole fleet; ``render(snapshot)`` draws one tick (viewer thread only)."""
+    """Scene nodes of the whole fleet; ``render(snapshot)`` draws one tick (viewer thread only);
+    ``fit`` frames the fleet in browsers (any thread)."""
 
     def __init__(
         self,
         server: viser.ViserServer,
-        inventory: Inventory,
+        placements: Mapping[str, Placement],
         model: ArmModel,
         meshes: list[LinkMesh],
     ) -> None:
         self.server = server
         self.model = model
-        self.arms = tuple(inventory.arms)
-        configs = [inventory.arms[a] for a in self.arms]
+        self.arms = tuple(placements)
+        configs = [placements[a] for a in self.arms]
         self.joint_sign = np.array([c.joint_sign for c in configs], dtype=float)
         xyz = np.array([c.base_xyz for c in configs], dtype=float)
         self.base = base_transforms(xyz, [c.base_rpy_deg for c in configs])
@@ -126,11 +147,9 @@ class FleetScene:
         size = 2.0 * (np.ceil(span) + 1.0)
         scene.add_grid("/ground", width=size, height=size, plane="xy", cell_size=0.1)
         scene.add_frame("/world", axes_length=0.15, axes_radius=0.006)
-        centre = xyz.mean(axis=0) if n else np.zeros(3)
-        reach = 1.2 + 0.8 * span
-        server.initial_camera.look_at = tuple(centre + [0.0, 0.0, 0.25])
-        server.initial_camera.position = tuple(centre + [reach, -reach, 0.8 * reach])
         wxyz, pos = self._poses(np.zeros((n, 7)))
+        self._corners = np.stack([_box_corners(mesh.vertices) for mesh in meshes])  # (K, 8, 3)
+        self._set_initial_camera()
         self._links = [
             scene.add_batched_meshes_simple(
                 f"/fleet/{mesh.link}",
@@ -160,6 +179,38 @@ class FleetScene:
             )
             for i, arm in enumerate(self.arms)
         ]
+
+    def _set_initial_camera(self) -> None:
+        """Where a new browser's camera starts (and viser's "reset view" returns to)."""
+        camera = self.server.initial_camera
+        camera.fov = FOV_RAD
+        points = self.frame_points(self._drawn_deg)
+        right = usable_right_edge(DEFAULT_WIDTH_PX)
+        position, target = fit_view(points, FOV_RAD, DEFAULT_ASPECT, right)
+        camera.position = tuple(position)
+        camera.look_at = tuple(target)
+
+    def frame_points(self, angles_deg: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+        """(M, 3) points the camera must see: the corners of every link's bounding box, each
+        arm at ``angles_deg`` (N, 7), and every arm's label."""
+        q = wire_to_q(angles_deg, self.joint_sign)
+        world = self.base[:, None] @ forward(self.model, q)[:, self._link_index]  # (N, K, 4, 4)
+        corners = np.einsum("nkij,kcj->nkci", world[..., :3, :3], self._corners)
+        labels = self.base[:, :3, 3] + [0.0, 0.0, LABEL_HEIGHT_M + 0.03]
+        return np.vstack([(corners + world[..., None, :3, 3]).reshape(-1, 3), labels])
+
+    def fit(self, client: viser.ClientHandle) -> None:
+        """Frame every arm, in its drawn pose, in ``client``'s view (its canvas' aspect, the
+        part the control panel leaves free)."""
+        camera = client.camera
+        camera.fov = FOV_RAD
+        points = self.frame_points(self._drawn_deg.copy())
+        right = usable_right_edge(camera.image_width)
+        position, target = fit_view(points, FOV_RAD, camera.aspect, right)
+        camera.up_direction = (0.0, 0.0, 1.0)
+        # position first: viser moves look_at with it; then look_at turns the camera in place
+        camera.position = tuple(position)
+        camera.look_at = tuple(target)
 
     def _poses(
         self, angles_deg: npt.NDArray[np.float64]
@@ -205,6 +256,13 @@ class FleetScene:
         self._drawn_error = error
         self._drawn_contact = contact
         return True
+
+
+def _box_corners(vertices: npt.NDArray[np.float32]) -> npt.NDArray[np.float64]:
+    """The 8 corners of the axis-aligned box around ``vertices`` (in the link's frame)."""
+    low, high = vertices.min(axis=0).astype(float), vertices.max(axis=0).astype(float)
+    pick = np.array([[i >> 2 & 1, i >> 1 & 1, i & 1] for i in range(8)], dtype=bool)
+    return np.where(pick, high, low)
 
 
 def _ball() -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint32]]:

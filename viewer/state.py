@@ -1,8 +1,11 @@
-"""The viewer's picture of the fleet: the newest sample per arm, fed by Zenoh subscribers.
+"""The viewer's picture of the fleet: the newest sample per arm, fed by Zenoh subscribers (live)
+or by a recording (``fleet viewer --replay``, viewer/replay.py), through one ``ingest`` path.
 
 Zenoh callbacks run on Zenoh threads. They only decode and store the newest payload per arm
 (latest wins, nothing queues up) and return; the viewer's own thread takes ``snapshot()`` copies
-at its render rate. ``_lock`` guards the arrays and dicts below it, never any I/O.
+at its render rate. ``_lock`` guards the arrays and dicts below it, never any I/O. Transitions
+(a stop latched or released, a contact, a refusal, an agent gone or back) and the stop and reset
+requests seen on the key space also go to the bounded event log (viewer/events.py).
 """
 
 from __future__ import annotations
@@ -20,14 +23,17 @@ import zenoh
 
 from fleet.d1.limits import JOINT_COUNT
 from fleet.guard import ThreadGuard
-from fleet.inventory import Inventory
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
+from viewer.events import CONTACT, OFFLINE, ONLINE, REFUSED, RELEASED, RESET, STOP, EventLog
 
 log = logging.getLogger("viewer.state")
 
 STALE_S = 1.0
 """No joints for this long (at the viewer) and the arm is drawn stale (grey)."""
+REPLAY_ONLINE_S = 2.0
+"""In a replay (no liveliness tokens were recorded), an arm is online while its agent's status
+(4 Hz) is at most this old at the replay's position."""
 
 
 @dataclass(frozen=True)
@@ -40,6 +46,11 @@ class Snapshot:
     status: tuple[m.ArmStatus | None, ...]
     online: npt.NDArray[np.bool_]  # (N,), the agent's liveliness token is present
     contact: npt.NDArray[np.bool_] | None = None  # (N, 7), joint in confirmed contact
+    diag: tuple[m.Diag | None, ...] = ()  # the agents' newest counters (empty: none yet)
+
+    def diag_of(self, i: int) -> m.Diag | None:
+        """Arm ``i``'s newest diag, None before the first."""
+        return self.diag[i] if i < len(self.diag) else None
 
     def contact_rows(self) -> npt.NDArray[np.bool_]:
         """(N, 7) joints in confirmed contact (all False before any contact event)."""
@@ -64,35 +75,54 @@ class Snapshot:
         return np.array([s is not None and bool(s.error) for s in self.status], dtype=bool)
 
 
+INGESTED = frozenset((keys.JOINTS, keys.STATUS, keys.CONTACT, keys.DIAG, keys.ESTOP, keys.RESET))
+"""The channels the viewer shows (per arm; ``estop`` and ``reset`` also fleet-wide)."""
+
+
 class ViewerFleet:
-    """Latest joints, status and agent liveliness of every inventory arm. A context manager."""
+    """Latest joints, status, contact, diag and agent liveliness of every inventory arm, and the
+    event log. A context manager (live: subscribes on ``start``)."""
 
     def __init__(
         self,
-        inventory: Inventory,
-        session: zenoh.Session,
+        arms: tuple[str, ...],
+        fleet: str,
+        session: zenoh.Session | None = None,
         clock: Callable[[], float] = time.monotonic,
+        online_from_status: bool = False,
     ) -> None:
-        self.keys = keys.KeySpace(inventory.fleet)
-        self.arms = tuple(inventory.arms)
+        """``session`` None: fed through ``ingest`` only (a replay); ``online_from_status``:
+        an arm is online while its status is fresh (a recording holds no liveliness)."""
+        self.keys = keys.KeySpace(fleet)
+        self.arms = arms
         self._index = {arm: i for i, arm in enumerate(self.arms)}
         self._clock = clock
         self._session = session
-        n = len(self.arms)
+        self._online_from_status = online_from_status
+        self.events = EventLog()
         self._lock = threading.Lock()
-        # Guarded by _lock:
-        self._angles = np.zeros((n, JOINT_COUNT))
-        self._joints_at = np.full(n, -math.inf)
-        self._status: list[m.ArmStatus | None] = [None] * n
-        self._online = np.zeros(n, dtype=bool)
-        self._contact = np.zeros((n, JOINT_COUNT), dtype=bool)
+        self._handles: list[zenoh.Subscriber[None]] = []
         self.malformed = 0  # payloads we could not decode (counted, dropped)
         self._last_warning = -math.inf
-        self._handles: list[zenoh.Subscriber[None]] = []
+        self.clear()
+
+    def clear(self) -> None:
+        """Forget every arm's state and the event log (a replay scrubbed backwards)."""
+        n = len(self.arms)
+        self.events.clear()
+        with self._lock:
+            self._angles = np.zeros((n, JOINT_COUNT))
+            self._joints_at = np.full(n, -math.inf)
+            self._status: list[m.ArmStatus | None] = [None] * n
+            self._status_at = np.full(n, -math.inf)
+            self._diag: list[m.Diag | None] = [None] * n
+            self._online = np.zeros(n, dtype=bool)
+            self._contact = np.zeros((n, JOINT_COUNT), dtype=bool)
 
     def start(self, guard: ThreadGuard | None = None) -> None:
         """Declare the subscribers (liveliness with history: tokens already present count);
         with ``guard``, a callback's unexpected failure fails the viewer instead of vanishing."""
+        assert self._session is not None, "a replay is fed through ingest()"
 
         def wrap(callback: Callable[[zenoh.Sample], None]) -> Callable[[zenoh.Sample], object]:
             return callback if guard is None else guard.wrap(callback, "viewer-state")
@@ -100,7 +130,11 @@ class ViewerFleet:
         on_sample = wrap(self._on_sample)
         self._handles = [
             self._session.declare_subscriber(self.keys.all_arms(channel), on_sample)
-            for channel in (keys.JOINTS, keys.STATUS, keys.CONTACT)
+            for channel in sorted(INGESTED)
+        ]
+        self._handles += [
+            self._session.declare_subscriber(key, on_sample)
+            for key in (self.keys.estop, self.keys.reset)
         ]
         self._handles.append(
             self._session.liveliness().declare_subscriber(
@@ -109,12 +143,6 @@ class ViewerFleet:
         )
 
     # ------------------------------------------------------------------ zenoh callbacks
-
-    def _arm_index(self, sample: zenoh.Sample) -> int | None:
-        try:
-            return self._index.get(self.keys.parse_arm_key(str(sample.key_expr)).arm)
-        except keys.KeyError_:
-            return None
 
     def _bad(self, what: str, exc: Exception) -> None:
         with self._lock:
@@ -126,50 +154,116 @@ class ViewerFleet:
         log.warning("dropped a malformed %s payload (%s); %d so far", what, exc, self.malformed)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
-        """Joints, status or contact of an inventory arm, decoded through the channel table."""
-        try:
-            key = self.keys.parse_arm_key(str(sample.key_expr))
-        except keys.KeyError_:
-            return
-        i = self._index.get(key.arm)
-        if i is None:
-            return
-        try:
-            payload = payloads.decode(key.channel, sample.payload.to_bytes())
-        except payloads.PayloadError as exc:
-            self._bad(key.channel, exc)
-            return
-        if isinstance(payload, m.Joints):
-            self._on_joints(i, payload)
-        elif isinstance(payload, m.ArmStatus):
-            with self._lock:
-                self._status[i] = payload
-        elif isinstance(payload, m.ContactEvent):
-            self._on_contact(i, payload)
+        self.ingest(str(sample.key_expr), sample.payload.to_bytes())
 
-    def _on_joints(self, i: int, joints: m.Joints) -> None:
+    def ingest(
+        self, key: str, data: bytes, at_s: float | None = None, wall_ns: int | None = None
+    ) -> None:
+        """One sample of the key space, decoded through the channel table: the state of an
+        inventory arm, or a stop or reset request (fleet-wide or one arm's). Anything else is
+        ignored; a bad payload is counted. ``at_s``/``wall_ns``: when it arrived (a replay
+        passes the recorded times; default now)."""
+        if key in (self.keys.estop, self.keys.reset):
+            arm, channel = None, key.rpartition("/")[2]
+        else:
+            try:
+                parsed = self.keys.parse_arm_key(key)
+            except keys.KeyError_:
+                return
+            arm, channel = parsed.arm, parsed.channel
+        i = None if arm is None else self._index.get(arm)
+        if (arm is not None and i is None) or channel not in INGESTED:
+            return  # not ours, or a recorded channel the viewer does not show (raw, acks)
+        try:
+            payload = payloads.decode(channel, data)
+        except payloads.PayloadError as exc:
+            self._bad(channel, exc)
+            return
+        now = self._clock() if at_s is None else at_s
+        if isinstance(payload, m.StopRequest):
+            self._on_stop_request(arm, payload, wall_ns)
+        elif isinstance(payload, m.ResetRequest):
+            # Read-only by construction: logged, not acted on (the agents decide).
+            self.events.add(RESET, arm, f"reset requested by {payload.source}", wall_ns)
+        elif i is None:
+            return
+        elif isinstance(payload, m.Joints):
+            self._on_joints(i, payload, now)
+        elif isinstance(payload, m.ArmStatus):
+            self._on_status(i, payload, now, wall_ns)
+        elif isinstance(payload, m.ContactEvent):
+            self._on_contact(i, payload, wall_ns)
+        elif isinstance(payload, m.Diag):
+            self._on_diag(i, payload, wall_ns)
+
+    def _on_joints(self, i: int, joints: m.Joints, now: float) -> None:
         row = np.asarray(joints.angles_deg, dtype=float)
         if row.shape != (JOINT_COUNT,) or not np.all(np.isfinite(row)):
             self._bad("joints", ValueError(f"{len(joints.angles_deg)} angles or non-finite"))
             return
-        now = self._clock()
         with self._lock:
             self._angles[i] = row
             self._joints_at[i] = now
 
-    def _on_contact(self, i: int, event: m.ContactEvent) -> None:
+    def _on_status(self, i: int, status: m.ArmStatus, now: float, wall_ns: int | None) -> None:
+        with self._lock:
+            before = self._status[i]
+            self._status[i] = status
+            self._status_at[i] = now
+        was = before is not None and before.estopped
+        if status.estopped and not was:
+            why = status.stop_reason or "no reason given"
+            self.events.add(STOP, self.arms[i], f"STOPPED (latched): {why}", wall_ns)
+        elif was and not status.estopped:
+            self.events.add(RELEASED, self.arms[i], "stop released by a reset", wall_ns)
+
+    def _on_contact(self, i: int, event: m.ContactEvent, wall_ns: int | None) -> None:
         if not 0 <= event.joint < JOINT_COUNT:
             self._bad("contact", ValueError(f"joint {event.joint}"))
             return
+        confirmed = event.state == "confirmed"
         with self._lock:
-            self._contact[i, event.joint] = event.state == "confirmed"
+            was = bool(self._contact[i, event.joint])
+            self._contact[i, event.joint] = confirmed
+        if confirmed and not was:
+            what = "grip" if event.grip else "contact"
+            text = f"j{event.joint} {what} ({event.method}, error {event.error_deg:.1f}°)"
+            self.events.add(CONTACT, self.arms[i], text, wall_ns)
+        elif was and not confirmed:
+            self.events.add(CONTACT, self.arms[i], f"j{event.joint} contact released", wall_ns)
+
+    def _on_diag(self, i: int, diag: m.Diag, wall_ns: int | None) -> None:
+        with self._lock:
+            before = self._diag[i]
+            self._diag[i] = diag
+        # The agent answers a refusal to its caller only; its counter is how others learn of it.
+        if before is not None and diag.rejected > before.rejected:
+            count = diag.rejected - before.rejected
+            why = diag.last_error or "no reason kept"
+            text = f"refused {count} command{'s' if count > 1 else ''}: {why}"
+            self.events.add(REFUSED, self.arms[i], text, wall_ns)
+
+    def _on_stop_request(self, arm: str | None, stop: m.StopRequest, wall_ns: int | None) -> None:
+        if arm is not None and arm not in self._index:
+            return
+        if self.events.first_sight(stop.stop_id):  # stops are repeated until acknowledged
+            why = stop.reason or "no reason given"
+            self.events.add(STOP, arm, f"stop requested by {stop.source}: {why}", wall_ns)
 
     def _on_token(self, sample: zenoh.Sample) -> None:
-        i = self._arm_index(sample)
+        try:
+            i = self._index.get(self.keys.parse_arm_key(str(sample.key_expr)).arm)
+        except keys.KeyError_:
+            return
         if i is None:
             return
+        online = sample.kind == zenoh.SampleKind.PUT
         with self._lock:
-            self._online[i] = sample.kind == zenoh.SampleKind.PUT
+            changed = bool(self._online[i]) != online
+            self._online[i] = online
+        if changed:
+            kind, text = (ONLINE, "agent online") if online else (OFFLINE, "agent gone (offline)")
+            self.events.add(kind, self.arms[i], text)
 
     # ------------------------------------------------------------------ readers
 
@@ -180,7 +274,10 @@ class ViewerFleet:
             angles = self._angles.copy()
             joints_at = self._joints_at.copy()
             status = tuple(self._status)
+            diag = tuple(self._diag)
             online = self._online.copy()
+            if self._online_from_status:
+                online = (now - self._status_at) <= REPLAY_ONLINE_S
             contact = self._contact.copy()
         return Snapshot(
             arms=self.arms,
@@ -189,6 +286,7 @@ class ViewerFleet:
             status=status,
             online=online,
             contact=contact,
+            diag=diag,
         )
 
     def close(self) -> None:

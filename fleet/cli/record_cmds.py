@@ -6,9 +6,13 @@ import argparse
 import sys
 import time
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 from fleet.client import FleetClient
 from fleet.runtime import inventory_from_args, shutdown_event
+
+if TYPE_CHECKING:
+    from fleet.record.reader import Recording
 
 
 def register(
@@ -40,6 +44,7 @@ def run_record(args: argparse.Namespace) -> int:
     """``fleet record``: until Ctrl-C or ``--for-s``; prints what it wrote, what it lost and
     the joints' gaps by seq. Exit 1 if the recorder failed (the file is finished as far as
     possible; an unfinished one is readable up to its last flush)."""
+    from fleet.record.layout import layout_of
     from fleet.record.recorder import Recorder
 
     inventory = inventory_from_args(args)
@@ -50,7 +55,8 @@ def run_record(args: argparse.Namespace) -> int:
     stop = shutdown_event()
     with FleetClient(inventory, connect_timeout_s=args.connect_timeout) as client:
         try:
-            rec = Recorder(client.session, client.keys, arms, path)
+            layout = layout_of(inventory, arms)
+            rec = Recorder(client.session, client.keys, arms, path, layout=layout)
         except OSError as exc:
             print(f"fleet record: {path}: cannot write it: {exc.strerror or exc}", file=sys.stderr)
             return 2
@@ -70,13 +76,30 @@ def run_record(args: argparse.Namespace) -> int:
     return 0
 
 
+def open_recording(path: str, command: str) -> Recording | None:
+    """The recording at ``path``, or None after one line on stderr saying why it cannot be read
+    (the caller exits 2); an unfinished one comes with a warning."""
+    from fleet.record.errors import RecordError
+    from fleet.record.reader import read_recording
+
+    try:
+        recording = read_recording(path)
+    except OSError as exc:
+        print(f"{command}: {path}: cannot read it: {exc.strerror or exc}", file=sys.stderr)
+        return None
+    except RecordError as exc:
+        print(f"{command}: {exc}", file=sys.stderr)
+        return None
+    if not recording.complete:
+        print(f"{command}: warning: {recording.describe()}", file=sys.stderr, flush=True)
+    return recording
+
+
 def run_replay(args: argparse.Namespace) -> int:
     """``fleet replay``: exit 0 done, 1 aborted on the arm, 2 bad file or limits. An unfinished
     recording (its recorder was killed) is replayed as far as it is readable, with a warning."""
     from fleet.choreo.player import Player
     from fleet.choreo.script import ScriptError
-    from fleet.record.errors import RecordError
-    from fleet.record.reader import read_recording
     from fleet.record.replay import (
         recorded_joints,
         replay_read_only,
@@ -85,16 +108,9 @@ def run_replay(args: argparse.Namespace) -> int:
     )
 
     inventory = inventory_from_args(args)
-    try:
-        recording = read_recording(args.file)
-    except OSError as exc:
-        print(f"fleet replay: {args.file}: cannot read it: {exc.strerror or exc}", file=sys.stderr)
+    recording = open_recording(args.file, "fleet replay")
+    if recording is None:
         return 2
-    except RecordError as exc:
-        print(f"fleet replay: {exc}", file=sys.stderr)
-        return 2
-    if not recording.complete:
-        print(f"fleet replay: warning: {recording.describe()}", file=sys.stderr, flush=True)
     messages = recording.messages
     stop = shutdown_event()
     with FleetClient(inventory, connect_timeout_s=args.connect_timeout) as client:

@@ -9,10 +9,15 @@ from __future__ import annotations
 
 import argparse
 import logging
+import sys
 from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
 
 from fleet.guard import EXIT_THREAD_FAILED
 from fleet.runtime import inventory_from_args, shutdown_event, wait_for
+
+if TYPE_CHECKING:
+    from viewer.app import Viewer
 
 log = logging.getLogger("fleet")
 
@@ -78,33 +83,81 @@ def register(
         help="STOP ALL only: no reset, no jog (always so when the principal may not command, "
         "as the default principal 'viewer', an observer)",
     )
+    viewer.add_argument(
+        "--replay",
+        default=None,
+        metavar="FILE.mcap",
+        help="show a `fleet record` recording instead of the live fleet: a timeline (play, "
+        "pause, scrub, speed), no command controls, no Zenoh session; the arms stand where the "
+        "recording says (no inventory needed)",
+    )
     viewer.set_defaults(run=run_viewer)
 
 
 def run_viewer(args: argparse.Namespace) -> int:
-    """Serve the viewer until SIGINT/SIGTERM."""
+    """Serve the viewer (of the live fleet, or of ``--replay FILE``) until SIGINT/SIGTERM."""
+    if args.replay is not None:
+        return run_replay_viewer(args)
+    inventory = inventory_from_args(args, VIEWER_PRINCIPAL)
+    role = inventory.role_of(inventory.principal)
+
+    def describe(viewer: Viewer) -> str:
+        mode = "read-only: stop only" if viewer.read_only else "stop, reset and jog"
+        who = f"principal {inventory.principal!r}, role {role}: {mode}"
+        return f"fleet {inventory.fleet!r}; {who}"
+
+    return _serve(args, describe, inventory=inventory, read_only=args.read_only)
+
+
+def run_replay_viewer(args: argparse.Namespace) -> int:
+    """``fleet viewer --replay FILE``: a recording's timeline. Exit 2 when the file cannot be
+    read or holds no arm."""
+    from fleet.cli.record_cmds import open_recording
+    from fleet.record.errors import RecordError
+    from viewer.replay import replay_source
+
+    recording = open_recording(args.replay, "fleet viewer")
+    if recording is None:
+        return 2
+    try:
+        source = replay_source(recording)
+    except RecordError as exc:
+        print(f"fleet viewer: {exc}", file=sys.stderr)
+        return 2
+    if not source.layout_recorded:
+        log.warning(
+            "%s keeps no fleet layout (an older fleet record): the arms are drawn in a row",
+            args.replay,
+        )
+
+    def describe(viewer: Viewer) -> str:
+        timeline = viewer.timeline
+        assert timeline is not None
+        return (
+            f"replay of {args.replay}: fleet {source.layout.fleet!r}, {len(timeline.arms)} arms, "
+            f"{timeline.duration_s:.1f} s; no command controls"
+        )
+
+    return _serve(args, describe, replay=source)
+
+
+def _serve(args: argparse.Namespace, describe: Callable[[Viewer], str], **shows: Any) -> int:
+    """Run a viewer of ``shows`` (``inventory=`` or ``replay=``) until SIGINT/SIGTERM; prints
+    its URL and ``describe(viewer)``."""
     from viewer.app import Viewer  # viser and numpy load only for this command
 
-    inventory = inventory_from_args(args, VIEWER_PRINCIPAL)
     stop = shutdown_event()
     with Viewer(
-        inventory,
         host=args.host,
         port=args.port,
         rate_hz=args.rate_hz,
         token=args.token,
         allow_origins=args.allow_origin,
-        read_only=args.read_only,
+        **shows,
     ) as viewer:
         if viewer.port != args.port:
             log.warning("port %d was busy; the viewer took %d", args.port, viewer.port)
-        role = inventory.role_of(inventory.principal)
-        mode = "read-only: STOP ALL only" if viewer.read_only else "stop, reset and jog"
-        print(
-            f"d1-fleet viewer: {viewer.url}  (fleet {inventory.fleet!r}; principal "
-            f"{inventory.principal!r}, role {role}: {mode}; Ctrl-C stops)",
-            flush=True,
-        )
+        print(f"d1-fleet viewer: {viewer.url}  ({describe(viewer)}; Ctrl-C stops)", flush=True)
         failed = wait_for(stop, viewer.failed)
     if failed:
         log.error("%s: the viewer stopped; restart it", viewer.guard.failure)

@@ -13,14 +13,17 @@ from __future__ import annotations
 
 import os
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
 
-from mcap.records import Channel, Footer, Header, McapRecord, Message
+from mcap.records import Channel, Footer, Header, McapRecord, Message, Metadata
 from mcap.stream_reader import StreamReader
 
 from fleet.record.errors import RecordingUnreadable
+
+MAX_METADATA_RECORDS = 16
+"""Metadata records kept from one file (ours writes one; a hostile file may hold millions)."""
 
 
 @dataclass(frozen=True)
@@ -44,6 +47,8 @@ class Recording:
     size_bytes: int
     read_bytes: int
     problem: str | None = None
+    metadata: dict[str, dict[str, str]] = field(default_factory=dict)
+    """The file's named metadata records (the first MAX_METADATA_RECORDS of them)."""
 
     def describe(self) -> str:
         """One line for people: finished, or unfinished with what was read."""
@@ -103,6 +108,7 @@ def _scan(stream: IO[bytes], path: str, size: int) -> Recording:
         raise RecordingUnreadable(f"{path}: not an MCAP recording ({size} bytes; {why})")
     topics: dict[int, str] = {}
     messages: list[Recorded] = []
+    metadata: dict[str, dict[str, str]] = {}
     footer, problem = False, None
     for record in parsed:
         if isinstance(record, _Stopped):
@@ -115,10 +121,13 @@ def _scan(stream: IO[bytes], path: str, size: int) -> Recording:
                 problem = f"a message on channel {record.channel_id}, which no record declares"
                 break
             messages.append(Recorded(topic, record.data, record.log_time))
+        elif isinstance(record, Metadata):
+            if len(metadata) < MAX_METADATA_RECORDS:
+                metadata.setdefault(record.name, dict(record.metadata))
         elif isinstance(record, Footer):
             footer = True
     complete = footer and problem is None
     if not complete and problem is None:
         problem = "no footer: the file ends after its last whole record"
     messages.sort(key=lambda r: r.log_time_ns)  # stable: file order among equal times
-    return Recording(path, messages, complete, size, stream.tell(), problem)
+    return Recording(path, messages, complete, size, stream.tell(), problem, metadata)

@@ -38,13 +38,14 @@ from pathlib import Path
 import zenoh
 
 from fleet.record.gaps import SeqGaps
+from fleet.record.layout import LAYOUT_METADATA, FleetLayout, layout_metadata
 from fleet.record.writer import FLUSH_PERIOD_S, RecordingWriter
 from fleet.wire import keys, payloads
 
 log = logging.getLogger("fleet.record")
 
 RECORDED_CHANNELS: tuple[str, ...] = (keys.JOINTS, keys.STATUS, keys.CONTACT, keys.RAW_COMMAND)
-RECORDED_CHANNELS += (keys.ESTOP, keys.ESTOP_ACK)
+RECORDED_CHANNELS += (keys.ESTOP, keys.ESTOP_ACK, keys.DIAG)
 QUEUE_DEPTH = 20000
 """Samples waiting for the recorder thread, at most: half a second of a 40,000/s burst."""
 POLL_S = 0.005
@@ -73,7 +74,9 @@ class Recorder:
         arms: Iterable[str],
         path: str | Path,
         flush_period_s: float = FLUSH_PERIOD_S,
+        layout: FleetLayout | None = None,
     ) -> None:
+        """``layout``: where the arms stand (kept in the file, for ``fleet viewer --replay``)."""
         self.space = space
         self.arms = list(arms)
         self.path = Path(path)
@@ -100,7 +103,8 @@ class Recorder:
         # condition, so a Zenoh callback holds the GIL for less time (see _on_sample).
         self._inbox: collections.deque[tuple[zenoh.Sample, int]] = collections.deque()
         self._routes: dict[str, tuple[str | None, str]] = {}  # key -> (arm, channel), cached
-        self._file = RecordingWriter(self.path)
+        metadata = None if layout is None else {LAYOUT_METADATA: layout_metadata(layout)}
+        self._file = RecordingWriter(self.path, metadata)
         self._stop = threading.Event()
         self._abandon = threading.Event()
         self._closed = False

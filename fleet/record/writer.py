@@ -66,7 +66,8 @@ class RecordingWriter:
     """One recording file. Not thread-safe: one thread writes (the recorder's), and
     ``finish``/``abandon`` run once that thread has stopped."""
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, metadata: dict[str, dict[str, str]] | None = None) -> None:
+        """``metadata``: named records written right after the header (the fleet's layout)."""
         self.path = Path(path)
         self.added = 0
         """Messages added."""
@@ -75,6 +76,8 @@ class RecordingWriter:
         self._file: IO[bytes] = open(self.path, "wb")  # noqa: SIM115 - closed by finish/abandon
         self._writer = Writer(self._file, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
         self._writer.start(profile="", library="d1-fleet")
+        for name, entries in (metadata or {}).items():
+            self._writer.add_metadata(name, entries)
         self._file.flush()  # the header: a recorder killed at once leaves an empty recording
         self._channels: dict[str, int] = {}
         self._schemas: dict[str, int] = {}

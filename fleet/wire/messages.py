@@ -90,6 +90,12 @@ class ArmStatus(Struct, frozen=True):
     estopped: bool = False
     feedback_age_s: float | None = None
     stop_reason: Text | None = None
+    owner: Text | None = None
+    """Who holds the arm's lease (``<principal>/<name>``: longer than a Name), None: nobody."""
+    owned_s: float | None = None
+    """How long ``owner`` has held the arm, in seconds."""
+    lease_left_s: float | None = None
+    """Seconds until the lease expires unless its owner commands again."""
 
 
 class Diag(Struct, frozen=True):
