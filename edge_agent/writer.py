@@ -66,7 +66,10 @@ class ArmWriter:
         with self._arm_locks[arm]:
             now = time.monotonic()
             with self._lock:
-                chosen = compose(self._slots[arm], now)
+                slot = self._slots[arm]
+                chosen = compose(slot, now)
+                if chosen is not None:
+                    slot.acks.written(chosen[1], now)  # before the write: the ack may overtake it
             if chosen is None:
                 return None
             command, seq = chosen

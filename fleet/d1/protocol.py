@@ -99,14 +99,28 @@ class JointAngles(msgspec.Struct, frozen=True):
     angles_deg: tuple[float, ...]
 
 
+ERROR_STATUS_NORMAL = 1
+"""``error_status`` 1 is "normal". The table says 0 is "abnormal"; the contact plan expects a
+bitfield of fault flags: every value but 1 is read as abnormal, and the raw value is kept."""
+
+ERROR_STATUS_RANGE = (-(2**63), 2**64 - 1)
+"""The integers accepted as ``error_status``: any 64-bit value, signed or not (a bitfield of a
+C integer); a longer one is garbage, not a flag set."""
+
+
 class D1Status(msgspec.Struct, frozen=True):
-    """2/3: the arm's own enable and power report; ``error`` is True when the arm reports
-    ``error_status`` 0. (Not the key space's ``fleet.wire.messages.ArmStatus``, which the agent
-    builds from this, the link state and its latch.)"""
+    """2/3: the arm's own enable and power report with its raw ``error_status``. (Not the key
+    space's ``fleet.wire.messages.ArmStatus``, which the agent builds from this, the link state
+    and its latch.)"""
 
     enabled: bool
     powered: bool
-    error: bool
+    error_status: int = ERROR_STATUS_NORMAL
+
+    @property
+    def error(self) -> bool:
+        """The arm reports something abnormal: ``error_status`` is not 1."""
+        return self.error_status != ERROR_STATUS_NORMAL
 
 
 class MotorStatus(msgspec.Struct, frozen=True):
@@ -195,6 +209,13 @@ def _number(value: float) -> int | float:
 
 def _flag(value: bool) -> int:
     return 1 if value else 0
+
+
+def _error_status(value: int) -> int:
+    low, high = ERROR_STATUS_RANGE
+    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+        raise InvalidCommand(f"error_status {value!r} is not a 64-bit integer")
+    return value
 
 
 # ----------------------------------------------------------------------------- validation
@@ -303,7 +324,7 @@ def encode_message(message: ArmMessage, seq: int = ARM_REPORT_SEQ) -> str:
         data = {
             "enable_status": _flag(message.enabled),
             "power_status": _flag(message.powered),
-            "error_status": _flag(not message.error),
+            "error_status": _error_status(message.error_status),
         }
         address, funcode = REPORT_ADDRESS, 3
     elif isinstance(message, MotorStatus):
@@ -391,6 +412,16 @@ def _read_flag(data: dict[str, Any], key: str) -> bool:
     return value == 1
 
 
+def _read_error_status(data: dict[str, Any]) -> int:
+    """Any integer: 1 normal, anything else abnormal (0 per the table, a bitfield per the
+    contact plan); the raw value is kept for the status and the log."""
+    value = _read_int(data, "error_status")
+    low, high = ERROR_STATUS_RANGE
+    if not low <= value <= high:
+        raise MalformedMessage(f"data.error_status {str(value)[:40]} is not a 64-bit integer")
+    return value
+
+
 def _unknown_data(data: dict[str, Any], known: tuple[str, ...]) -> list[str]:
     return [f"data.{k}" for k in data if k not in known]
 
@@ -430,7 +461,7 @@ def decode_message(text: str | bytes) -> Decoded:
         message = D1Status(
             enabled=_read_flag(data, "enable_status"),
             powered=_read_flag(data, "power_status"),
-            error=not _read_flag(data, "error_status"),
+            error_status=_read_error_status(data),
         )
     elif (address, funcode) == (REPORT_ADDRESS, 4):
         known = _MOTOR_KEYS

@@ -40,6 +40,9 @@ class Faults:
     stalls: dict[int, float] = field(default_factory=dict)
     motors_offline: set[int] = field(default_factory=set)
     error_status: bool = False
+    abnormal_value: int = 0
+    """The ``error_status`` reported while abnormal: 0 per the spec's table; a bitfield value
+    (the contact plan's reading) per arm from the inventory (``sim_error_status``) or a fault."""
     drop_feedback: bool = False
     mute_acks: bool = False
     # joint -> (angle the hand drags it to, speed deg/s): moves only an unloaded joint
@@ -203,8 +206,10 @@ class SimArmModel:
             p.D1Status(
                 enabled=any(self.enabled),
                 powered=self.powered,
-                error=self.faults.error_status
-                or any(o.raises_error for o in self.faults.obstacles.values()),
+                error_status=self.faults.abnormal_value
+                if self.faults.error_status
+                or any(o.raises_error for o in self.faults.obstacles.values())
+                else p.ERROR_STATUS_NORMAL,
             ),
             p.MotorStatus(motors),
         ]
