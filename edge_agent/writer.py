@@ -73,7 +73,7 @@ class ArmWriter:
             if chosen is None:
                 return None
             command, seq = chosen
-            text = p.encode_command(command, seq)
+            text = p.encode_command(command, seq, slot.tracker.config.joint_ranges_deg)
             ok = self._link.write(arm, text)
             written = Written(ok, time.time_ns(), command, text)
 

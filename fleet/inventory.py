@@ -16,7 +16,13 @@ from msgspec import Struct
 
 from fleet.contact.config import ContactConfig, check_config
 from fleet.d1 import topics
-from fleet.d1.limits import JOINT_COUNT
+from fleet.d1.limits import (
+    GRIPPER_CLOSED_DEG,
+    GRIPPER_OPEN_DEG,
+    JOINT_COUNT,
+    JointRanges,
+    joint_ranges,
+)
 from fleet.security.config import (
     DEFAULT_PRINCIPALS,
     ROLES,
@@ -98,12 +104,26 @@ class ArmConfig(Struct, frozen=True, forbid_unknown_fields=True):
     """Faster than any D1 joint moves (plausible arms: up to 180 deg/s): an angle report that
     implies more is a sensor fault or a forgery, never a pose to hold."""
     contact: ContactConfig = ContactConfig()
+    gripper_closed_deg: float = GRIPPER_CLOSED_DEG
+    gripper_open_deg: float = GRIPPER_OPEN_DEG
+    """What ``angle6`` reads with the gripper closed and fully open: its range and its direction
+    (the spec gives only a 0-65 mm stroke; the default reads servo degrees, 0 closed)."""
     sim_ack_seq: SimAckSeq = "echo"
     """How the simulated arm reads the spec's ack seq: ``echo`` the command's seq (the table's
     "caller generates"), or ``fixed``: always 10 (every ack example)."""
     sim_error_status: int = 0
     """The ``error_status`` the simulated arm reports while abnormal: 0 (the table) or a
     bitfield value (the contact plan's reading)."""
+
+    @property
+    def joint_ranges_deg(self) -> JointRanges:
+        """(min, max) per wire joint of this arm: the spec's, and its gripper's own."""
+        return joint_ranges(self.gripper_closed_deg, self.gripper_open_deg)
+
+    @property
+    def gripper_closing_sign(self) -> float:
+        """-1.0 when closing lowers ``angle6`` (the default), +1.0 when it raises it."""
+        return -1.0 if self.gripper_open_deg > self.gripper_closed_deg else 1.0
 
 
 class CoordinatorSection(Struct, frozen=True, forbid_unknown_fields=True):
@@ -271,6 +291,14 @@ def _check_arm(arm: ArmConfig, path: str) -> None:
         raise _fail(path, where, "watchdog_s and lease_s must be positive")
     if not 10 <= arm.max_speed_deg_s <= 10000:
         raise _fail(path, where, "max_speed_deg_s must be within 10..10000")
+    gripper = (arm.gripper_closed_deg, arm.gripper_open_deg)
+    if not all(-360.0 <= g <= 360.0 for g in gripper) or abs(gripper[1] - gripper[0]) < 1.0:
+        raise _fail(
+            path,
+            where,
+            f"gripper_closed_deg {gripper[0]:g} and gripper_open_deg {gripper[1]:g} must be "
+            "within -360..360 and at least 1 deg apart",
+        )
     if arm.sim_error_status == 1:
         raise _fail(path, where, "sim_error_status 1 is the normal value: use 0 or a bitfield")
     contact_problem = check_config(arm.contact)

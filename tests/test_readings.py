@@ -12,7 +12,8 @@ import pytest
 from edge_agent.acks import AckMatcher
 from fleet.d1 import dds
 from fleet.d1 import protocol as p
-from fleet.d1.errors import NetworkInterfaceError
+from fleet.d1.errors import InvalidCommand, NetworkInterfaceError
+from fleet.d1.limits import JOINT_RANGE_DEG
 from fleet.d1.topics import MAX_SUFFIX
 from fleet.inventory import InventoryError, parse_inventory
 
@@ -163,3 +164,55 @@ def test_an_interface_the_host_lacks_is_named_in_a_clear_error() -> None:
     """CycloneDDS only says "Non specific error"; no participant is created."""
     with pytest.raises(NetworkInterfaceError, match="'nosuch0' does not exist on this host"):
         dds.DdsChannel(1, "nosuch0")
+
+
+# ----------------------------------------------------------------------------- gripper unit
+
+
+def test_gripper_reading_is_per_arm_and_defaults_to_servo_degrees_closed_at_0() -> None:
+    inventory = parse_inventory(
+        BASE + '[arms.a1]\nsuffix = "_1"\n'
+        '[arms.a2]\nsuffix = "_2"\ngripper_closed_deg = 100.0\ngripper_open_deg = 0.0\n'
+    )
+    a1, a2 = inventory.arm("a1"), inventory.arm("a2")
+    assert a1.joint_ranges_deg == JOINT_RANGE_DEG and a1.gripper_closing_sign == -1.0
+    assert a2.joint_ranges_deg[:6] == JOINT_RANGE_DEG[:6]
+    assert a2.joint_ranges_deg[6] == (0.0, 100.0) and a2.gripper_closing_sign == 1.0
+    p.check_angle(6, 90.0, a2.joint_ranges_deg)
+    with pytest.raises(InvalidCommand, match="outside its range"):
+        p.check_angle(6, 90.0, a1.joint_ranges_deg)
+    with pytest.raises(InvalidCommand, match=r"\[0, 100\]"):
+        p.encode_command(p.SetJointAngle(6, 101.0), 4, a2.joint_ranges_deg)
+
+
+@pytest.mark.parametrize(
+    "line", ["gripper_closed_deg = 5.0\ngripper_open_deg = 5.5", "gripper_open_deg = 400.0"]
+)
+def test_a_gripper_reading_without_a_stroke_is_refused(line: str) -> None:
+    with pytest.raises(InventoryError, match="arms.a1: gripper_closed_deg"):
+        parse_inventory(BASE + f"[arms.a1]\n{line}\n")
+
+
+def test_viewer_draws_each_arms_gripper_its_own_way() -> None:
+    """Closed fingers (0.033 m) at the arm's closed reading, open (0 m) at its open one."""
+    from viewer.kinematics import FINGER_TRAVEL_M, wire_to_q
+
+    angles = [[0.0] * 6 + [g] for g in (0.0, 65.0, 100.0, 0.0)]
+    gripper = [(0.0, 65.0), (0.0, 65.0), (100.0, 0.0), (100.0, 0.0)]
+    q = wire_to_q(angles, [1] * 7, gripper)
+    assert q[:, 6].tolist() == pytest.approx([FINGER_TRAVEL_M, 0.0, FINGER_TRAVEL_M, 0.0])
+
+
+def test_grip_logic_knows_which_way_closing_is() -> None:
+    from fleet.choreo.grip import GripDetector
+    from fleet.choreo.player import path_error_deg
+
+    default, inverted = GripDetector(), GripDetector(closing_sign=1.0)
+    for _ in range(10):
+        default.add([0.0] * 6 + [30.0])  # stopped at 30 on its way to 10: holds something
+        inverted.add([0.0] * 6 + [70.0])  # stopped at 70 on its way to 90: holds something
+    assert default.gripped(10.0) and inverted.gripped(90.0)
+    assert not inverted.gripped(50.0)  # went further than asked: not a grip
+    target = (0.0,) * 6 + (90.0,)
+    assert path_error_deg((0.0,) * 6 + (70.0,), target, closing_sign=1.0) == 0.0  # a grip
+    assert path_error_deg((0.0,) * 6 + (95.0,), target, closing_sign=1.0) == 5.0  # past it

@@ -130,6 +130,30 @@ def test_error_status_zero_or_a_bitfield_both_read_abnormal(tmp_path: Path) -> N
         assert not _fault(client, fleet, "bits", b'{"op":"error_status","value":1}').ok
 
 
+# ----------------------------------------------------------------------------- gripper unit
+
+GRIPPER_ARMS = (
+    '[arms.servo]\nsuffix = "_1"\n'  # the default reading: servo degrees, 0 closed .. 65 open
+    '[arms.inverted]\nsuffix = "_2"\ngripper_closed_deg = 100.0\ngripper_open_deg = 0.0\n'
+)
+
+
+def test_each_arm_takes_its_own_gripper_range(tmp_path: Path) -> None:
+    """Before: angle6 was 0..65 for every arm: an arm whose gripper reads 0..100 could never be
+    closed past 65 (and the inventory refused the fields)."""
+    with _harness(tmp_path, GRIPPER_ARMS) as harness:
+        client = harness.start_fleet()
+        closed = m.MoveJoint(joint=6, angle_deg=90.0, wait_reached=True, timeout_s=8.0)
+        reply = client.command("inverted", closed)
+        assert reply.ok and reply.reached, reply.error
+        refused = client.command("servo", closed)
+        assert refused.error is not None and refused.error.code == 3204, refused
+        assert "[0, 65]" in refused.error.message, refused.error
+        below = client.command("inverted", m.MoveJoint(joint=6, angle_deg=-5.0))
+        assert below.error is not None and below.error.code == 3204, below
+        assert "[0, 100]" in below.error.message, below.error
+
+
 # ----------------------------------------------------------------------------- interface
 
 

@@ -20,7 +20,7 @@ import numpy as np
 import numpy.typing as npt
 import viser
 
-from fleet.d1.limits import JOINT_COUNT, JOINT_RANGE_DEG
+from fleet.d1.limits import JOINT_COUNT, JOINT_RANGE_DEG, JointRanges
 from fleet.inventory import Inventory
 from fleet.wire import messages as m
 from viewer.commands import JOG_INTERVAL_S, MAX_JOG_STEP_DEG, Commander
@@ -130,7 +130,13 @@ class _ArmPanel:
     """The folder of one arm."""
 
     def __init__(
-        self, gui: viser.GuiApi, arm: str, commander: Commander, plot_on: bool, jog: bool
+        self,
+        gui: viser.GuiApi,
+        arm: str,
+        commander: Commander,
+        plot_on: bool,
+        jog: bool,
+        ranges: JointRanges = JOINT_RANGE_DEG,
     ) -> None:
         self.arm = arm
         self.blocked: bool | None = None
@@ -160,7 +166,7 @@ class _ArmPanel:
             self.sliders = []
             if not jog:
                 return  # read-only: no sliders at all (the commander would refuse them anyway)
-            for joint, (low, high) in enumerate(JOINT_RANGE_DEG):
+            for joint, (low, high) in enumerate(ranges):  # the arm's: its gripper's own
                 slider = gui.add_slider(
                     f"jog j{joint}", min=low, max=high, step=0.5, initial_value=0.0, disabled=True
                 )
@@ -244,7 +250,15 @@ class FleetPanels:
             gui.add_html(legend_html())
         plot_on = len(self.arms) <= PLOTS_ON_BY_DEFAULT_UP_TO
         self.arm_panels = [
-            _ArmPanel(gui, arm, commander, plot_on, jog=not self.read_only) for arm in self.arms
+            _ArmPanel(
+                gui,
+                arm,
+                commander,
+                plot_on,
+                jog=not self.read_only,
+                ranges=inventory.arms[arm].joint_ranges_deg,
+            )
+            for arm in self.arms
         ]
         n = int(PLOT_WINDOW_S * PLOT_RATE_HZ)
         self._history = np.zeros((len(self.arms), n, JOINT_COUNT))

@@ -105,6 +105,9 @@ class FleetScene:
         self.arms = tuple(inventory.arms)
         configs = [inventory.arms[a] for a in self.arms]
         self.joint_sign = np.array([c.joint_sign for c in configs], dtype=float)
+        self.gripper_deg = np.array(
+            [(c.gripper_closed_deg, c.gripper_open_deg) for c in configs], dtype=float
+        )
         xyz = np.array([c.base_xyz for c in configs], dtype=float)
         self.base = base_transforms(xyz, [c.base_rpy_deg for c in configs])
         self.meshes = meshes
@@ -165,7 +168,7 @@ class FleetScene:
         self, angles_deg: npt.NDArray[np.float64]
     ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
         """(K links, N, 4) orientations and (K, N, 3) positions in the world."""
-        q = wire_to_q(angles_deg, self.joint_sign)
+        q = wire_to_q(angles_deg, self.joint_sign, self.gripper_deg)
         world = self.base[:, None] @ forward(self.model, q)[:, self._link_index]
         wxyz = matrix_to_wxyz(world[..., :3, :3]).transpose(1, 0, 2)
         return wxyz, world[..., :3, 3].transpose(1, 0, 2)

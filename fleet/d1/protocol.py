@@ -20,7 +20,7 @@ from typing import Any, Literal
 import msgspec
 
 from fleet.d1.errors import InvalidCommand, InvalidJoint, MalformedMessage, UnknownMessage
-from fleet.d1.limits import JOINT_COUNT, JOINT_RANGE_DEG, TORQUE_MODE_MAX
+from fleet.d1.limits import JOINT_COUNT, JOINT_RANGE_DEG, TORQUE_MODE_MAX, JointRanges
 
 MAX_MESSAGE_BYTES = 4096
 """The longest D1 string accepted either way: the spec's longest is about 170 bytes; a DDS string
@@ -227,12 +227,13 @@ def check_joint(joint: int) -> None:
         raise InvalidJoint(f"joint id {joint!r} is out of range; the D1 has joints 0..6")
 
 
-def check_angle(joint: int, angle_deg: float) -> None:
-    """Raise InvalidCommand unless ``angle_deg`` is finite and inside joint ``joint``'s range."""
+def check_angle(joint: int, angle_deg: float, ranges: JointRanges = JOINT_RANGE_DEG) -> None:
+    """Raise InvalidCommand unless ``angle_deg`` is finite and inside joint ``joint``'s range
+    (``ranges``: the arm's, whose gripper may read another way, ``limits.joint_ranges``)."""
     check_joint(joint)
     if not isinstance(angle_deg, (int, float)) or isinstance(angle_deg, bool):
         raise InvalidCommand(f"joint {joint}: angle {angle_deg!r} is not a number")
-    low, high = JOINT_RANGE_DEG[joint]
+    low, high = ranges[joint]
     try:
         value = float(angle_deg)
     except OverflowError:  # an int too large for a float
@@ -245,10 +246,10 @@ def check_angle(joint: int, angle_deg: float) -> None:
         )
 
 
-def validate_command(command: Command) -> None:
-    """Raise InvalidCommand if ``command`` must not reach the arm."""
+def validate_command(command: Command, ranges: JointRanges = JOINT_RANGE_DEG) -> None:
+    """Raise InvalidCommand if ``command`` must not reach an arm with joint ``ranges``."""
     if isinstance(command, SetJointAngle):
-        check_angle(command.joint, command.angle_deg)
+        check_angle(command.joint, command.angle_deg, ranges)
         if command.delay_ms < 0:
             raise InvalidCommand(f"delay_ms {command.delay_ms} is negative")
     elif isinstance(command, SetAllAngles):
@@ -257,7 +258,7 @@ def validate_command(command: Command) -> None:
                 f"expected {JOINT_COUNT} angles (joints 0..6), got {len(command.angles_deg)}"
             )
         for joint, angle in enumerate(command.angles_deg):
-            check_angle(joint, angle)
+            check_angle(joint, angle, ranges)
         if command.mode not in (0, 1):
             raise InvalidCommand(f"mode {command.mode!r} is not 0 (small) or 1 (large smoothing)")
     elif isinstance(command, SetJointTorque):
@@ -301,10 +302,11 @@ def _command_data(command: Command) -> dict[str, int | float] | None:
     return None
 
 
-def encode_command(command: Command, seq: int) -> str:
-    """The JSON text to write on ``rt/arm_Command<suffix>``; validates first."""
+def encode_command(command: Command, seq: int, ranges: JointRanges = JOINT_RANGE_DEG) -> str:
+    """The JSON text to write on ``rt/arm_Command<suffix>``; validates first (``ranges``: the
+    arm's joint ranges)."""
     check_seq(seq)
-    validate_command(command)
+    validate_command(command, ranges)
     envelope = _Envelope(seq, COMMAND_ADDRESS, _FUNCODE_OF[type(command)], _command_data(command))
     return _encoder.encode(envelope).decode()
 
@@ -478,7 +480,7 @@ def decode_message(text: str | bytes) -> Decoded:
     return Decoded(message, seq, tuple(unknown))
 
 
-def decode_command(text: str | bytes) -> tuple[int, Command]:
+def decode_command(text: str | bytes, ranges: JointRanges = JOINT_RANGE_DEG) -> tuple[int, Command]:
     """Decode one string from ``rt/arm_Command<suffix>`` into (seq, command).
 
     This is what the arm's service does; the simulator uses it. Out-of-range values raise
@@ -487,7 +489,7 @@ def decode_command(text: str | bytes) -> tuple[int, Command]:
     seq, address, funcode, data, _unknown = _parse_envelope(text)
     try:
         command = _command_from(address, funcode, data)
-        validate_command(command)
+        validate_command(command, ranges)
     except (InvalidCommand, MalformedMessage) as exc:
         exc.seq = seq
         raise

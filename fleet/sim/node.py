@@ -97,7 +97,7 @@ class SimulatedArms:
             condition = ReadCondition(reader, _ANY)
             self._waitset.attach(condition)
             writer = DataWriter(participant, fb_topic, qos=dds.FEEDBACK_WRITER_QOS)
-            model = SimArmModel(time_s=now)
+            model = SimArmModel(time_s=now, joint_ranges_deg=arm.joint_ranges_deg)
             model.faults.abnormal_value = arm.sim_error_status
             self._arms[arm.id] = _SimArm(arm, reader, condition, writer, model)
             heapq.heappush(self._due, (now + self._period(), arm.id))
