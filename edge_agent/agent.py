@@ -60,7 +60,7 @@ class EdgeAgent:
     def __init__(
         self, inventory: Inventory, arm_ids: list[str], state_dir: Path | None = None
     ) -> None:
-        domain_id, interface, peers = inventory.network_of(arm_ids)
+        network = inventory.network_of(arm_ids)
         self.inventory = inventory
         self.lock = threading.Lock()
         self.arm_ids = list(arm_ids)
@@ -77,9 +77,7 @@ class EdgeAgent:
         # DDS first: if the interface is wrong we fail before announcing anything on Zenoh.
         self._next_status = self._next_diag = 0.0
         self.link = DdsLink(
-            domain_id,
-            interface,
-            peers,
+            network,
             suffixes,
             (self._on_feedback, self._on_bad_sample, self._tick),
             TICK_PERIOD_S,
@@ -157,6 +155,7 @@ class EdgeAgent:
         with self.lock:
             slot = self.slots[arm]
             tracker = slot.tracker
+            error_status = tracker.error_status
             decoded = tracker.on_feedback(text, now, writer)
             status_changed = tracker.update_link(now)
             if decoded is not None:
@@ -171,12 +170,12 @@ class EdgeAgent:
                         self.safety_loop.on_still(arm, slot, out)
                 elif isinstance(message, p.D1Status):
                     status_changed = True
+                    if message.error_status != error_status:  # logged on change only
+                        _log_error_status(arm, message.error_status)
                     if slot.safety.on_status(message.enabled, message.powered, stamp_ns):
                         self.safety_loop.on_still(arm, slot, out)  # acknowledged as confirmed
                 elif isinstance(message, (p.ReceiveAck, p.ExecuteAck)):
-                    entry = slot.in_flight.get(message.seq)
-                    if entry is not None:
-                        entry[0].on_ack(message)
+                    _on_ack(slot, message, now)
                 else:
                     status_changed = True
             if pubs.raw_feedback_matched and len(text) <= p.MAX_MESSAGE_BYTES:
@@ -311,3 +310,35 @@ class EdgeAgent:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _log_error_status(arm: str, error_status: int) -> None:
+    """The arm's ``error_status`` changed: the raw value, which may be a bitfield of faults."""
+    if error_status == p.ERROR_STATUS_NORMAL:
+        log.info("arm %s: error_status %d (normal)", arm, error_status)
+    else:
+        log.warning(
+            "arm %s: error_status %d (abnormal; 0x%x as a bitfield)",
+            arm,
+            error_status,
+            error_status & (2**64 - 1),
+        )
+
+
+def _on_ack(slot: ArmSlot, ack: p.ReceiveAck | p.ExecuteAck, now: float) -> None:
+    """Credit ``ack`` to the written command it answers (caller holds the lock): by its seq, or,
+    when its seq names none (an arm answering seq 10, as the spec's examples do), to the oldest
+    command awaiting this kind of ack (``acks.py``), counted as unmatched."""
+    tracker = slot.tracker
+    seq, how = slot.acks.answered(ack, now)
+    if seq is None:
+        tracker.acks_ignored += 1
+        why = "a late or repeated ack" if how == "late" else "no command written awaits one"
+        tracker.last_error = f"{type(ack).__name__} with seq {ack.seq} ignored: {why}"
+        return
+    if how == "oldest":
+        tracker.acks_unmatched += 1
+        ack = msgspec.structs.replace(ack, seq=seq)
+    entry = slot.in_flight.get(seq)
+    if entry is not None:  # else a stop, hold or force limit: nobody awaits its acks
+        entry[0].on_ack(ack)

@@ -90,7 +90,7 @@ def plan(command: m.ArmCommand, tracker: ArmTracker, now: float) -> Plan:
     try:
         result = _plan(command, tracker, now)
         for d1_command in result.commands:
-            p.validate_command(d1_command)
+            p.validate_command(d1_command, tracker.config.joint_ranges_deg)
     except InvalidCommand as exc:
         raise Refused(ErrorCode.PARAMETER, str(exc)) from None
     return result
@@ -98,7 +98,7 @@ def plan(command: m.ArmCommand, tracker: ArmTracker, now: float) -> Plan:
 
 def _plan(command: m.ArmCommand, tracker: ArmTracker, now: float) -> Plan:
     if isinstance(command, m.MoveJoint):
-        p.check_angle(command.joint, command.angle_deg)
+        p.check_angle(command.joint, command.angle_deg, tracker.config.joint_ranges_deg)
         _check_latch(command, tracker)
         _check_can_move(tracker)
         return Plan(
@@ -106,7 +106,7 @@ def _plan(command: m.ArmCommand, tracker: ArmTracker, now: float) -> Plan:
         )
     if isinstance(command, m.MoveJoints):
         angles = tuple(command.angles_deg)
-        p.validate_command(p.SetAllAngles(angles, command.mode))
+        p.validate_command(p.SetAllAngles(angles, command.mode), tracker.config.joint_ranges_deg)
         _check_latch(command, tracker)
         _check_can_move(tracker)
         return Plan((p.SetAllAngles(angles, command.mode),), dict(enumerate(angles)))

@@ -25,7 +25,6 @@ from edge_agent.writer import ArmWriter, transient_seq
 from fleet.contact.detector import ContactChange, ContactDetector
 from fleet.contact.feed import feed_command
 from fleet.d1 import protocol as p
-from fleet.d1.limits import JOINT_RANGE_DEG
 from fleet.inventory import ArmConfig
 from fleet.wire import keys
 from fleet.wire import messages as m
@@ -119,7 +118,7 @@ class ContactEdge:
 
     def _limit(self, arm: str, slot: ArmSlot, joint: int, angle: float) -> None:
         """Retract ``joint``'s target to ``angle`` (caller holds the lock)."""
-        lo, hi = JOINT_RANGE_DEG[joint]
+        lo, hi = slot.tracker.config.joint_ranges_deg[joint]
         self._pending.append((arm, p.SetJointAngle(joint, round(min(max(angle, lo), hi), 2))))
         why = f"contact on joint {joint}: target retracted to {angle:.1f} deg (force limit)"
         for flight, _query in slot.in_flight.values():

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from edge_agent.tracker import ArmTracker
 from fleet.d1 import protocol as p
-from fleet.d1.limits import JOINT_RANGE_DEG
+from fleet.d1.limits import JOINT_RANGE_DEG, JointRanges
 from fleet.wire import messages as m
 
 NO_FRESH_POSE = (
@@ -21,9 +21,12 @@ NO_FRESH_POSE = (
 )
 
 
-def clamp_to_limits(angles: tuple[float, ...]) -> tuple[float, ...]:
-    """Measured angles can sit a hair outside the documented range; a hold must not be refused."""
-    return tuple(min(max(a, lo), hi) for a, (lo, hi) in zip(angles, JOINT_RANGE_DEG, strict=False))
+def clamp_to_limits(
+    angles: tuple[float, ...], ranges: JointRanges = JOINT_RANGE_DEG
+) -> tuple[float, ...]:
+    """Measured angles can sit a hair outside the documented range; a hold must not be refused
+    (``ranges``: the arm's, ``ArmConfig.joint_ranges_deg``)."""
+    return tuple(min(max(a, lo), hi) for a, (lo, hi) in zip(angles, ranges, strict=False))
 
 
 def fresh_pose(tracker: ArmTracker, now_s: float) -> tuple[float, ...] | None:
@@ -33,7 +36,7 @@ def fresh_pose(tracker: ArmTracker, now_s: float) -> tuple[float, ...] | None:
         return None
     if now_s - reported_s > tracker.config.link_stale_s:
         return None
-    return clamp_to_limits(angles)
+    return clamp_to_limits(angles, tracker.config.joint_ranges_deg)
 
 
 def hold_command(tracker: ArmTracker, now_s: float) -> p.SetAllAngles | None:

@@ -37,6 +37,7 @@ from cyclonedds.topic import Topic
 
 from fleet.d1 import dds
 from fleet.guard import ThreadGuard
+from fleet.inventory import DdsNetwork
 
 log = logging.getLogger("edge_agent.link")
 
@@ -100,15 +101,13 @@ class DdsLink:
 
     def __init__(
         self,
-        domain_id: int,
-        interface: str,
-        peers: tuple[str, ...],
+        network: DdsNetwork,
         suffixes: dict[str, str],
         handlers: tuple[FeedbackHandler, BadSampleHandler, TickHandler],
         tick_s: float,
         guard: ThreadGuard,
     ) -> None:
-        self._channel = dds.DdsChannel(domain_id, interface, peers)
+        self._channel = dds.DdsChannel(*network)
         participant = self._channel.participant
         self._on_feedback, self._on_bad_sample, self._on_tick = handlers
         self._tick_s = tick_s

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 
 import zenoh
 
+from edge_agent.acks import AckMatcher
 from edge_agent.commands import InFlight
 from edge_agent.ordering import CommandOrder
 from edge_agent.safety import ArmSafety
@@ -27,6 +28,12 @@ class ArmSlot:
     in_flight: dict[int, tuple[InFlight, zenoh.Query]] = field(default_factory=dict)
     order: CommandOrder = field(default_factory=CommandOrder)
     joints_seq: int = 0
+    acks: AckMatcher = field(init=False)
+    """Which written command each ack answers (by seq, or the oldest when the seq is unknown)."""
+
+    def __post_init__(self) -> None:
+        config = self.tracker.config
+        self.acks = AckMatcher(config.recv_ack_timeout_s, config.exec_ack_timeout_s)
 
     @property
     def safety(self) -> ArmSafety:

@@ -37,7 +37,8 @@ class ArmTracker:
     """When ``angles_deg`` was reported (monotonic s): a hold needs a fresh pose."""
     enabled: bool | None = None
     powered: bool | None = None
-    error: bool | None = None
+    error_status: int | None = None
+    """The arm's raw ``error_status`` (1 normal, anything else abnormal)."""
     motors_ok: tuple[bool, ...] | None = None
     safety: ArmSafety = field(init=False)
     """The arm's stop latch, lease and watchdog: the one owner of the latch, which the status
@@ -56,6 +57,11 @@ class ArmTracker:
     or a forgery is never a pose to hold)."""
     commands: int = 0
     ack_timeouts: int = 0
+    acks_unmatched: int = 0
+    """Acks whose seq named no command we wrote (an arm that answers seq 10): credited to the
+    oldest command awaiting that ack (``acks.py``)."""
+    acks_ignored: int = 0
+    """Acks credited to no command: late or repeated, or with no command awaiting one."""
     last_error: str | None = None
     _angle_times: deque[float] = field(default_factory=lambda: deque(maxlen=RATE_WINDOW))
     _writer: int | None = None
@@ -100,7 +106,8 @@ class ArmTracker:
             self.angles_s = now
             self._angle_times.append(now)
         elif isinstance(message, p.D1Status):
-            self.enabled, self.powered, self.error = message.enabled, message.powered, message.error
+            self.enabled, self.powered = message.enabled, message.powered
+            self.error_status = message.error_status
         elif isinstance(message, p.MotorStatus):
             self.motors_ok = message.motors_ok
         return decoded
@@ -182,7 +189,8 @@ class ArmTracker:
             link=self.link,
             enabled=self.enabled,
             powered=self.powered,
-            error=self.error,
+            error=None if self.error_status is None else self.error_status != 1,
+            error_status=self.error_status,
             motors_ok=None if self.motors_ok is None else list(self.motors_ok),
             estopped=self.safety.latched,
             feedback_age_s=None if age is None else round(age, 3),
@@ -207,6 +215,8 @@ class ArmTracker:
             implausible_feedback=self.implausible,
             commands=self.commands,
             ack_timeouts=self.ack_timeouts,
+            acks_unmatched=self.acks_unmatched,
+            acks_ignored=self.acks_ignored,
             feedback_rate_hz=round(self.feedback_rate_hz(), 2),
             last_feedback_age_s=None if age is None else round(age, 3),
             last_error=self.last_error,

@@ -66,11 +66,14 @@ class ArmWriter:
         with self._arm_locks[arm]:
             now = time.monotonic()
             with self._lock:
-                chosen = compose(self._slots[arm], now)
+                slot = self._slots[arm]
+                chosen = compose(slot, now)
+                if chosen is not None:
+                    slot.acks.written(chosen[1], now)  # before the write: the ack may overtake it
             if chosen is None:
                 return None
             command, seq = chosen
-            text = p.encode_command(command, seq)
+            text = p.encode_command(command, seq, slot.tracker.config.joint_ranges_deg)
             ok = self._link.write(arm, text)
             written = Written(ok, time.time_ns(), command, text)
 

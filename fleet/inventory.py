@@ -8,15 +8,21 @@ set in ``[arms.<id>]`` overrides it. The README's "inventory.toml reference" doc
 from __future__ import annotations
 
 import math
-import re
 from pathlib import Path
-from typing import Any, Literal, get_args
+from typing import Any, Literal, NamedTuple, get_args
 
 import msgspec
 from msgspec import Struct
 
 from fleet.contact.config import ContactConfig, check_config
-from fleet.d1.limits import JOINT_COUNT
+from fleet.d1 import topics
+from fleet.d1.limits import (
+    GRIPPER_CLOSED_DEG,
+    GRIPPER_OPEN_DEG,
+    JOINT_COUNT,
+    JointRanges,
+    joint_ranges,
+)
 from fleet.security.config import (
     DEFAULT_PRINCIPALS,
     ROLES,
@@ -32,8 +38,17 @@ DEFAULT_INVENTORY = "inventory.toml"
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 
 StopAction = Literal["hold", "unload", "power_off"]
+SimAckSeq = Literal["echo", "fixed"]
 
-_SUFFIX = re.compile(r"^(_[A-Za-z0-9_]+)?\Z")  # \Z: "$" accepts a trailing newline
+
+class DdsNetwork(NamedTuple):
+    """What one DDS participant is configured from (``ChannelFactory::Init``'s arguments)."""
+
+    domain_id: int
+    interface: str
+    """``""``: CycloneDDS chooses the interface."""
+    peers: tuple[str, ...]
+    multicast: bool
 
 
 class InventoryError(ValueError):
@@ -68,7 +83,11 @@ class ArmConfig(Struct, frozen=True, forbid_unknown_fields=True):
     common name of its certificate; the router lets only it publish this arm's state."""
     suffix: str = ""
     interface: str = "lo"
+    """The network card of the arm; ``""`` lets CycloneDDS choose one."""
     peers: list[str] | None = None
+    multicast: bool = False
+    """Multicast discovery as Unitree's SDK does it, for real arm networks only: tests and the
+    demo stay unicast on loopback (a test host's multicast reaches every other test's arms)."""
     domain_id: int | None = None
     simulated: bool = False
     base_xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -85,6 +104,26 @@ class ArmConfig(Struct, frozen=True, forbid_unknown_fields=True):
     """Faster than any D1 joint moves (plausible arms: up to 180 deg/s): an angle report that
     implies more is a sensor fault or a forgery, never a pose to hold."""
     contact: ContactConfig = ContactConfig()
+    gripper_closed_deg: float = GRIPPER_CLOSED_DEG
+    gripper_open_deg: float = GRIPPER_OPEN_DEG
+    """What ``angle6`` reads with the gripper closed and fully open: its range and its direction
+    (the spec gives only a 0-65 mm stroke; the default reads servo degrees, 0 closed)."""
+    sim_ack_seq: SimAckSeq = "echo"
+    """How the simulated arm reads the spec's ack seq: ``echo`` the command's seq (the table's
+    "caller generates"), or ``fixed``: always 10 (every ack example)."""
+    sim_error_status: int = 0
+    """The ``error_status`` the simulated arm reports while abnormal: 0 (the table) or a
+    bitfield value (the contact plan's reading)."""
+
+    @property
+    def joint_ranges_deg(self) -> JointRanges:
+        """(min, max) per wire joint of this arm: the spec's, and its gripper's own."""
+        return joint_ranges(self.gripper_closed_deg, self.gripper_open_deg)
+
+    @property
+    def gripper_closing_sign(self) -> float:
+        """-1.0 when closing lowers ``angle6`` (the default), +1.0 when it raises it."""
+        return -1.0 if self.gripper_open_deg > self.gripper_closed_deg else 1.0
 
 
 class CoordinatorSection(Struct, frozen=True, forbid_unknown_fields=True):
@@ -144,12 +183,14 @@ class Inventory(Struct, frozen=True):
         """The arm's DDS unicast peers (its own, or the fleet's)."""
         return tuple(self.peers if arm.peers is None else arm.peers)
 
-    def network_of(self, arm_ids: list[str]) -> tuple[int, str, tuple[str, ...]]:
-        """The one (domain, interface, peers) that ``arm_ids`` share. One process serves one
-        network: CycloneDDS takes one configuration per domain and process, and arms on
-        different cards with the same topics must not hear each other (NIC binding)."""
+    def network_of(self, arm_ids: list[str]) -> DdsNetwork:
+        """The one (domain, interface, peers, multicast) that ``arm_ids`` share. One process
+        serves one network: CycloneDDS takes one configuration per domain and process, and arms
+        on different cards with the same topics must not hear each other (NIC binding)."""
         arms = [self.arm(a) for a in arm_ids]
-        networks = {(self.domain_of(a), a.interface, self.peers_of(a)) for a in arms}
+        networks = {
+            DdsNetwork(self.domain_of(a), a.interface, self.peers_of(a), a.multicast) for a in arms
+        }
         if len(networks) != 1:
             raise InventoryError(
                 f"{self.path}: arms on different DDS domains or interfaces need one process per "
@@ -173,6 +214,7 @@ def _enum_choices() -> dict[str, tuple[str, ...]]:
 
     return {
         "stop_action": get_args(StopAction),
+        "sim_ack_seq": get_args(SimAckSeq),
         "mode": get_args(SecurityMode),
         "role": get_args(Role),
     }
@@ -219,7 +261,7 @@ def _network_name_problem(what: str, value: str) -> str | None:
 
 
 def _check_network(arm: ArmConfig, path: str, where: str) -> None:
-    problems = [_network_name_problem("interface", arm.interface)]
+    problems = [_network_name_problem("interface", arm.interface) if arm.interface else None]
     problems += [_network_name_problem("peer", peer) for peer in arm.peers or ()]
     for problem in problems:
         if problem is not None:
@@ -230,8 +272,9 @@ def _check_arm(arm: ArmConfig, path: str) -> None:
     where = f"arms.{arm.id}"
     _check_finite(arm, path, where)
     _check_network(arm, path, where)
-    if not _SUFFIX.match(arm.suffix):
-        raise _fail(path, where, f"suffix {arm.suffix!r} must be empty or like '_1'")
+    suffix_problem = topics.suffix_problem(arm.suffix)
+    if suffix_problem is not None:
+        raise _fail(path, where, suffix_problem)
     try:
         check_name("agent", arm.agent)
     except KeyError_ as exc:
@@ -248,6 +291,16 @@ def _check_arm(arm: ArmConfig, path: str) -> None:
         raise _fail(path, where, "watchdog_s and lease_s must be positive")
     if not 10 <= arm.max_speed_deg_s <= 10000:
         raise _fail(path, where, "max_speed_deg_s must be within 10..10000")
+    gripper = (arm.gripper_closed_deg, arm.gripper_open_deg)
+    if not all(-360.0 <= g <= 360.0 for g in gripper) or abs(gripper[1] - gripper[0]) < 1.0:
+        raise _fail(
+            path,
+            where,
+            f"gripper_closed_deg {gripper[0]:g} and gripper_open_deg {gripper[1]:g} must be "
+            "within -360..360 and at least 1 deg apart",
+        )
+    if arm.sim_error_status == 1:
+        raise _fail(path, where, "sim_error_status 1 is the normal value: use 0 or a bitfield")
     contact_problem = check_config(arm.contact)
     if contact_problem is not None:
         raise _fail(path, f"{where}.contact", contact_problem)

@@ -34,18 +34,20 @@ def check(data: bytes) -> None:
         assert 0 < arm.link_stale_s < arm.link_lost_s, arm
         assert math.isfinite(arm.link_lost_s) and arm.watchdog_s > 0 and arm.lease_s > 0, arm
         assert len(arm.joint_sign) == 7 and set(arm.joint_sign) <= {1, -1}, arm
-        _check_dds_config(arm.interface, inventory.peers_of(arm))
+        _check_dds_config(arm.interface, inventory.peers_of(arm), arm.multicast)
     for group in inventory.groups:
         assert set(inventory.resolve(group)) <= set(inventory.arms), group
     assert inventory.resolve("all") == list(inventory.arms)
     inventory.with_domain(7)
 
 
-def _check_dds_config(interface: str, peers: tuple[str, ...]) -> None:
-    """The arm's CycloneDDS XML parses and says what the inventory says."""
-    root = ET.fromstring(cyclonedds_config(interface, peers))  # ParseError breaks the property
+def _check_dds_config(interface: str, peers: tuple[str, ...], multicast: bool) -> None:
+    """The arm's CycloneDDS XML parses and says what the inventory says ("" = DDS chooses)."""
+    root = ET.fromstring(cyclonedds_config(interface, peers, multicast))  # ParseError: a break
     names = [e.get("name") for e in root.iter("NetworkInterface")]
-    assert names == [interface], (names, interface)
+    assert names == ([interface] if interface else []), (names, interface)
+    allow = root.findtext("Domain/General/AllowMulticast")
+    assert allow == ("default" if multicast else "false"), (allow, multicast)
     assert [e.get("address") for e in root.iter("Peer")] == list(peers), peers
 
 

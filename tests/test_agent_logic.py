@@ -459,13 +459,13 @@ def test_unknown_fields_are_counted_but_the_message_is_used() -> None:
     decoded = tracker.on_feedback(text, now=0.0)
     assert decoded is not None and decoded.unknown_fields == ("x", "data.t")
     assert tracker.unknown_fields == 2
-    assert (tracker.enabled, tracker.powered, tracker.error) == (False, True, True)
+    assert (tracker.enabled, tracker.powered, tracker.error_status) == (False, True, 0)
 
 
 def test_status_motors_and_payloads() -> None:
     tracker = ArmTracker(ArmConfig(id="a1"))
     tracker.on_feedback(_feedback(), now=0.0)
-    tracker.on_feedback(p.encode_message(p.D1Status(True, True, False)), now=0.1)
+    tracker.on_feedback(p.encode_message(p.D1Status(True, True, 1)), now=0.1)
     motors = (True, True, False, True, True, True, True)
     tracker.on_feedback(p.encode_message(p.MotorStatus(motors)), now=0.2)
     tracker.update_link(0.3)
@@ -479,6 +479,7 @@ def test_status_motors_and_payloads() -> None:
         motors_ok=list(motors),
         estopped=False,
         feedback_age_s=0.1,
+        error_status=1,
     )
     tracker.on_feedback("garbage", now=0.3)
     diag = tracker.diag(now=0.3, stamp_ns=124)

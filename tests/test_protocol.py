@@ -54,7 +54,7 @@ GOLDEN_MESSAGES: list[tuple[str, p.ArmMessage]] = [
     (
         '{"seq":10,"address":2,"funcode":3,"data":{"enable_status":1,"power_status":1,'
         '"error_status":1}}',
-        p.D1Status(enabled=True, powered=True, error=False),
+        p.D1Status(enabled=True, powered=True, error_status=1),
     ),
     (
         '{"seq":10,"address":2,"funcode":4,"data":{"motor0_status":1,"motor1_status":1,'
@@ -107,7 +107,7 @@ def test_ack_carries_the_command_seq() -> None:
 
 def test_status_error_flag_is_inverted_on_the_wire() -> None:
     # error_status 1 = normal, 0 = abnormal
-    text = p.encode_message(p.D1Status(enabled=False, powered=False, error=True))
+    text = p.encode_message(p.D1Status(enabled=False, powered=False, error_status=0))
     assert text == (
         '{"seq":10,"address":2,"funcode":3,"data":{"enable_status":0,"power_status":0,'
         '"error_status":0}}'
@@ -154,7 +154,12 @@ ACK_SEQS = st.integers(min_value=0, max_value=2**31)
 
 MESSAGES: st.SearchStrategy[p.ArmMessage] = st.one_of(
     st.builds(p.JointAngles, angles_deg=st.tuples(*(FINITE for _ in range(JOINT_COUNT)))),
-    st.builds(p.D1Status, enabled=st.booleans(), powered=st.booleans(), error=st.booleans()),
+    st.builds(
+        p.D1Status,
+        enabled=st.booleans(),
+        powered=st.booleans(),
+        error_status=st.integers(*p.ERROR_STATUS_RANGE),
+    ),
     st.builds(p.MotorStatus, motors_ok=FLAGS7),
     st.builds(p.ReceiveAck, seq=ACK_SEQS, ok=st.booleans()),
     st.builds(p.ExecuteAck, seq=ACK_SEQS, ok=st.booleans()),
@@ -378,7 +383,7 @@ def test_unknown_fields_are_tolerated_and_listed() -> None:
         '"power_status":0,"error_status":1,"temperature":41.5,"voltage":24}}'
     )
     decoded = p.decode_message(text)
-    assert decoded.message == p.D1Status(enabled=True, powered=False, error=False)
+    assert decoded.message == p.D1Status(enabled=True, powered=False, error_status=1)
     assert decoded.unknown_fields == ("stamp", "data.temperature", "data.voltage")
 
 
@@ -531,3 +536,32 @@ def test_decoders_raise_only_protocol_errors_on_envelopes(
     for decode in (p.decode_message, p.decode_command):
         with contextlib.suppress(ProtocolError):
             decode(text)
+
+
+# ------------------------------------------------------------------- error_status readings
+
+
+@pytest.mark.parametrize(
+    ("value", "error"), [(1, False), (0, True), (2, True), (0x84, True), (-1, True), (2**63, True)]
+)
+def test_error_status_is_any_integer_one_normal(value: int, error: bool) -> None:
+    """The table reads 1 normal / 0 abnormal; the contact plan expects a bitfield: every
+    integer decodes, 1 is normal, the raw value is kept, and it encodes back byte for byte."""
+    text = (
+        '{"seq":10,"address":2,"funcode":3,"data":{"enable_status":1,"power_status":1,'
+        f'"error_status":{value}}}}}'
+    )
+    message = p.decode_message(text).message
+    assert message == p.D1Status(enabled=True, powered=True, error_status=value)
+    assert isinstance(message, p.D1Status) and message.error is error
+    assert p.encode_message(message) == text
+
+
+@pytest.mark.parametrize("value", ['"1"', "true", "null", "1.5", str(2**64), str(-(2**63) - 1)])
+def test_error_status_that_is_no_integer_is_malformed(value: str) -> None:
+    text = (
+        '{"seq":10,"address":2,"funcode":3,"data":{"enable_status":1,"power_status":1,'
+        f'"error_status":{value}}}}}'
+    )
+    with pytest.raises(MalformedMessage, match="error_status"):
+        p.decode_message(text)

@@ -101,7 +101,7 @@ def test_all_unloaded_arm_does_not_track_and_reports_disabled() -> None:
     model.advance(2.0)
     assert model.angles_deg == list(ZERO)
     status = model.status_reports()[0]
-    assert status == p.D1Status(enabled=False, powered=True, error=False)
+    assert status == p.D1Status(enabled=False, powered=True, error_status=1)
     _send(model, p.SetAllTorque(80000), seq=3)
     assert model.enabled == [True] * 7
 
@@ -120,7 +120,7 @@ def test_powered_off_arm_does_not_track_and_fails_motion() -> None:
         p.ReceiveAck(3, True),
         p.ExecuteAck(3, False),
     ]
-    assert model.status_reports()[0] == p.D1Status(enabled=True, powered=False, error=False)
+    assert model.status_reports()[0] == p.D1Status(enabled=True, powered=False, error_status=1)
 
 
 def test_reenabled_joint_chases_its_old_cached_target() -> None:
@@ -242,7 +242,7 @@ def test_mute_acks_executes_without_acknowledging() -> None:
 def test_error_status_is_reported() -> None:
     model = SimArmModel()
     f.apply_fault(model.faults, f.ErrorStatus(error=True))
-    assert model.status_reports()[0] == p.D1Status(enabled=True, powered=True, error=True)
+    assert model.status_reports()[0] == p.D1Status(enabled=True, powered=True, error_status=0)
     text = p.encode_message(model.status_reports()[0])
     assert '"error_status":0' in text
 

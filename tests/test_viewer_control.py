@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 import zenoh
 
+from fleet.d1.limits import JOINT_RANGE_DEG, JointRanges
 from fleet.inventory import Inventory, load_inventory
 from fleet.security.session import open_session
 from fleet.wire import keys
@@ -45,6 +46,9 @@ class RecordingCommander:
         self.resets += 1
         self.reset_targets.append(arm)
         return True
+
+    def joint_ranges(self, arm: str) -> JointRanges:
+        return JOINT_RANGE_DEG
 
     def jog(self, arm: str, joint: int, angle_deg: float, measured_deg: float) -> bool:
         self.jogs.append((arm, joint, angle_deg))

@@ -121,6 +121,7 @@ def test_a_recording_without_a_layout_stands_its_arms_in_a_row(tmp_path: Path) -
         '{"fleet": "lab", "arms": {"a1": {"joint_sign": [1, 1, 2, 1, 1, 1, 1]}}}',
         '{"fleet": "lab", "arms": {"a1": {"joint_sign": [1]}}}',
         '{"fleet": "lab", "arms": {"a/1": {}}}',
+        '{"fleet": "lab", "arms": {"a1": {"gripper_closed_deg": 5, "gripper_open_deg": 5}}}',
         '{"fleet": "lab", "arms": {}, "extra": 1}',
         "[" * 5000,
         "not json",

@@ -17,7 +17,7 @@ import numpy as np
 import numpy.typing as npt
 import viser
 
-from fleet.d1.limits import JOINT_COUNT, JOINT_RANGE_DEG
+from fleet.d1.limits import JOINT_COUNT
 from fleet.wire import messages as m
 from viewer.commands import JOG_INTERVAL_S, MAX_JOG_STEP_DEG, Commander
 
@@ -168,7 +168,7 @@ class ArmPanel:
             self.show_plot.on_update(lambda _e: setattr(self.plot, "visible", self.show_plot.value))
             if not controls.jog or commander is None:
                 return  # no sliders at all (the commander would refuse them anyway)
-            for joint, (low, high) in enumerate(JOINT_RANGE_DEG):
+            for joint, (low, high) in enumerate(commander.joint_ranges(arm)):
                 slider = gui.add_slider(
                     f"jog j{joint}", min=low, max=high, step=0.5, initial_value=0.0, disabled=True
                 )

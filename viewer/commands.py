@@ -28,7 +28,7 @@ from collections.abc import Callable
 import zenoh
 
 from fleet.client import FleetClient
-from fleet.d1.limits import JOINT_RANGE_DEG
+from fleet.d1.limits import JOINT_RANGE_DEG, JointRanges
 from fleet.guard import ThreadGuard
 from fleet.inventory import Inventory
 from fleet.security.config import COMMANDERS
@@ -52,9 +52,9 @@ def may_command(inventory: Inventory) -> bool:
     return inventory.role_of(inventory.principal) in COMMANDERS
 
 
-def clamp_to_limits(joint: int, angle_deg: float) -> float:
-    """``angle_deg`` clamped to wire joint ``joint``'s documented range."""
-    low, high = JOINT_RANGE_DEG[joint]
+def clamp_to_limits(joint: int, angle_deg: float, ranges: JointRanges = JOINT_RANGE_DEG) -> float:
+    """``angle_deg`` clamped to wire joint ``joint``'s range (``ranges``: the arm's)."""
+    low, high = ranges[joint]
     return min(max(angle_deg, low), high)
 
 
@@ -66,11 +66,13 @@ JOG_INTERVAL_S = 0.25
 dragged slider moves a joint at most 40 deg/s."""
 
 
-def jog_target(joint: int, requested_deg: float, measured_deg: float) -> float:
+def jog_target(
+    joint: int, requested_deg: float, measured_deg: float, ranges: JointRanges = JOINT_RANGE_DEG
+) -> float:
     """Where a jog may go: towards ``requested_deg``, at most MAX_JOG_STEP_DEG from the measured
-    angle, inside the joint's limits."""
+    angle, inside the joint's limits (``ranges``: the arm's, its gripper's own)."""
     step = min(max(requested_deg - measured_deg, -MAX_JOG_STEP_DEG), MAX_JOG_STEP_DEG)
-    return clamp_to_limits(joint, measured_deg + step)
+    return clamp_to_limits(joint, measured_deg + step, ranges)
 
 
 class Commander:
@@ -165,6 +167,10 @@ class Commander:
 
     # ------------------------------------------------------------------ jog
 
+    def joint_ranges(self, arm: str) -> JointRanges:
+        """``arm``'s joint ranges (its gripper's own reading)."""
+        return self.client.inventory.arm(arm).joint_ranges_deg
+
     def jog(self, arm: str, joint: int, angle_deg: float, measured_deg: float) -> bool:
         """Ask for ``arm``'s ``joint`` towards ``angle_deg``, one bounded step from the measured
         ``measured_deg`` (``jog_target``); returns at once. False, sending nothing, when the
@@ -172,7 +178,8 @@ class Commander:
         if self._refused("jog"):
             return False
         with self._lock:
-            self._pending[(arm, joint)] = jog_target(joint, angle_deg, measured_deg)
+            ranges = self.joint_ranges(arm)
+            self._pending[(arm, joint)] = jog_target(joint, angle_deg, measured_deg, ranges)
         self._wake.set()
         return True
 

@@ -6,11 +6,12 @@ URDF's joint values (``q``: radians for Joint1..Joint6, metres for the two finge
 - ``angle0..angle5`` -> ``Joint1..Joint6``: ``q_rad = joint_sign[i] * radians(angle_deg[i])``.
   ``joint_sign`` is the inventory's per-arm setting (field reports, unverified, say servos 0 and 3
   turn opposite to the URDF joints; the default is +1 everywhere).
-- ``angle6`` (gripper, 0 = closed .. 65 = open, see fleet/d1/limits.py) -> ``Joint_L`` and
+- ``angle6`` (gripper; per arm, ``angle6`` reads ``gripper_closed_deg`` closed and
+  ``gripper_open_deg`` open, by default 0 and 65, see fleet/d1/limits.py) -> ``Joint_L`` and
   ``Joint_R``, linearly over 0..0.033 m. Both finger axes point towards the gripper's centre, so
   the URDF's 0 m is open and 0.033 m closed: ``q_finger = 0.033 * (1 - opening)`` with
-  ``opening = angle6 / 65`` clipped to 0..1. ``joint_sign[6] = -1`` says the servo reads the
-  other way round (0 = open): then ``opening = 1 - angle6 / 65``.
+  ``opening = (angle6 - closed) / (open - closed)`` clipped to 0..1. ``joint_sign[6] = -1``
+  (older inventories' way to say the servo reads the other way round) flips it once more.
 
 Forward kinematics works on arrays of shape (N arms, ...): one matrix product per joint for the
 whole fleet, no Python loop over arms (the viewer draws 200 arms at 10-30 Hz).
@@ -96,16 +97,22 @@ class ArmModel:
         )
 
 
-def wire_to_q(angles_deg: npt.ArrayLike, joint_sign: npt.ArrayLike) -> FloatArray:
-    """(N, 7) wire angles (degrees) and (N, 7) or (7,) signs -> (N, 8) URDF joint values."""
+def wire_to_q(
+    angles_deg: npt.ArrayLike,
+    joint_sign: npt.ArrayLike,
+    gripper_deg: npt.ArrayLike = GRIPPER_RANGE_DEG,
+) -> FloatArray:
+    """(N, 7) wire angles (degrees), (N, 7) or (7,) signs and (N, 2) or (2,) gripper readings
+    (closed, open) -> (N, 8) URDF joint values."""
     angles = np.atleast_2d(np.asarray(angles_deg, dtype=float))
     if angles.shape[-1] != JOINT_COUNT:
         raise ValueError(f"expected {JOINT_COUNT} wire angles per arm, got {angles.shape[-1]}")
     sign = np.broadcast_to(np.asarray(joint_sign, dtype=float), angles.shape)
     q = np.empty((angles.shape[0], len(Q_JOINTS)))
     q[:, : len(ARM_JOINTS)] = np.radians(angles[:, : len(ARM_JOINTS)] * sign[:, : len(ARM_JOINTS)])
-    low, high = GRIPPER_RANGE_DEG
-    opening = np.clip((angles[:, GRIPPER_JOINT] - low) / (high - low), 0.0, 1.0)
+    gripper = np.broadcast_to(np.asarray(gripper_deg, dtype=float), (angles.shape[0], 2))
+    closed, fully_open = gripper[:, 0], gripper[:, 1]
+    opening = np.clip((angles[:, GRIPPER_JOINT] - closed) / (fully_open - closed), 0.0, 1.0)
     opening = np.where(sign[:, GRIPPER_JOINT] < 0, 1.0 - opening, opening)
     q[:, len(ARM_JOINTS) :] = (FINGER_TRAVEL_M * (1.0 - opening))[:, None]
     return q

@@ -108,6 +108,10 @@ class Placement(Protocol):
     def base_rpy_deg(self) -> Sequence[float]: ...
     @property
     def joint_sign(self) -> Sequence[int]: ...
+    @property
+    def gripper_closed_deg(self) -> float: ...
+    @property
+    def gripper_open_deg(self) -> float: ...
 
 
 class FleetScene:
@@ -126,6 +130,9 @@ class FleetScene:
         self.arms = tuple(placements)
         configs = [placements[a] for a in self.arms]
         self.joint_sign = np.array([c.joint_sign for c in configs], dtype=float)
+        self.gripper_deg = np.array(
+            [(c.gripper_closed_deg, c.gripper_open_deg) for c in configs], dtype=float
+        )
         xyz = np.array([c.base_xyz for c in configs], dtype=float)
         self.base = base_transforms(xyz, [c.base_rpy_deg for c in configs])
         self.meshes = meshes
@@ -193,7 +200,7 @@ class FleetScene:
     def frame_points(self, angles_deg: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
         """(M, 3) points the camera must see: the corners of every link's bounding box, each
         arm at ``angles_deg`` (N, 7), and every arm's label."""
-        q = wire_to_q(angles_deg, self.joint_sign)
+        q = wire_to_q(angles_deg, self.joint_sign, self.gripper_deg)
         world = self.base[:, None] @ forward(self.model, q)[:, self._link_index]  # (N, K, 4, 4)
         corners = np.einsum("nkij,kcj->nkci", world[..., :3, :3], self._corners)
         labels = self.base[:, :3, 3] + [0.0, 0.0, LABEL_HEIGHT_M + 0.03]
@@ -216,7 +223,7 @@ class FleetScene:
         self, angles_deg: npt.NDArray[np.float64]
     ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
         """(K links, N, 4) orientations and (K, N, 3) positions in the world."""
-        q = wire_to_q(angles_deg, self.joint_sign)
+        q = wire_to_q(angles_deg, self.joint_sign, self.gripper_deg)
         world = self.base[:, None] @ forward(self.model, q)[:, self._link_index]
         wxyz = matrix_to_wxyz(world[..., :3, :3]).transpose(1, 0, 2)
         return wxyz, world[..., :3, 3].transpose(1, 0, 2)

@@ -58,12 +58,13 @@ class PlayResult:
     elapsed_s: float = 0.0
 
 
-def path_error_deg(measured: Pose, target: Pose) -> float:
+def path_error_deg(measured: Pose, target: Pose, closing_sign: float = -1.0) -> float:
     """How far an arm is off its path: the largest joint error, where a gripper that stopped
-    above (more open than) its target counts as on its path: it closed on an object, which is
-    what a grip is (the agent's contact detector limits the squeeze)."""
+    more open than its target counts as on its path: it closed on an object, which is what a
+    grip is (the agent's contact detector limits the squeeze). ``closing_sign``: which way
+    ``angle6`` moves when the gripper closes (-1: towards 0, the default reading)."""
     arm = max_error_deg(measured[:GRIPPER_JOINT], target[:GRIPPER_JOINT])
-    return max(arm, target[GRIPPER_JOINT] - measured[GRIPPER_JOINT])
+    return max(arm, (measured[GRIPPER_JOINT] - target[GRIPPER_JOINT]) * closing_sign)
 
 
 def player_id() -> str:
@@ -95,7 +96,11 @@ class Player:
         )
         self.pending: dict[str, deque[Future[m.CommandReply]]] = {a: deque() for a in script.arms}
         self.recent: dict[str, deque[Pose]] = {a: deque(maxlen=PATH_WINDOW) for a in script.arms}
-        self.grip = {a: GripDetector() for a in script.arms}
+        arms = {a: client.inventory.arm(a) for a in script.arms}
+        self.ranges = {a: c.joint_ranges_deg for a, c in arms.items()}
+        """Each arm's joint ranges: its gripper reads its own way (inventory)."""
+        self.closing = {a: c.gripper_closing_sign for a, c in arms.items()}
+        self.grip = {a: GripDetector(closing_sign=self.closing[a]) for a in script.arms}
         self._last_seq: dict[str, int] = {}
         # keyframes being measured: (deadline, goal per arm, best error per arm)
         self._keyframes: list[tuple[float, dict[str, Pose], dict[str, float]]] = []
@@ -112,7 +117,7 @@ class Player:
         started = time.monotonic()
         try:
             poses = self._start_poses(watch, ready_s)
-            check_motion(self.script, poses)
+            check_motion(self.script, poses, self.ranges)
             client = self.client
             liveness = Liveness(client.session, client.keys, self.owner, client.principal)
             stop.wait(0.3)  # the agents hear a beat before the first move: the watchdog arms
@@ -216,7 +221,7 @@ class Player:
             if joints is None or not self.recent[arm]:
                 continue
             measured = tuple(joints.angles_deg)
-            error = min(path_error_deg(measured, t) for t in self.recent[arm])
+            error = min(path_error_deg(measured, t, self.closing[arm]) for t in self.recent[arm])
             self.result.max_path_error_deg = max(self.result.max_path_error_deg, round(error, 2))
             if error > self.script.tolerance_deg:
                 raise Abort(

@@ -11,17 +11,19 @@ from collections.abc import Mapping
 
 from fleet.choreo.script import Move, Pose, Script, ScriptError
 from fleet.choreo.timeline import PEAK_SPEED_FACTOR
-from fleet.d1.limits import JOINT_RANGE_DEG
+from fleet.d1.limits import JOINT_RANGE_DEG, JointRanges
 
 
-def limit_problems(script: Script) -> list[str]:
-    """Every keyframe joint outside its range, as ``step[i].arm joint j: ...`` lines."""
+def limit_problems(script: Script, ranges: Mapping[str, JointRanges] | None = None) -> list[str]:
+    """Every keyframe joint outside its range (``ranges``: each arm's, from the inventory, whose
+    gripper may read another way; default the spec's), as ``step[i].arm joint j: ...`` lines."""
     problems = []
     for index, step in enumerate(script.steps):
         if not isinstance(step, Move):
             continue
         for arm, pose in step.poses.items():
-            for joint, (angle, (low, high)) in enumerate(zip(pose, JOINT_RANGE_DEG)):
+            arm_ranges = JOINT_RANGE_DEG if ranges is None else ranges.get(arm, JOINT_RANGE_DEG)
+            for joint, (angle, (low, high)) in enumerate(zip(pose, arm_ranges)):
                 if not low <= angle <= high:
                     problems.append(
                         f"step[{index}].{arm} joint {joint}: {angle:g} deg is outside "
@@ -54,12 +56,16 @@ def speed_problems(script: Script, start_poses: Mapping[str, Pose]) -> list[str]
     return list(dict.fromkeys(problems))
 
 
-def check_motion(script: Script, start_poses: Mapping[str, Pose]) -> None:
+def check_motion(
+    script: Script,
+    start_poses: Mapping[str, Pose],
+    ranges: Mapping[str, JointRanges] | None = None,
+) -> None:
     """Raise ScriptError listing every limit and speed problem (nothing has moved yet)."""
     missing = [a for a in script.arms if a not in start_poses]
     if missing:
         raise ScriptError(f"{script.source}: no measured pose of {', '.join(missing)}")
-    problems = limit_problems(script) + speed_problems(script, start_poses)
+    problems = limit_problems(script, ranges) + speed_problems(script, start_poses)
     if problems:
         shown = "\n  ".join(problems[:20])
         more = f"\n  ... and {len(problems) - 20} more" if len(problems) > 20 else ""

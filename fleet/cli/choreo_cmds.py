@@ -104,7 +104,7 @@ def run_play(args: argparse.Namespace) -> int:
             snap = client.snapshot(script.arms)
             poses = {a: tuple(j.angles_deg) for a, (_s, j) in snap.items() if j is not None}
             try:
-                check_motion(script, poses)
+                check_motion(script, poses, player.ranges)
             except ScriptError as exc:
                 print(f"fleet play: {exc}", file=sys.stderr)
                 return 2

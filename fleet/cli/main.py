@@ -21,6 +21,7 @@ from fleet.cli import (
     status,
     viewer_cmd,
 )
+from fleet.d1.errors import NetworkInterfaceError
 from fleet.inventory import InventoryError
 from fleet.runtime import add_inventory_options, setup_logging
 from fleet.wire.session import RouterUnreachable
@@ -62,7 +63,7 @@ def main(argv: list[str] | None = None) -> int:
     setup_logging(args.log_level)
     try:
         return int(args.run(args))
-    except InventoryError as exc:
+    except (InventoryError, NetworkInterfaceError) as exc:
         print(f"fleet: {exc}", file=sys.stderr)
         return EXIT_USAGE
     except RouterUnreachable as exc:

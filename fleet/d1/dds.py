@@ -6,13 +6,19 @@ two multi-arm methods of the spec both work:
 - topic suffix: several arms on one network, each with its own ``rt/arm_Command_<n>`` topics;
 - NIC binding: one arm per network card; one process per card, bound to that card only.
 
-Multicast is off and discovery uses an explicit unicast peer list, which is what the tests and
-the demo need on loopback and what a real arm network (``192.168.123.0/24``) works with too.
+Discovery has two modes, as Unitree's SDK reads its arguments:
+- unicast (the default): multicast off and an explicit peer list, which is what the tests and
+  the demo need on loopback and what a real arm network (``192.168.123.0/24``) works with too;
+- multicast (``multicast = true`` in the inventory): CycloneDDS's own multicast discovery, as
+  ``ChannelFactory::Init`` does; peers, if any, are still probed. For real arm networks only.
+An empty interface name means "let CycloneDDS choose one", as ``ChannelFactory::Init(domain)``
+without an interface does; a name the host does not have is a ``NetworkInterfaceError``.
 
 (No ``from __future__ import annotations`` here: CycloneDDS resolves the IDL field types at
 run time and cannot resolve string annotations.)
 """
 
+import socket
 import struct
 from dataclasses import dataclass
 from xml.sax.saxutils import quoteattr
@@ -22,8 +28,11 @@ from cyclonedds.domain import Domain, DomainParticipant
 from cyclonedds.idl import IdlStruct
 from cyclonedds.util import duration
 
-COMMAND_TOPIC = "rt/arm_Command"
-FEEDBACK_TOPIC = "rt/arm_Feedback"
+from fleet.d1.errors import NetworkInterfaceError
+from fleet.d1.topics import COMMAND_TOPIC as COMMAND_TOPIC  # re-exported: topics.py is pure
+from fleet.d1.topics import FEEDBACK_TOPIC as FEEDBACK_TOPIC
+from fleet.d1.topics import command_topic as command_topic
+from fleet.d1.topics import feedback_topic as feedback_topic
 
 MAX_PARTICIPANTS_PER_HOST = 60
 """Unicast discovery probes this many participant indices per peer; the default of 9 is too few
@@ -77,16 +86,6 @@ def arm_string_sample(text: str, version_2: bool = False) -> bytes:
     return sample.ljust((len(sample) + 3) & ~3, b"\x00")
 
 
-def command_topic(suffix: str) -> str:
-    """``rt/arm_Command<suffix>``, e.g. ``rt/arm_Command_1``."""
-    return COMMAND_TOPIC + suffix
-
-
-def feedback_topic(suffix: str) -> str:
-    """``rt/arm_Feedback<suffix>``."""
-    return FEEDBACK_TOPIC + suffix
-
-
 # Commands: reliable, so a reliable reader on the arm gets retransmissions, and a best-effort
 # reader (the DDS default, and what the arm's reader may well be) still matches. Keep-last 8:
 # a burst of commands is not dropped before it is sent, yet writes never block for long.
@@ -118,19 +117,42 @@ FEEDBACK_WRITER_QOS = Qos(
 )
 
 
-def cyclonedds_config(interface: str, peers: list[str] | tuple[str, ...]) -> str:
-    """CycloneDDS XML binding to ``interface`` with multicast off and unicast ``peers``."""
+def cyclonedds_config(
+    interface: str, peers: list[str] | tuple[str, ...], multicast: bool = False
+) -> str:
+    """CycloneDDS XML: bound to ``interface`` (``""``: CycloneDDS chooses), unicast ``peers``,
+    multicast discovery only with ``multicast``."""
     peer_xml = "".join(f"<Peer address={quoteattr(p)}/>" for p in peers)
-    multicast = "false"
+    interfaces = (
+        f"<Interfaces><NetworkInterface name={quoteattr(interface)}/></Interfaces>"
+        if interface
+        else ""
+    )
+    # "default" is CycloneDDS's own choice (multicast where the interface supports it), what a
+    # Unitree SDK program without a configuration gets.
+    allow_multicast = "default" if multicast else "false"
     return (
         "<CycloneDDS><Domain id='any'>"
-        f"<General><Interfaces><NetworkInterface name={quoteattr(interface)}/></Interfaces>"
-        f"<AllowMulticast>{multicast}</AllowMulticast></General>"
+        f"<General>{interfaces}<AllowMulticast>{allow_multicast}</AllowMulticast></General>"
         "<Discovery><ParticipantIndex>auto</ParticipantIndex>"
         f"<MaxAutoParticipantIndex>{MAX_PARTICIPANTS_PER_HOST}</MaxAutoParticipantIndex>"
         f"<Peers>{peer_xml}</Peers></Discovery>"
         "</Domain></CycloneDDS>"
     )
+
+
+def check_interface(interface: str) -> None:
+    """Raise NetworkInterfaceError unless ``interface`` is empty or a network interface of this
+    host (checked before CycloneDDS, which fails with "Non specific error")."""
+    if not interface:
+        return
+    names = [name for _index, name in socket.if_nameindex()]
+    if interface not in names:
+        raise NetworkInterfaceError(
+            f"network interface {interface!r} does not exist on this host (it has: "
+            f"{', '.join(names) or 'none'}); set the arm's `interface` in the inventory to one of "
+            'them, or to "" to let DDS choose one'
+        )
 
 
 LOOPBACK_PEERS = ("127.0.0.1",)
@@ -141,12 +163,17 @@ class DdsChannel:
     on one thread (CycloneDDS Python races when entities are created from several threads)."""
 
     def __init__(
-        self, domain_id: int, interface: str = "lo", peers: tuple[str, ...] = LOOPBACK_PEERS
+        self,
+        domain_id: int,
+        interface: str = "lo",
+        peers: tuple[str, ...] = LOOPBACK_PEERS,
+        multicast: bool = False,
     ) -> None:
         self.domain_id = domain_id
         self.interface = interface
+        check_interface(interface)
         # The Domain object carries the config; it must exist before the participant.
-        self._domain = Domain(domain_id, cyclonedds_config(interface, peers))
+        self._domain = Domain(domain_id, cyclonedds_config(interface, peers, multicast))
         self.participant = DomainParticipant(domain_id)
 
     def close(self) -> None:

@@ -8,6 +8,9 @@ Hierarchy::
     |   +-- InvalidJoint          a joint id outside 0..6
     +-- MalformedMessage          the arm (or someone on its topic) sent text we cannot decode
         +-- UnknownMessage        well-formed JSON, but an address/funcode the spec does not define
+
+    NetworkInterfaceError         (a ValueError, not a protocol error) the inventory names a
+                                  network interface this host does not have
 """
 
 from __future__ import annotations
@@ -43,3 +46,10 @@ class UnknownMessage(MalformedMessage):
         super().__init__(f"unknown D1 message address={address} funcode={funcode}")
         self.address = address
         self.funcode = funcode
+
+
+class NetworkInterfaceError(ValueError):
+    """The network interface a DDS participant is to bind to does not exist on this host.
+
+    CycloneDDS itself only says "Non specific error" (and prints the name on stderr): this names
+    the interface, the ones the host has, and the fix."""

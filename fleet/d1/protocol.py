@@ -20,7 +20,7 @@ from typing import Any, Literal
 import msgspec
 
 from fleet.d1.errors import InvalidCommand, InvalidJoint, MalformedMessage, UnknownMessage
-from fleet.d1.limits import JOINT_COUNT, JOINT_RANGE_DEG, TORQUE_MODE_MAX
+from fleet.d1.limits import JOINT_COUNT, JOINT_RANGE_DEG, TORQUE_MODE_MAX, JointRanges
 
 MAX_MESSAGE_BYTES = 4096
 """The longest D1 string accepted either way: the spec's longest is about 170 bytes; a DDS string
@@ -99,14 +99,28 @@ class JointAngles(msgspec.Struct, frozen=True):
     angles_deg: tuple[float, ...]
 
 
+ERROR_STATUS_NORMAL = 1
+"""``error_status`` 1 is "normal". The table says 0 is "abnormal"; the contact plan expects a
+bitfield of fault flags: every value but 1 is read as abnormal, and the raw value is kept."""
+
+ERROR_STATUS_RANGE = (-(2**63), 2**64 - 1)
+"""The integers accepted as ``error_status``: any 64-bit value, signed or not (a bitfield of a
+C integer); a longer one is garbage, not a flag set."""
+
+
 class D1Status(msgspec.Struct, frozen=True):
-    """2/3: the arm's own enable and power report; ``error`` is True when the arm reports
-    ``error_status`` 0. (Not the key space's ``fleet.wire.messages.ArmStatus``, which the agent
-    builds from this, the link state and its latch.)"""
+    """2/3: the arm's own enable and power report with its raw ``error_status``. (Not the key
+    space's ``fleet.wire.messages.ArmStatus``, which the agent builds from this, the link state
+    and its latch.)"""
 
     enabled: bool
     powered: bool
-    error: bool
+    error_status: int = ERROR_STATUS_NORMAL
+
+    @property
+    def error(self) -> bool:
+        """The arm reports something abnormal: ``error_status`` is not 1."""
+        return self.error_status != ERROR_STATUS_NORMAL
 
 
 class MotorStatus(msgspec.Struct, frozen=True):
@@ -197,6 +211,13 @@ def _flag(value: bool) -> int:
     return 1 if value else 0
 
 
+def _error_status(value: int) -> int:
+    low, high = ERROR_STATUS_RANGE
+    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+        raise InvalidCommand(f"error_status {value!r} is not a 64-bit integer")
+    return value
+
+
 # ----------------------------------------------------------------------------- validation
 
 
@@ -206,12 +227,13 @@ def check_joint(joint: int) -> None:
         raise InvalidJoint(f"joint id {joint!r} is out of range; the D1 has joints 0..6")
 
 
-def check_angle(joint: int, angle_deg: float) -> None:
-    """Raise InvalidCommand unless ``angle_deg`` is finite and inside joint ``joint``'s range."""
+def check_angle(joint: int, angle_deg: float, ranges: JointRanges = JOINT_RANGE_DEG) -> None:
+    """Raise InvalidCommand unless ``angle_deg`` is finite and inside joint ``joint``'s range
+    (``ranges``: the arm's, whose gripper may read another way, ``limits.joint_ranges``)."""
     check_joint(joint)
     if not isinstance(angle_deg, (int, float)) or isinstance(angle_deg, bool):
         raise InvalidCommand(f"joint {joint}: angle {angle_deg!r} is not a number")
-    low, high = JOINT_RANGE_DEG[joint]
+    low, high = ranges[joint]
     try:
         value = float(angle_deg)
     except OverflowError:  # an int too large for a float
@@ -224,10 +246,10 @@ def check_angle(joint: int, angle_deg: float) -> None:
         )
 
 
-def validate_command(command: Command) -> None:
-    """Raise InvalidCommand if ``command`` must not reach the arm."""
+def validate_command(command: Command, ranges: JointRanges = JOINT_RANGE_DEG) -> None:
+    """Raise InvalidCommand if ``command`` must not reach an arm with joint ``ranges``."""
     if isinstance(command, SetJointAngle):
-        check_angle(command.joint, command.angle_deg)
+        check_angle(command.joint, command.angle_deg, ranges)
         if command.delay_ms < 0:
             raise InvalidCommand(f"delay_ms {command.delay_ms} is negative")
     elif isinstance(command, SetAllAngles):
@@ -236,7 +258,7 @@ def validate_command(command: Command) -> None:
                 f"expected {JOINT_COUNT} angles (joints 0..6), got {len(command.angles_deg)}"
             )
         for joint, angle in enumerate(command.angles_deg):
-            check_angle(joint, angle)
+            check_angle(joint, angle, ranges)
         if command.mode not in (0, 1):
             raise InvalidCommand(f"mode {command.mode!r} is not 0 (small) or 1 (large smoothing)")
     elif isinstance(command, SetJointTorque):
@@ -280,10 +302,11 @@ def _command_data(command: Command) -> dict[str, int | float] | None:
     return None
 
 
-def encode_command(command: Command, seq: int) -> str:
-    """The JSON text to write on ``rt/arm_Command<suffix>``; validates first."""
+def encode_command(command: Command, seq: int, ranges: JointRanges = JOINT_RANGE_DEG) -> str:
+    """The JSON text to write on ``rt/arm_Command<suffix>``; validates first (``ranges``: the
+    arm's joint ranges)."""
     check_seq(seq)
-    validate_command(command)
+    validate_command(command, ranges)
     envelope = _Envelope(seq, COMMAND_ADDRESS, _FUNCODE_OF[type(command)], _command_data(command))
     return _encoder.encode(envelope).decode()
 
@@ -303,7 +326,7 @@ def encode_message(message: ArmMessage, seq: int = ARM_REPORT_SEQ) -> str:
         data = {
             "enable_status": _flag(message.enabled),
             "power_status": _flag(message.powered),
-            "error_status": _flag(not message.error),
+            "error_status": _error_status(message.error_status),
         }
         address, funcode = REPORT_ADDRESS, 3
     elif isinstance(message, MotorStatus):
@@ -391,6 +414,16 @@ def _read_flag(data: dict[str, Any], key: str) -> bool:
     return value == 1
 
 
+def _read_error_status(data: dict[str, Any]) -> int:
+    """Any integer: 1 normal, anything else abnormal (0 per the table, a bitfield per the
+    contact plan); the raw value is kept for the status and the log."""
+    value = _read_int(data, "error_status")
+    low, high = ERROR_STATUS_RANGE
+    if not low <= value <= high:
+        raise MalformedMessage(f"data.error_status {str(value)[:40]} is not a 64-bit integer")
+    return value
+
+
 def _unknown_data(data: dict[str, Any], known: tuple[str, ...]) -> list[str]:
     return [f"data.{k}" for k in data if k not in known]
 
@@ -430,7 +463,7 @@ def decode_message(text: str | bytes) -> Decoded:
         message = D1Status(
             enabled=_read_flag(data, "enable_status"),
             powered=_read_flag(data, "power_status"),
-            error=not _read_flag(data, "error_status"),
+            error_status=_read_error_status(data),
         )
     elif (address, funcode) == (REPORT_ADDRESS, 4):
         known = _MOTOR_KEYS
@@ -447,7 +480,7 @@ def decode_message(text: str | bytes) -> Decoded:
     return Decoded(message, seq, tuple(unknown))
 
 
-def decode_command(text: str | bytes) -> tuple[int, Command]:
+def decode_command(text: str | bytes, ranges: JointRanges = JOINT_RANGE_DEG) -> tuple[int, Command]:
     """Decode one string from ``rt/arm_Command<suffix>`` into (seq, command).
 
     This is what the arm's service does; the simulator uses it. Out-of-range values raise
@@ -456,7 +489,7 @@ def decode_command(text: str | bytes) -> tuple[int, Command]:
     seq, address, funcode, data, _unknown = _parse_envelope(text)
     try:
         command = _command_from(address, funcode, data)
-        validate_command(command)
+        validate_command(command, ranges)
     except (InvalidCommand, MalformedMessage) as exc:
         exc.seq = seq
         raise

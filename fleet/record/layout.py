@@ -1,4 +1,5 @@
-"""Where the recorded arms stand: the inventory's base poses, kept in the recording itself.
+"""Where the recorded arms stand: the inventory's base poses (and what their joints read), kept in
+the recording itself.
 
 ``fleet viewer --replay FILE`` draws the arms where they stood without a copy of the inventory
 they were recorded with: ``fleet record`` writes the fleet's layout as an MCAP metadata record
@@ -16,7 +17,7 @@ from typing import Annotated, Literal
 import msgspec
 from msgspec import Meta, Struct
 
-from fleet.d1.limits import JOINT_COUNT
+from fleet.d1.limits import GRIPPER_CLOSED_DEG, GRIPPER_OPEN_DEG, JOINT_COUNT
 from fleet.inventory import Inventory
 from fleet.record.errors import RecordError
 from fleet.wire import keys
@@ -39,6 +40,8 @@ class ArmPlacement(Struct, frozen=True, forbid_unknown_fields=True):
     joint_sign: Annotated[tuple[Literal[1, -1], ...], Meta(min_length=7, max_length=7)] = (
         1,
     ) * JOINT_COUNT
+    gripper_closed_deg: Degrees = GRIPPER_CLOSED_DEG
+    gripper_open_deg: Degrees = GRIPPER_OPEN_DEG
 
 
 class FleetLayout(Struct, frozen=True, forbid_unknown_fields=True):
@@ -62,6 +65,8 @@ def layout_of(inventory: Inventory, arms: Iterable[str] | None = None) -> FleetL
                 base_xyz=config.base_xyz,
                 base_rpy_deg=config.base_rpy_deg,
                 joint_sign=config.joint_sign,  # type: ignore[arg-type]
+                gripper_closed_deg=config.gripper_closed_deg,
+                gripper_open_deg=config.gripper_open_deg,
             )
             for arm, config in inventory.arms.items()
             if chosen is None or arm in chosen
@@ -87,6 +92,9 @@ def layout_from_metadata(path: str, entries: dict[str, str]) -> FleetLayout:
     bad = [name for name in (layout.fleet, *layout.arms) if not keys.is_name(name)]
     if bad:
         raise RecordError(f"{path}: the recorded fleet layout names {bad[0]!r}, not a name")
+    for arm, placement in layout.arms.items():
+        if placement.gripper_closed_deg == placement.gripper_open_deg:
+            raise RecordError(f"{path}: the recorded gripper range of {arm!r} is empty")
     return layout
 
 

@@ -10,6 +10,7 @@ import math
 
 from msgspec import Struct
 
+from fleet.d1.protocol import ERROR_STATUS_NORMAL, ERROR_STATUS_RANGE
 from fleet.sim.model import Faults
 from fleet.sim.obstacles import Obstacle
 from fleet.wire.messages import Text
@@ -41,9 +42,12 @@ class MotorOffline(_Fault, tag="motor_offline", frozen=True):
 
 
 class ErrorStatus(_Fault, tag="error_status", frozen=True):
-    """The arm reports ``error_status`` 0 while ``error``."""
+    """The arm reports an abnormal ``error_status`` while ``error``: ``value`` if given (a
+    bitfield, as the contact plan expects; it stays the arm's abnormal value until changed,
+    `clear` included), else the arm's own (0, or the inventory's ``sim_error_status``)."""
 
     error: bool = True
+    value: int | None = None
 
 
 class DropFeedback(_Fault, tag="drop_feedback", frozen=True):
@@ -151,6 +155,8 @@ def apply_fault(faults: Faults, fault: Fault) -> None:
         else:
             faults.motors_offline.discard(fault.joint)
     elif isinstance(fault, ErrorStatus):
+        if fault.value is not None:
+            faults.abnormal_value = abnormal_error_status(fault.value)
         faults.error_status = fault.error
     elif isinstance(fault, DropFeedback):
         faults.drop_feedback = fault.on
@@ -168,6 +174,17 @@ def apply_fault(faults: Faults, fault: Fault) -> None:
         faults.drags, faults.obstacles = fresh.drags, fresh.obstacles
         faults.noise_deg = faults.jitter_s = 0.0
         faults.error_status = faults.drop_feedback = faults.mute_acks = False
+
+
+def abnormal_error_status(value: int) -> int:
+    """``value`` if a D1 could report it as an abnormal ``error_status``; else ValueError."""
+    low, high = ERROR_STATUS_RANGE
+    if isinstance(value, bool) or not low <= value <= high or value == ERROR_STATUS_NORMAL:
+        raise ValueError(
+            f"error_status {value} cannot report an abnormal arm: 1 is normal; use 0 or "
+            "another 64-bit integer (a bitfield)"
+        )
+    return value
 
 
 def _apply_contact_fault(

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 
 from fleet.d1 import protocol as p
 from fleet.d1.errors import InvalidJoint, MalformedMessage
-from fleet.d1.limits import JOINT_COUNT
+from fleet.d1.limits import JOINT_COUNT, JOINT_RANGE_DEG, JointRanges
 from fleet.sim.obstacles import Obstacle, constrain
 
 PHYSICS_STEP_S = 0.01
@@ -40,6 +40,9 @@ class Faults:
     stalls: dict[int, float] = field(default_factory=dict)
     motors_offline: set[int] = field(default_factory=set)
     error_status: bool = False
+    abnormal_value: int = 0
+    """The ``error_status`` reported while abnormal: 0 per the spec's table; a bitfield value
+    (the contact plan's reading) per arm from the inventory (``sim_error_status``) or a fault."""
     drop_feedback: bool = False
     mute_acks: bool = False
     # joint -> (angle the hand drags it to, speed deg/s): moves only an unloaded joint
@@ -64,6 +67,8 @@ class SimArmModel:
     angle_feed_stopped: bool = False
     faults: Faults = field(default_factory=Faults)
     time_s: float = 0.0
+    joint_ranges_deg: JointRanges = JOINT_RANGE_DEG
+    """What the arm accepts (its gripper's own range, from the inventory)."""
     rng: random.Random = field(default_factory=lambda: random.Random(0), repr=False)
     # joint -> (stall angle, joint was at or below it when the stall was first met)
     _stall_side: dict[int, tuple[float, bool]] = field(default_factory=dict, repr=False)
@@ -141,7 +146,7 @@ class SimArmModel:
     def apply(self, text: str) -> list[p.ArmMessage]:
         """Handle one command string as the arm's service does; returns the acks to send."""
         try:
-            seq, command = p.decode_command(text)
+            seq, command = p.decode_command(text, self.joint_ranges_deg)
         except InvalidJoint as exc:
             # Field report: the arm acks an invalid joint id, then its angle feed stops.
             self.angle_feed_stopped = True
@@ -203,8 +208,10 @@ class SimArmModel:
             p.D1Status(
                 enabled=any(self.enabled),
                 powered=self.powered,
-                error=self.faults.error_status
-                or any(o.raises_error for o in self.faults.obstacles.values()),
+                error_status=self.faults.abnormal_value
+                if self.faults.error_status
+                or any(o.raises_error for o in self.faults.obstacles.values())
+                else p.ERROR_STATUS_NORMAL,
             ),
             p.MotorStatus(motors),
         ]

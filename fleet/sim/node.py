@@ -21,6 +21,7 @@ import threading
 import time
 from dataclasses import dataclass
 
+import msgspec
 import zenoh
 from cyclonedds.core import (
     GuardCondition,
@@ -36,7 +37,7 @@ from cyclonedds.topic import Topic
 from cyclonedds.util import duration
 
 from fleet.d1 import dds
-from fleet.d1.protocol import encode_message
+from fleet.d1.protocol import ARM_REPORT_SEQ, encode_message
 from fleet.guard import ThreadGuard
 from fleet.inventory import ArmConfig, Inventory
 from fleet.security.session import open_session
@@ -75,11 +76,10 @@ class SimulatedArms:
 
     def __init__(self, inventory: Inventory, arm_ids: list[str], seed: int = 0) -> None:
         arms = [inventory.arm(a) for a in arm_ids]
-        domain_id, interface, peers = inventory.network_of(arm_ids)
         self._rng = random.Random(seed)
         self._stop = threading.Event()
         self._faults: queue.SimpleQueue[tuple[str, zenoh.Query, bytes]] = queue.SimpleQueue()
-        self._channel = dds.DdsChannel(domain_id, interface, peers)
+        self._channel = dds.DdsChannel(*inventory.network_of(arm_ids))
         participant = self._channel.participant
         self._guard = GuardCondition(participant)
         self._waitset = WaitSet(participant)
@@ -97,7 +97,8 @@ class SimulatedArms:
             condition = ReadCondition(reader, _ANY)
             self._waitset.attach(condition)
             writer = DataWriter(participant, fb_topic, qos=dds.FEEDBACK_WRITER_QOS)
-            model = SimArmModel(time_s=now)
+            model = SimArmModel(time_s=now, joint_ranges_deg=arm.joint_ranges_deg)
+            model.faults.abnormal_value = arm.sim_error_status
             self._arms[arm.id] = _SimArm(arm, reader, condition, writer, model)
             heapq.heappush(self._due, (now + self._period(), arm.id))
         self._session: zenoh.Session | None = None
@@ -161,6 +162,9 @@ class SimulatedArms:
                 if text is None:
                     continue  # an InvalidSample: a writer went away
                 for ack in arm.model.apply(text):
+                    if arm.config.sim_ack_seq == "fixed":
+                        # The spec's examples' reading: every ack carries the arm's own seq 10.
+                        ack = msgspec.structs.replace(ack, seq=ARM_REPORT_SEQ)
                     arm.writer.write(dds.ArmString_(encode_message(ack)))
 
     def _publish_feedback(self, now: float) -> None:

@@ -96,6 +96,9 @@ class ArmStatus(Struct, frozen=True):
     """How long ``owner`` has held the arm, in seconds."""
     lease_left_s: float | None = None
     """Seconds until the lease expires unless its owner commands again."""
+    error_status: int | None = None
+    """The arm's raw ``error_status`` (1 normal; 0 or any other value, perhaps a bitfield of
+    fault flags, abnormal: then ``error`` is true)."""
 
 
 class Diag(Struct, frozen=True):
@@ -128,6 +131,11 @@ class Diag(Struct, frozen=True):
     """Valid-looking feedback from a second DDS writer on the arm's topic (dropped)."""
     implausible_feedback: Count = 0
     """Angle reports implying an impossible speed (dropped: a sensor fault or a forgery)."""
+    acks_unmatched: Count = 0
+    """Acks whose seq named no command written to the arm (an arm answering seq 10, as the
+    spec's examples do): credited to the arm's oldest command awaiting that kind of ack."""
+    acks_ignored: Count = 0
+    """Acks credited to no command: late (after the ack timeout) or repeated, or none awaited."""
 
 
 # ----------------------------------------------------------------------------- commands

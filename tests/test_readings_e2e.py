@@ -1,0 +1,182 @@
+"""Both readings of every ambiguity of the D1 spec, end to end (issue 13): real processes (router,
+``fleet sim`` over CycloneDDS, the edge agent), the simulator told per arm in the inventory which
+reading to follow. Each arm pair runs in one fleet: one reading beside the other.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import msgspec
+import pytest
+
+from fleet.client import FleetClient
+from fleet.sim.faults import FaultReply
+from fleet.wire import keys, payloads
+from fleet.wire import messages as m
+from tests.harness import FleetHarness, wait_until
+
+
+def _harness(tmp_path: Path, arms: str) -> FleetHarness:
+    """A fleet whose arms are the tables in ``arms`` (the harness's own a1.. are not made)."""
+    return FleetHarness(tmp_path, arms=0, extra=arms)
+
+
+def _diag(client: FleetClient, fleet: str, arm: str) -> m.Diag:
+    """The arm's next diag (the agent publishes it every second)."""
+    subscriber = client.session.declare_subscriber(keys.KeySpace(fleet).arm(arm, keys.DIAG))
+    try:
+        sample = wait_until(subscriber.try_recv, 5.0)
+    finally:
+        subscriber.undeclare()
+    return payloads.DIAG.decode(sample.payload.to_bytes())
+
+
+def _fault(client: FleetClient, fleet: str, arm: str, payload: bytes) -> FaultReply:
+    key = keys.KeySpace(fleet).arm(arm, keys.SIM_FAULT)
+    for reply in client.session.get(key, payload=payload, timeout=5.0):
+        if reply.ok is not None:
+            return msgspec.json.decode(reply.ok.payload.to_bytes(), type=FaultReply)
+    raise AssertionError(f"no reply from the simulator on {key}")
+
+
+# ----------------------------------------------------------------------------- ack seq
+
+ACK_ARMS = (
+    # The table's reading: acks echo the command's seq. Suffix "1": no underscore.
+    '[arms.echo]\nsuffix = "1"\nsim_ack_seq = "echo"\n'
+    # The examples' reading: every ack carries seq 10. Suffix "-a": any legal DDS topic name.
+    '[arms.ten]\nsuffix = "-a"\nsim_ack_seq = "fixed"\n'
+)
+
+COMMANDS: list[m.ArmCommand] = [
+    m.MoveJoint(joint=0, angle_deg=5.0),
+    m.MoveJoints(angles_deg=[0.0, -10.0, 10.0, 0.0, 5.0, 0.0, 20.0], mode=0),
+    m.Torque(on=True),  # two D1 commands (the measured pose as target, then enable): 4 acks
+    m.Power(on=True),
+    m.Zero(),
+]
+
+
+def test_acks_echoing_the_seq_or_carrying_10_both_complete_commands(tmp_path: Path) -> None:
+    """Before: every command to the arm answering seq 10 failed 3104 after 0.5 s although the
+    arm executed it (and suffixes "1" and "-a" were refused by the inventory)."""
+    with _harness(tmp_path, ACK_ARMS) as harness:
+        client = harness.start_fleet()
+        for arm in ("echo", "ten"):
+            for command in COMMANDS:
+                reply = client.command(arm, command)
+                assert reply.ok, (arm, command, reply.error)
+                assert reply.received and reply.executed, (arm, command, reply)
+        # Several commands in flight at once (a client that does not wait): each is answered.
+        with ThreadPoolExecutor(6) as pool:
+            many = list(
+                pool.map(
+                    lambda j: client.command("ten", m.MoveJoint(joint=j, angle_deg=3.0)), range(6)
+                )
+            )
+        assert all(r.ok and r.received and r.executed for r in many), many
+        acks_per_arm = 2 * (len(COMMANDS) + 1 + 6)  # receive + execute per D1 command
+        echo = _diag(client, harness.inventory.fleet, "echo")
+        ten = _diag(client, harness.inventory.fleet, "ten")
+        assert (echo.acks_unmatched, echo.acks_ignored, echo.ack_timeouts) == (0, 0, 0), echo
+        assert ten.acks_unmatched >= acks_per_arm and ten.ack_timeouts == 0, ten
+        assert ten.acks_ignored == 0, ten
+
+
+# ----------------------------------------------------------------------------- error_status
+
+ERROR_ARMS = (
+    '[arms.table]\nsuffix = "_1"\n'  # the table's reading: 0 is abnormal
+    '[arms.bits]\nsuffix = "_2"\nsim_error_status = 132\n'  # the plan's: a bitfield (0x84)
+)
+
+
+def test_error_status_zero_or_a_bitfield_both_read_abnormal(tmp_path: Path) -> None:
+    """Before: any error_status but 0/1 made the whole status report malformed: enabled and
+    powered went stale and the error was never seen."""
+    with _harness(tmp_path, ERROR_ARMS) as harness:
+        client = harness.start_fleet()
+        fleet = harness.inventory.fleet
+        for arm in ("table", "bits"):
+            assert _fault(client, fleet, arm, b'{"op":"error_status","error":true}').ok
+
+        def statuses() -> dict[str, m.ArmStatus] | None:
+            snapshot = {a: s for a, (s, _j) in client.snapshot(["table", "bits"]).items()}
+            if all(s is not None and s.error for s in snapshot.values()):
+                return snapshot  # type: ignore[return-value]
+            return None
+
+        seen = wait_until(statuses, 10.0)
+        assert (seen["table"].error_status, seen["bits"].error_status) == (0, 132)
+        assert all(s.enabled and s.powered and s.link == "ok" for s in seen.values()), seen
+        # Another bitfield, set by a fault; then normal again.
+        assert _fault(client, fleet, "bits", b'{"op":"error_status","value":5}').ok
+        wait_until(lambda: client.snapshot(["bits"])["bits"][0].error_status == 5, 10.0)
+        assert _fault(client, fleet, "bits", b'{"op":"error_status","error":false}').ok
+        normal = wait_until(
+            lambda: (s := client.snapshot(["bits"])["bits"][0]).error_status == 1 and s, 10.0
+        )
+        assert normal.error is False
+        diag = _diag(client, fleet, "bits")
+        assert diag.malformed == 0, diag
+        log = harness.log("agent")
+        assert "arm bits: error_status 132 (abnormal; 0x84 as a bitfield)" in log, log[-2000:]
+        assert "arm table: error_status 0 (abnormal" in log, log[-2000:]
+        # A value that cannot report an abnormal arm is refused by the simulator, not applied.
+        assert not _fault(client, fleet, "bits", b'{"op":"error_status","value":1}').ok
+
+
+# ----------------------------------------------------------------------------- gripper unit
+
+GRIPPER_ARMS = (
+    '[arms.servo]\nsuffix = "_1"\n'  # the default reading: servo degrees, 0 closed .. 65 open
+    '[arms.inverted]\nsuffix = "_2"\ngripper_closed_deg = 100.0\ngripper_open_deg = 0.0\n'
+)
+
+
+def test_each_arm_takes_its_own_gripper_range(tmp_path: Path) -> None:
+    """Before: angle6 was 0..65 for every arm: an arm whose gripper reads 0..100 could never be
+    closed past 65 (and the inventory refused the fields)."""
+    with _harness(tmp_path, GRIPPER_ARMS) as harness:
+        client = harness.start_fleet()
+        closed = m.MoveJoint(joint=6, angle_deg=90.0, wait_reached=True, timeout_s=8.0)
+        reply = client.command("inverted", closed)
+        assert reply.ok and reply.reached, reply.error
+        refused = client.command("servo", closed)
+        assert refused.error is not None and refused.error.code == 3204, refused
+        assert "[0, 65]" in refused.error.message, refused.error
+        below = client.command("inverted", m.MoveJoint(joint=6, angle_deg=-5.0))
+        assert below.error is not None and below.error.code == 3204, below
+        assert "[0, 100]" in below.error.message, below.error
+
+
+# ----------------------------------------------------------------------------- interface
+
+
+@pytest.mark.parametrize(
+    "program", [["-m", "edge_agent", "--arm", "a1"], ["-m", "fleet.cli.main", "sim"]]
+)
+def test_an_interface_the_host_lacks_is_a_clear_error_not_a_crash(
+    tmp_path: Path, program: list[str]
+) -> None:
+    """Before: CycloneDDS's "Non specific error" in a traceback. No DDS participant and no
+    Zenoh session is opened: the interface is checked first."""
+    inventory = tmp_path / "inventory.toml"
+    inventory.write_text(
+        '[fleet]\nname = "x"\n[arms.a1]\ninterface = "nosuch0"\nsimulated = true\n',
+        encoding="utf-8",
+    )
+    done = subprocess.run(
+        [sys.executable, *program, "--inventory", str(inventory)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert done.returncode == 2, done.stderr
+    assert "network interface 'nosuch0' does not exist on this host" in done.stderr
+    assert "Traceback" not in done.stderr, done.stderr
