@@ -16,6 +16,7 @@ import msgspec
 from msgspec import Struct
 
 from fleet.contact.config import ContactConfig, check_config
+from fleet.contact.dynamics import SimDynamics
 from fleet.d1.limits import JOINT_COUNT
 from fleet.security.config import (
     DEFAULT_PRINCIPALS,
@@ -85,6 +86,12 @@ class ArmConfig(Struct, frozen=True, forbid_unknown_fields=True):
     """Faster than any D1 joint moves (plausible arms: up to 180 deg/s): an angle report that
     implies more is a sensor fault or a forgery, never a pose to hold."""
     contact: ContactConfig = ContactConfig()
+    calibration: str = ""
+    """The arm's calibration file (``fleet calibrate`` writes it; the agent's contact detector
+    reads it): relative to the inventory's folder; default ``calibration/<id>.json``."""
+    sim_dynamics: SimDynamics = SimDynamics()
+    """How ``fleet sim`` makes this arm respond (dead time, lag, speed limit, servo per mode;
+    feedback rate and jitter): an arm unlike the detector's assumptions, for tests."""
 
 
 class CoordinatorSection(Struct, frozen=True, forbid_unknown_fields=True):
@@ -119,6 +126,12 @@ class Inventory(Struct, frozen=True):
         """A copy for a process acting as ``principal``."""
         check_name("principal", principal)
         return msgspec.structs.replace(self, principal=principal)
+
+    def calibration_path(self, arm_id: str) -> Path:
+        """The calibration file of ``arm_id`` (its ``calibration``, relative to the inventory's
+        folder; default ``calibration/<id>.json``)."""
+        name = self.arm(arm_id).calibration or f"calibration/{arm_id}.json"
+        return Path(self.path).parent / name
 
     def arm(self, arm_id: str) -> ArmConfig:
         """The arm ``arm_id``; raises InventoryError naming the known arms."""
@@ -251,6 +264,9 @@ def _check_arm(arm: ArmConfig, path: str) -> None:
     contact_problem = check_config(arm.contact)
     if contact_problem is not None:
         raise _fail(path, f"{where}.contact", contact_problem)
+    dynamics_problem = arm.sim_dynamics.problem()
+    if dynamics_problem is not None:
+        raise _fail(path, f"{where}.sim_dynamics", dynamics_problem)
 
 
 def parse_inventory(text: str, path: str = DEFAULT_INVENTORY) -> Inventory:

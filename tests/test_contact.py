@@ -7,11 +7,12 @@ import pytest
 
 from fleet.contact.config import ContactConfig, Thresholds
 from fleet.contact.detector import ContactDetector, ContactState
-from fleet.contact.predictor import ARM_SMOOTHING
+from fleet.contact.calibration import Calibration, JointCalibration
+from fleet.contact.dynamics import SIM_DEFAULT
 from fleet.coordinator.contact_policy import CollisionMemory, ContactPolicy
 from fleet.d1 import protocol as p
 from fleet.sim import faults as f
-from fleet.sim.model import SMOOTHING, SimArmModel
+from fleet.sim.model import SimArmModel
 from fleet.wire import messages as m
 
 S, C, R, F = (
@@ -22,8 +23,17 @@ S, C, R, F = (
 )
 
 
-def _only(method: str, **kw: float) -> ContactDetector:
-    return ContactDetector(ContactConfig(methods=[method], arm=Thresholds(**kw)))  # type: ignore[list-item,arg-type]
+SIM_CALIBRATION = Calibration(
+    arm="a1",
+    stamp_ns=1,
+    joints=[JointCalibration(j, SIM_DEFAULT[0], SIM_DEFAULT[1]) for j in range(7)],
+)
+"""A calibration that matches the default simulated arm (method 5 trusted)."""
+
+
+def _only(method: str, calibration: Calibration | None = None, **kw: float) -> ContactDetector:
+    config = ContactConfig(methods=[method], arm=Thresholds(**kw))  # type: ignore[list-item,arg-type]
+    return ContactDetector(config, calibration=calibration)
 
 
 def _feed(det: ContactDetector, trace: list[tuple[float, float]], joint: int = 0) -> list:  # type: ignore[type-arg]
@@ -42,10 +52,6 @@ def _hold_then_target(det: ContactDetector, target: float, at: float = 0.05) -> 
     det.on_targets(dict.fromkeys(range(7), 0.0), 1, 0.0)
     det.on_angles((0.0,) * 7, 0.0)
     det.on_targets({0: target}, None, at)
-
-
-def test_smoothing_model_mirrors_the_simulator() -> None:
-    assert ARM_SMOOTHING == SMOOTHING
 
 
 def test_stall_method_suspects_then_confirms_then_releases_with_hysteresis() -> None:
@@ -79,7 +85,7 @@ def test_tracking_method_confirms_on_a_large_step_alone() -> None:
 
 
 def test_model_method_quiet_while_the_joint_follows_the_model() -> None:
-    det = _only("model", confirm_s=0.05)
+    det = _only("model", SIM_CALIBRATION, confirm_s=0.05)
     _hold_then_target(det, 60.0)
     model = SimArmModel()
     model.apply(p.encode_command(p.SetJointAngle(0, 60.0), 1))
@@ -91,7 +97,7 @@ def test_model_method_quiet_while_the_joint_follows_the_model() -> None:
 
 
 def test_model_method_confirms_when_the_joint_stops_short() -> None:
-    det = _only("model", confirm_s=0.05)
+    det = _only("model", SIM_CALIBRATION, confirm_s=0.05)
     _hold_then_target(det, 60.0)
     # At 0.1 the model expects 4.5 deg (speed limit), within 1 + 90 deg/s * 0.04 s of 1.0.
     changes = _feed(det, [(0.1, 1.0), (0.2, 1.0), (0.3, 1.0)])
