@@ -21,14 +21,14 @@ from bench.contact_families import families
 from fleet.contact.calibration import Calibration, JointCalibration
 from fleet.contact.config import METHODS, ContactConfig
 from fleet.contact.detector import ContactDetector, ContactState
+from fleet.contact.dynamics import SimDynamics
 from fleet.contact.feed import feed_command
+from fleet.contact.fit import fit
 from fleet.d1 import protocol as p
 from fleet.d1.limits import JOINT_RANGE_DEG
-from fleet.contact.dynamics import SimDynamics
-from fleet.contact.fit import fit
 from fleet.sim.model import SimArmModel
-from fleet.sim.routine import record_steps
 from fleet.sim.obstacles import Obstacle
+from fleet.sim.routine import record_steps
 
 DEFAULT = "default"
 SPEC_POSE = (0.0, -60.0, 60.0, 0.0, 30.0, 0.0, 0.0)

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import pytest
 
+from fleet.contact.calibration import Calibration, JointCalibration
 from fleet.contact.config import ContactConfig, Thresholds
 from fleet.contact.detector import ContactDetector, ContactState
-from fleet.contact.calibration import Calibration, JointCalibration
 from fleet.contact.dynamics import SIM_DEFAULT
 from fleet.coordinator.contact_policy import CollisionMemory, ContactPolicy
 from fleet.d1 import protocol as p
@@ -55,23 +55,35 @@ def _hold_then_target(det: ContactDetector, target: float, at: float = 0.05) -> 
 
 
 def test_stall_method_suspects_then_confirms_then_releases_with_hysteresis() -> None:
-    det = _only("stall", confirm_s=0.15, release_s=0.2)
+    # Progress is measured over stall_window_s (0.3 s): the joint stopped at 10 from 0.2 on.
+    det = _only("stall", confirm_s=0.15, release_s=0.15)
     _hold_then_target(det, 20.0)
-    trace = [(0.1, 5.0), (0.2, 10.0), (0.3, 10.0), (0.4, 10.1), (0.5, 10.1)]
-    assert _feed(det, trace) == [(0.3, S, "stall"), (0.5, C, "stall")]
-    det.on_targets({0: 10.1}, None, 0.55)  # the target retracted: no more error
-    later = [(0.6, 10.1), (0.7, 10.1), (0.8, 10.1), (0.9, 10.1), (1.0, 10.1), (1.1, 10.1)]
-    assert _feed(det, later) == [(0.8, R, "quiet"), (1.1, F, "quiet")]
+    trace = [(0.1, 5.0), (0.2, 10.0), (0.3, 10.0), (0.4, 10.1), (0.5, 10.1), (0.6, 10.1)]
+    trace.append((0.7, 10.1))
+    assert _feed(det, trace) == [(0.5, S, "stall"), (0.7, C, "stall")]
+    det.on_targets({0: 10.1}, None, 0.75)  # the target retracted: no more error
+    later = [(0.8, 10.1), (0.9, 10.1), (1.0, 10.1), (1.1, 10.1), (1.2, 10.1), (1.3, 10.1)]
+    assert _feed(det, later) == [(1.0, R, "quiet"), (1.3, F, "quiet")]
 
 
 def test_suspicion_that_does_not_persist_returns_to_free() -> None:
-    # At the start of a move the joint has not moved yet: a stall is suspected, not confirmed.
+    # The dead time at the start of a move (0.2 s here) is no stall at all; a joint that then
+    # stands still for the whole window is suspected, and free again once it moves.
     det = _only("stall", confirm_s=0.15)
     _hold_then_target(det, 20.0)
-    assert _feed(det, [(0.1, 0.0), (0.2, 0.1), (0.3, 12.0)]) == [
-        (0.1, S, "stall"),
-        (0.3, F, "quiet"),
-    ]
+    assert _feed(det, [(0.1, 0.0), (0.2, 0.1), (0.3, 12.0)]) == []
+    det = _only("stall", confirm_s=0.15)
+    _hold_then_target(det, 20.0)
+    trace = [(0.1, 0.0), (0.2, 0.0), (0.3, 0.0), (0.4, 0.0), (0.5, 12.0)]
+    assert _feed(det, trace) == [(0.4, S, "stall"), (0.5, F, "quiet")]
+
+
+def test_stall_never_fires_on_a_joint_past_its_target() -> None:
+    # A second-order servo overshoots and stands still at the peak: not a contact.
+    det = _only("stall", confirm_s=0.0)
+    _hold_then_target(det, 20.0)
+    trace = [(0.1, 10.0), (0.2, 26.0), (0.3, 26.0), (0.4, 26.0), (0.5, 26.0), (0.6, 26.0)]
+    assert _feed(det, trace) == []
 
 
 def test_tracking_method_confirms_on_a_large_step_alone() -> None:
@@ -116,8 +128,9 @@ def test_status_method_confirms_at_once_on_the_joint_furthest_off() -> None:
 def test_oscillation_method_needs_reversals_under_a_steady_target() -> None:
     det = _only("oscillation", oscillation_reversals=4, confirm_s=0.0)
     _hold_then_target(det, 10.0, at=0.0)
-    trace = [(0.1 * k, 8.0 + (1.0 if k % 2 else 0.0)) for k in range(1, 9)]
-    # steps +9 (leaving 0), -1, +1, -1, +1: the fourth reversal is at 0.5
+    # (errors of 3-4 deg: below suspect_deg, 2, nothing but error_status may fire)
+    trace = [(0.1 * k, 6.0 + (1.0 if k % 2 else 0.0)) for k in range(1, 9)]
+    # steps +7 (leaving 0), -1, +1, -1, +1: the fourth reversal is at 0.5
     assert _feed(det, trace) == [(0.5, S, "oscillation"), (0.5, C, "oscillation")]
 
 

@@ -20,7 +20,6 @@ What it models, and why:
 
 from __future__ import annotations
 
-import math
 import random
 from dataclasses import dataclass, field
 

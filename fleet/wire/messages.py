@@ -14,6 +14,7 @@ import msgspec
 from msgspec import Meta, Struct
 
 LinkState = Literal["ok", "stale", "lost"]
+ContactModel = Literal["calibrated", "uncalibrated", "untrusted"]
 
 # Bounded numbers: a peer's absurd value (a 400-digit stamp, a lead of 1e300 s) is refused at
 # decode time with a path, instead of overflowing later in arithmetic on a worker thread.
@@ -90,6 +91,10 @@ class ArmStatus(Struct, frozen=True):
     estopped: bool = False
     feedback_age_s: float | None = None
     stop_reason: Text | None = None
+    contact_model: ContactModel | None = None
+    """The contact detector's model of this arm: ``uncalibrated`` (run ``fleet calibrate``),
+    ``calibrated``, or ``untrusted`` (calibrated, but found off in free motion: see diag);
+    None with contact detection disabled."""
 
 
 class Diag(Struct, frozen=True):
@@ -122,6 +127,13 @@ class Diag(Struct, frozen=True):
     """Valid-looking feedback from a second DDS writer on the arm's topic (dropped)."""
     implausible_feedback: Count = 0
     """Angle reports implying an impossible speed (dropped: a sensor fault or a forgery)."""
+    contact_model: Text | None = None
+    """What the contact detector's model of this arm is worth (uncalibrated, calibrated, or
+    why it stopped trusting it), and the calibration file's problem if it has one."""
+    contact_free_moves: Count = 0
+    """Moves that ended in free motion since the calibration was loaded (online sanity)."""
+    contact_model_error_deg: float | None = None
+    """How far the joint lagged the model during the latest of them (degrees)."""
 
 
 # ----------------------------------------------------------------------------- commands
