@@ -221,6 +221,7 @@ class ContactDetector:
             if (
                 joint.state is ContactState.CONFIRMED
                 and self.trusted(j, joint.confirmed_by)
+                and (joint.confirmed_by != "model" or self._held_back(joint, error))
                 and limit is not None
                 and abs(error) > limit
                 and not joint.limited
@@ -230,11 +231,25 @@ class ContactDetector:
             self._check_model(report, j, error, angles_deg[j])
         return report
 
+    @staticmethod
+    def _held_back(joint: _Joint, error: float) -> bool:
+        """The joint is not making way towards its target (it moves slower than
+        ``stall_velocity_deg_s``): what the force limit asks of a contact only the model saw,
+        so that a calibration gone wrong can never retract a free move's target."""
+        speed = mth.velocity_deg_s(joint.samples)
+        return speed is None or speed * (1.0 if error > 0 else -1.0) < (
+            joint.thresholds.stall_velocity_deg_s
+        )
+
     def _check_model(self, report: Report, j: int, error: float, angle: float) -> None:
         """Online sanity: the model's error during a move, judged when the move ends free."""
         joint = self._joints[j]
         t = joint.thresholds
-        if joint.state is ContactState.CONFIRMED:
+        # A move is evidence about the model unless something else confirmed a contact on the
+        # way (or the force limit moved its target): a move the model alone called a contact
+        # that then reached its target was a false alarm of the model, and counts against it.
+        robust = joint.state is ContactState.CONFIRMED and joint.confirmed_by != "model"
+        if robust or joint.limited:
             self.sanity.discard(j)
             return
         lag = mth.behind(self._model.residual(j, angle), joint.demand)
