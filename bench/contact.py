@@ -23,7 +23,7 @@ from fleet.contact.config import METHODS, ContactConfig
 from fleet.contact.detector import ContactDetector, ContactState
 from fleet.contact.dynamics import SimDynamics
 from fleet.contact.feed import feed_command
-from fleet.contact.fit import fit
+from fleet.contact.fit import feedback_jitter_s, fit
 from fleet.d1 import protocol as p
 from fleet.d1.limits import JOINT_RANGE_DEG
 from fleet.sim.model import SimArmModel
@@ -346,7 +346,8 @@ def calibrate(dynamics: SimDynamics, seed: int) -> Calibration:
     mode0, rms0 = fit([r for r in records if r.mode == 0])
     mode1, rms1 = fit([r for r in records if r.mode == 1])
     joints = [JointCalibration(j, mode0, mode1, max(rms0, rms1)) for j in range(7)]
-    return Calibration(arm="bench", stamp_ns=0, joints=joints, routine="bench")
+    jitter = feedback_jitter_s(records)
+    return Calibration("bench", 0, joints, routine="bench", feedback_jitter_s=jitter)
 
 
 def bench_contact(

@@ -29,7 +29,14 @@ from fleet.contact.calibration import (
     save_calibration,
 )
 from fleet.contact.dynamics import ModeDynamics
-from fleet.contact.fit import SETTLE_TOLERANCE_DEG, STALL_SHORT_DEG, StepRecord, fit, plan
+from fleet.contact.fit import (
+    SETTLE_TOLERANCE_DEG,
+    STALL_SHORT_DEG,
+    StepRecord,
+    feedback_jitter_s,
+    fit,
+    plan,
+)
 from fleet.d1.limits import JOINT_COUNT, JOINT_RANGE_DEG
 from fleet.runtime import inventory_from_args
 from fleet.wire import keys, payloads
@@ -126,7 +133,7 @@ def _wait_step(rec: _Recorder, joint: int, target: float, sent_s: float) -> str 
 
 
 def _calibrate_joint(
-    client: FleetClient, rec: _Recorder, arm: str, joint: int, owner: str
+    client: FleetClient, rec: _Recorder, arm: str, joint: int, owner: str, jitter: list[float]
 ) -> JointCalibration | str:
     """Run the steps of ``joint`` and fit them; or the reason the routine stopped."""
     pose = rec.latest()
@@ -150,6 +157,7 @@ def _calibrate_joint(
         records.append(StepRecord(mode, sent, now_pose[joint], target, samples))
     mode0, rms0 = fit([r for r in records if r.mode == 0])
     mode1, rms1 = fit([r for r in records if r.mode == 1])
+    jitter.append(feedback_jitter_s(records))
     return JointCalibration(joint, mode0, mode1, max(rms0, rms1))
 
 
@@ -169,6 +177,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     joints = [args.joint] if args.joint is not None else list(range(JOINT_COUNT))
     owner = default_source()
     fitted: list[JointCalibration] = []
+    jitters: list[float] = []
     with FleetClient(inventory, connect_timeout_s=args.connect_timeout) as client:
         rec = _Recorder(client, args.arm)
         try:
@@ -180,7 +189,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
                 return 3
             for joint in joints:
                 print(f"calibrating joint {joint} ...", flush=True)
-                result = _calibrate_joint(client, rec, args.arm, joint, owner)
+                result = _calibrate_joint(client, rec, args.arm, joint, owner, jitters)
                 if isinstance(result, str):
                     client.command(args.arm, m.Hold(owner=owner, takeover=True))
                     print(f"fleet calibrate: STOPPED, the arm holds its pose: {result}")
@@ -195,7 +204,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
     except CalibrationError:
         old = None  # replaced by the new one
     routine = "steps 10/40/80 deg towards mid-range and back, mode 1 then 0"
-    new = Calibration(arm=args.arm, stamp_ns=time.time_ns(), joints=fitted, routine=routine)
+    jitter = max(jitters + [0.0 if old is None else old.feedback_jitter_s])
+    new = Calibration(args.arm, time.time_ns(), fitted, routine=routine, feedback_jitter_s=jitter)
     save_calibration(path, merge(old, new))
     print(f"saved {path}; the agent loads it within a second")
     return 0

@@ -42,6 +42,10 @@ class Calibration(Struct, frozen=True, forbid_unknown_fields=True):
     version: int = VERSION
     routine: str = ""
     """What was run (step sizes, modes), for the record."""
+    feedback_jitter_s: float = 0.0
+    """How irregular the arm's feedback came during the routine (twice the 95th percentile of the
+    deviation of report intervals from their median): method 5's timing tolerance is at least
+    this (a late-stamped report of a moving joint lags the model by speed x lateness)."""
 
     def joint(self, joint: int) -> JointCalibration | None:
         """The calibration of wire joint ``joint``, None when it was not calibrated."""

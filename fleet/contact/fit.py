@@ -142,6 +142,19 @@ def _with(d: ModeDynamics, name: str, value: float) -> ModeDynamics:
     return ModeDynamics(**figures)
 
 
+def feedback_jitter_s(records: list[StepRecord]) -> float:
+    """Twice the 95th percentile of how far report intervals deviate from their median
+    (seconds): a bound on how late a report can be stamped."""
+    intervals = [
+        b[0] - a[0] for r in records for a, b in zip(r.samples[:-1], r.samples[1:], strict=True)
+    ]
+    if len(intervals) < 10:
+        return 0.0
+    median = sorted(intervals)[len(intervals) // 2]
+    deviations = sorted(abs(i - median) for i in intervals)
+    return round(2.0 * deviations[int(0.95 * (len(deviations) - 1))], 4)
+
+
 def fit(records: list[StepRecord]) -> tuple[ModeDynamics, float]:
     """The dynamics of one mode that best explain ``records``, and its RMS error (deg). Several
     starts (dead times; servo frequencies) keep the search out of local minima."""

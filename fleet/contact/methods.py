@@ -63,9 +63,10 @@ def stall(samples: Samples, errors: Samples, demand: int, t: Thresholds) -> bool
     return progress_deg_s < min(t.stall_velocity_deg_s, smallest / t.stall_lag_s)
 
 
-def model_tolerance(velocity_deg_s: float, t: Thresholds) -> float:
-    """Method 5's tolerance at a predicted speed (see ``model``)."""
-    return t.model_error_deg + abs(velocity_deg_s) * t.timing_tolerance_s
+def model_tolerance(velocity_deg_s: float, t: Thresholds, timing_s: float = 0.0) -> float:
+    """Method 5's tolerance at a predicted speed (see ``model``); ``timing_s``: the arm's own
+    feedback jitter when it is larger than ``timing_tolerance_s``."""
+    return t.model_error_deg + abs(velocity_deg_s) * max(t.timing_tolerance_s, timing_s)
 
 
 def behind(residual_deg: float | None, demand: int) -> float | None:
@@ -77,12 +78,15 @@ def behind(residual_deg: float | None, demand: int) -> float | None:
     return abs(residual_deg) if demand == 0 else -residual_deg * demand
 
 
-def model(lag_deg: float | None, velocity_deg_s: float, t: Thresholds, slack_deg: float) -> bool:
+def model(
+    lag_deg: float | None, velocity_deg_s: float, t: Thresholds, slack_deg: float, timing_s: float
+) -> bool:
     """Method 5: the joint lags where the model of this arm says it should be (``behind``). The
     tolerance grows with the predicted speed: a sample stamped ``timing_tolerance_s`` late
     (feedback jitter, transport latency) is that much further along the predicted path; and
     with the calibration's own error (``slack_deg``)."""
-    return lag_deg is not None and lag_deg > model_tolerance(velocity_deg_s, t) + slack_deg
+    tolerance = model_tolerance(velocity_deg_s, t, timing_s) + slack_deg
+    return lag_deg is not None and lag_deg > tolerance
 
 
 def reversals(samples: Samples, since_s: float, min_step_deg: float) -> int:
