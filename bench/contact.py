@@ -1,12 +1,15 @@
-"""Labelled contact-detection benchmark on the pure simulator model (no transport, seeded).
+"""Labelled contact-detection benchmark on pure simulated arms (no transport, seeded).
 
 ``bench_contact()`` runs >= 200 scripted episodes (free motion at many speeds and step sizes,
-stalls on every arm joint at several speeds, gripping an object vs closing on air, a held joint
-pushed by a moving obstacle, joints dragged by hand while unloaded; noise and feedback jitter on
-part of them), each labelled with the true contact onset (the first physics step in which the
-joint is blocked). It prints, per method and for the default combination (the detector's own
-CONFIRMED state): recall, false alarms per hour of free motion, detection delay p50/p95.
-Run: ``python -m bench.contact``.
+the spec's example pose, every joint to both limits, stalls on every arm joint at several speeds,
+gripping an object vs closing on air, a held joint pushed by a moving obstacle, joints dragged
+by hand while unloaded; noise and feedback jitter on part of them), each labelled with the true
+contact onset (the first physics step in which the joint is blocked), on every arm dynamics
+family of ``contact_families.py`` (issue 13: never only the simulator the detector was written
+against), with the detector uncalibrated and calibrated (the calibration routine and fit run on
+that family's arm). Per family it prints recall of stalls, grips and pushes, false alarms per
+hour of free motion, force limits in free motion and the detection delay p50/p95 of the default
+combination (the detector's own CONFIRMED state). Run: ``python -m bench --only contact``.
 """
 
 from __future__ import annotations

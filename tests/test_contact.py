@@ -129,9 +129,9 @@ def test_status_method_confirms_at_once_on_the_joint_furthest_off() -> None:
 def test_oscillation_method_needs_reversals_under_a_steady_target() -> None:
     det = _only("oscillation", oscillation_reversals=4, confirm_s=0.0)
     _hold_then_target(det, 10.0, at=0.0)
-    # (errors of 3-4 deg: below suspect_deg, 2, nothing but error_status may fire)
-    trace = [(0.1 * k, 6.0 + (1.0 if k % 2 else 0.0)) for k in range(1, 9)]
-    # steps +7 (leaving 0), -1, +1, -1, +1: the fourth reversal is at 0.5
+    # (errors of 4-5 deg: the joint stays short of its target, so it is no ringing about it)
+    trace = [(0.1 * k, 5.0 + (1.0 if k % 2 else 0.0)) for k in range(1, 9)]
+    # steps +6 (leaving 0), -1, +1, -1, +1: the fourth reversal is at 0.5
     assert _feed(det, trace) == [(0.5, S, "oscillation"), (0.5, C, "oscillation")]
 
 
@@ -216,3 +216,11 @@ def test_sim_obstacle_is_compliant_and_hunting_and_grip_object_stops_the_gripper
     f.apply_fault(model.faults, f.Noise(noise_deg=0.1))
     reports = {model.joint_report() for _ in range(5)}
     assert len(reports) == 5  # noisy, seeded
+
+
+def test_oscillation_ignores_a_servo_ringing_about_its_target() -> None:
+    # A second-order servo overshoots 4 deg and rings across its target: no hunting.
+    det = _only("oscillation", oscillation_reversals=4, confirm_s=0.0)
+    _hold_then_target(det, 10.0, at=0.0)
+    trace = [(0.1 * k, 10.0 + (4.0 if k % 2 else -4.0)) for k in range(1, 9)]
+    assert _feed(det, trace) == []

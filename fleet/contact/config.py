@@ -1,9 +1,9 @@
 """Contact detector thresholds: the inventory's ``contact`` table (``[defaults.contact]`` or
 ``[arms.<id>.contact]``, with ``arm`` and ``gripper`` sub-tables).
 
-The defaults are justified by the benchmark (``bench/contact.py``, README "Contact detection"):
-the simulated arm's free-motion tracking and model residuals, its feedback noise and jitter.
-Re-measure on a real arm before trusting them.
+The defaults are justified by the benchmark (``bench/contact.py``, README "Contact detection"),
+which runs them on every plausible arm dynamics family (issue 13), uncalibrated and calibrated,
+with feedback noise and jitter. Method 2's figures follow from the plausible range itself.
 """
 
 from __future__ import annotations

@@ -297,7 +297,7 @@ class ContactDetector:
             "tracking": mth.tracking(error, t),
             "stall": mth.stall(joint.samples, joint.errors, joint.demand, t),
             "status": status,
-            "oscillation": mth.oscillation(joint.samples, joint.target_s, now_s, t),
+            "oscillation": mth.oscillation(joint.samples, joint.errors, joint.target_s, now_s, t),
             "model": self._model_fires(joint, j, angle),
         }
         fired: set[Method] = set()

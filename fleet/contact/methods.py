@@ -100,7 +100,17 @@ def reversals(samples: Samples, since_s: float, min_step_deg: float) -> int:
     return sum(1 for s0, s1 in zip(big[:-1], big[1:]) if (s0 > 0) != (s1 > 0))
 
 
-def oscillation(samples: Samples, target_since_s: float, now_s: float, t: Thresholds) -> bool:
-    """Method 4: servo hunting, the joint reverses often while its target stays the same."""
+def oscillation(
+    samples: Samples, errors: Samples, target_since_s: float, now_s: float, t: Thresholds
+) -> bool:
+    """Method 4: servo hunting, the joint reverses often while its target stays the same and
+    it stays short of it (more than ``stall_error_deg``, one side): a second-order servo ringing
+    about its target (issue 13: plausible D1s overshoot up to 10 %) crosses it and is no
+    contact."""
     since = max(now_s - t.oscillation_window_s, target_since_s)
+    window = [e for s, e in errors if s >= since]
+    if not window or not (
+        all(e > t.stall_error_deg for e in window) or all(e < -t.stall_error_deg for e in window)
+    ):
+        return False
     return reversals(samples, since, t.oscillation_step_deg) >= t.oscillation_reversals
