@@ -108,7 +108,7 @@ def oscillation(
     about its target (issue 13: plausible D1s overshoot up to 10 %) crosses it and is no
     contact."""
     since = max(now_s - t.oscillation_window_s, target_since_s)
-    window = [e for s, e in errors if s >= since]
+    window = [e for s, e in errors if s > since]
     if not window or not (
         all(e > t.stall_error_deg for e in window) or all(e < -t.stall_error_deg for e in window)
     ):
