@@ -1,30 +1,42 @@
-"""Labelled contact-detection benchmark on the pure simulator model (no transport, seeded).
+"""Labelled contact-detection benchmark on pure simulated arms (no transport, seeded).
 
 ``bench_contact()`` runs >= 200 scripted episodes (free motion at many speeds and step sizes,
-stalls on every arm joint at several speeds, gripping an object vs closing on air, a held joint
-pushed by a moving obstacle, joints dragged by hand while unloaded; noise and feedback jitter on
-part of them), each labelled with the true contact onset (the first physics step in which the
-joint is blocked). It prints, per method and for the default combination (the detector's own
-CONFIRMED state): recall, false alarms per hour of free motion, detection delay p50/p95.
-Run: ``python -m bench.contact``.
+the spec's example pose, every joint to both limits, stalls on every arm joint at several speeds,
+gripping an object vs closing on air, a held joint pushed by a moving obstacle, joints dragged
+by hand while unloaded; noise and feedback jitter on part of them), each labelled with the true
+contact onset (the first physics step in which the joint is blocked), on every arm dynamics
+family of ``contact_families.py`` (issue 13: never only the simulator the detector was written
+against), with the detector uncalibrated and calibrated (the calibration routine and fit run on
+that family's arm). Per family it prints recall of stalls, grips and pushes, false alarms per
+hour of free motion, force limits in free motion and the detection delay p50/p95 of the default
+combination (the detector's own CONFIRMED state). Run: ``python -m bench --only contact``.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import random
 import time
 from dataclasses import dataclass, field
 
+from bench.contact_families import families
+from fleet.contact.calibration import Calibration, JointCalibration
 from fleet.contact.config import METHODS, ContactConfig
 from fleet.contact.detector import ContactDetector, ContactState
+from fleet.contact.dynamics import SimDynamics
 from fleet.contact.feed import feed_command
+from fleet.contact.fit import feedback_jitter_s, fit
 from fleet.d1 import protocol as p
 from fleet.d1.limits import JOINT_RANGE_DEG
 from fleet.sim.model import SimArmModel
 from fleet.sim.obstacles import Obstacle
+from fleet.sim.routine import record_steps
 
 DEFAULT = "default"
+SPEC_POSE = (0.0, -60.0, 60.0, 0.0, 30.0, 0.0, 0.0)
+"""The D1 spec's example target of ``1/2``."""
+FORCE_LIMIT = "force limit"
 
 
 @dataclass
@@ -52,6 +64,7 @@ class Outcome:
     episode: Episode
     onset_s: float | None
     confirmations: dict[str, list[tuple[int, float]]]  # method -> (joint, time)
+    model_note: str = ""
 
 
 def _pose(rng: random.Random, spread: float = 0.5) -> list[float]:
@@ -130,6 +143,23 @@ def episodes(seed: int = 7) -> list[Episode]:
                 jit,
             )
         )
+    for mode in (0, 1):  # the spec's example pose and back (issue 13)
+        home = [0.0] * 7
+        cmds = [
+            (0.5, p.SetAllAngles(SPEC_POSE, mode)),
+            (8.0, p.SetAllAngles(tuple(home), mode)),
+        ]
+        eps.append(Episode(f"free-spec-pose-m{mode}", "free", 700 + mode, 15.0, home, cmds))
+    for joint in range(7):  # every joint to both its limits, both modes (issue 13)
+        lo, hi = JOINT_RANGE_DEG[joint]
+        t, cmds = 0.5, []
+        for mode in (0, 1):
+            for angle in (hi, lo, 0.0):
+                pose = [0.0] * 7
+                pose[joint] = angle
+                cmds.append((t, p.SetAllAngles(tuple(pose), mode)))
+                t += (hi - lo) / 20.0 + 1.5  # the slowest plausible arm gets there
+        eps.append(Episode(f"free-limits-j{joint}", "free", 710 + joint, t, [0.0] * 7, cmds))
     for i in range(10):  # closing on air and opening
         start = _pose(rng)
         start[6] = 60.0
@@ -217,18 +247,25 @@ def _stall(rng: random.Random, joint: int, how: str, k: int, nz: tuple[float, fl
     )
 
 
-def run(ep: Episode, config: ContactConfig) -> Outcome:
-    """Play ``ep`` on the model and a detector; deliver feedback with latency and jitter."""
+def run(
+    ep: Episode, config: ContactConfig, dynamics: SimDynamics, calibration: Calibration | None
+) -> Outcome:
+    """Play ``ep`` on an arm of ``dynamics`` and a detector; deliver feedback at the arm's rate
+    with latency and jitter. Free-motion force limits are counted under ``FORCE_LIMIT``."""
     rng = random.Random(ep.seed)
-    model = SimArmModel(angles_deg=list(ep.start), target_deg=list(ep.start), rng=rng)
+    model = SimArmModel(
+        angles_deg=list(ep.start), target_deg=list(ep.start), rng=rng, dynamics=dynamics
+    )
     model.faults.noise_deg, model.faults.drags = ep.noise_deg, dict(ep.drags)
     if ep.obstacle is not None and ep.contact_joint is not None:
-        model.faults.obstacles[ep.contact_joint] = ep.obstacle
-    det = ContactDetector(config)
+        model.faults.obstacles[ep.contact_joint] = dataclasses.replace(ep.obstacle)
+    det = ContactDetector(config, calibration=calibration)
     det.on_targets(dict(enumerate(ep.start)), 1, 0.0)
     commands = list(ep.commands)
     found: dict[str, list[tuple[int, float]]] = {}
     onset: float | None = None
+    period = dynamics.period_s()
+    jitter = ep.jitter_s + dynamics.jitter_s
     t, reports = rng.uniform(0.0, 0.1), 0
     while t < ep.duration_s:
         while commands and commands[0][0] <= t:
@@ -237,25 +274,28 @@ def run(ep: Episode, config: ContactConfig) -> Outcome:
             feed_command(det, command, sent)
             model.apply(p.encode_command(command, 1))
         model.advance(t)
-        ob = ep.obstacle
+        ob = model.faults.obstacles.get(ep.contact_joint) if ep.contact_joint is not None else None
         if onset is None and ob is not None and ob.pushing_s > 0:
             onset = t - ob.pushing_s
-        arrive = t + rng.uniform(0.0005, 0.003) + rng.uniform(0.0, ep.jitter_s)
+        arrive = t + rng.uniform(0.0005, 0.003) + rng.uniform(0.0, jitter)
         if reports % 5 == 0:
             status = model.status_reports()[0]
             assert isinstance(status, p.D1Status)
             det.on_status(status.error, status.enabled, status.powered, arrive)
         joints = model.joint_report()
         assert joints is not None
-        for change in det.on_angles(joints.angles_deg, arrive).changes:
+        report = det.on_angles(joints.angles_deg, arrive)
+        for change in report.changes:
             if change.state is ContactState.CONFIRMED:
                 found.setdefault(DEFAULT, []).append((change.joint, arrive))
+        for joint in report.force_limit:
+            found.setdefault(FORCE_LIMIT, []).append((joint, arrive))
         reports += 1
-        t += rng.uniform(0.100, 0.111) + rng.uniform(0.0, ep.jitter_s)
+        t += rng.uniform(*period) + rng.uniform(0.0, jitter)
     for j in range(7):
         for method, times in det.confirmations(j).items():
             found.setdefault(method, []).extend((j, s) for s in times)
-    return Outcome(ep, onset, found)
+    return Outcome(ep, onset, found, det.sanity.note())
 
 
 def _pct(values: list[float], q: float) -> float:
@@ -266,19 +306,25 @@ def _pct(values: list[float], q: float) -> float:
 
 
 def score(outcomes: list[Outcome], method: str) -> dict[str, float]:
-    """Recall per contact kind, false alarms (count, per hour of free motion), delays (ms)."""
+    """Recall per contact kind, false alarms (count, per hour of free motion), force limits in
+    free motion, delays (ms)."""
     hits: dict[str, list[bool]] = {"stall": [], "grip": [], "push": []}
     delays: list[float] = []
-    false_alarms, free_s = 0, 0.0
+    false_alarms, free_s, free_limits = 0, 0.0, 0
     for out in outcomes:
         ep, onset = out.episode, out.onset_s
         found = out.confirmations.get(method, [])
+        limits = out.confirmations.get(FORCE_LIMIT, [])
         free_s += ep.duration_s if onset is None else onset
         if ep.contact_joint is None or onset is None:
             false_alarms += len(found)
+            free_limits += len(limits)
+            if ep.contact_joint is not None:
+                hits[ep.kind].append(False)  # the obstacle was never met: a miss
             continue
         good = [s for j, s in found if j == ep.contact_joint and s >= onset]
         false_alarms += sum(1 for j, s in found if j != ep.contact_joint or s < onset)
+        free_limits += sum(1 for j, s in limits if j != ep.contact_joint or s < onset)
         hits[ep.kind].append(bool(good))
         if good:
             delays.append((min(good) - onset) * 1000.0)
@@ -286,6 +332,7 @@ def score(outcomes: list[Outcome], method: str) -> dict[str, float]:
     row |= {
         "false_alarms": false_alarms,
         "fa_per_h": false_alarms / (free_s / 3600.0),
+        "free_force_limits": free_limits,
         "p50_ms": _pct(delays, 50),
         "p95_ms": _pct(delays, 95),
         "max_ms": max(delays) if delays else math.nan,
@@ -294,34 +341,56 @@ def score(outcomes: list[Outcome], method: str) -> dict[str, float]:
     return row
 
 
+def calibrate(dynamics: SimDynamics, seed: int) -> Calibration:
+    """Run the calibration routine on a simulated arm of ``dynamics`` (joint 0; the family's
+    joints are alike, so its fit serves every joint) and fit it, as ``fleet calibrate`` does."""
+    model = SimArmModel(dynamics=dynamics, rng=random.Random(seed))
+    records = record_steps(model, 0, random.Random(seed))
+    mode0, rms0 = fit([r for r in records if r.mode == 0])
+    mode1, rms1 = fit([r for r in records if r.mode == 1])
+    joints = [JointCalibration(j, mode0, mode1, max(rms0, rms1)) for j in range(7)]
+    jitter = feedback_jitter_s(records)
+    return Calibration("bench", 0, joints, routine="bench", feedback_jitter_s=jitter)
+
+
 def bench_contact(
-    seed: int = 7, config: ContactConfig | None = None
-) -> dict[str, dict[str, float]]:
-    """Run the suite and print the table; returns the rows (method -> figures)."""
+    seed: int = 7, config: ContactConfig | None = None, draws: int = 4
+) -> dict[str, dict[str, dict[str, float]]]:
+    """Run the suite on every dynamics family, uncalibrated and calibrated; print the table.
+    Returns family -> configuration -> figures (the default combination, the detector's own
+    confirmed state), and ``per method`` on the simulator's default family."""
     config = config or ContactConfig()
     started = time.perf_counter()
     suite = episodes(seed)
-    outcomes = [run(ep, config) for ep in suite]
-    rows = {m: score(outcomes, m) for m in (*METHODS, DEFAULT)}
     kinds = {
         k: sum(1 for e in suite if e.kind == k) for k in ("free", "air", "stall", "grip", "push")
     }
+    print(f"contact detection: {len(suite)} episodes {kinds} per family and configuration")
     print(
-        f"contact detection: {len(suite)} episodes {kinds}, "
-        f"{rows[DEFAULT]['free_h'] * 60:.1f} min of free motion, "
-        f"{time.perf_counter() - started:.1f} s; default = {'+'.join(config.methods)}"
+        "| family | calibration | stall recall | grip recall | push recall "
+        "| false alarms (per h) | free-motion force limits | delay p50 / p95 ms |"
     )
-    print(
-        "| method | stall recall | grip recall | push recall | false alarms (per h) "
-        "| delay p50 / p95 / max ms |"
-    )
-    print("|---|---|---|---|---|---|")
-    for method, r in rows.items():
-        print(
-            f"| {method} | {r['stall_recall']:.1f}% | {r['grip_recall']:.1f}% | "
-            f"{r['push_recall']:.1f}% | {r['false_alarms']:.0f} ({r['fa_per_h']:.1f}) | "
-            f"{r['p50_ms']:.0f} / {r['p95_ms']:.0f} / {r['max_ms']:.0f} |"
-        )
+    print("|---|---|---|---|---|---|---|---|")
+    rows: dict[str, dict[str, dict[str, float]]] = {}
+    for k, (name, dynamics) in enumerate(families(seed, draws).items()):
+        rows[name] = {}
+        for label, calibration in (
+            ("none", None),
+            ("calibrated", calibrate(dynamics, seed + k)),
+        ):
+            outcomes = [run(ep, config, dynamics, calibration) for ep in suite]
+            r = score(outcomes, DEFAULT)
+            r["revoked"] = sum(1 for o in outcomes if "untrusted: off" in o.model_note)
+            rows[name][label] = r
+            if k == 0 and label == "none":
+                rows["per method"] = {m: score(outcomes, m) for m in METHODS}
+            print(
+                f"| {name} | {label} | {r['stall_recall']:.1f}% | {r['grip_recall']:.1f}% | "
+                f"{r['push_recall']:.1f}% | {r['false_alarms']:.0f} ({r['fa_per_h']:.1f}) | "
+                f"{r['free_force_limits']:.0f} | {r['p50_ms']:.0f} / {r['p95_ms']:.0f} |",
+                flush=True,
+            )
+    print(f"{time.perf_counter() - started:.0f} s; default = {'+'.join(config.methods)}")
     return rows
 
 

@@ -109,7 +109,8 @@ class EdgeAgent:
             if request is not None:
                 self.safety_loop.restore(arm, request)
         configs = {a: inventory.arm(a) for a in arm_ids}
-        self.contact = ContactEdge(configs, self.relay, self.lock, self.writer)
+        paths = {a: inventory.calibration_path(a) for a in arm_ids}
+        self.contact = ContactEdge(configs, self.relay, self.lock, self.writer, paths)
         self.scheduler = StartScheduler(self.guard, self.stopping)
         self.commands = CommandService(
             self.lock,
@@ -211,6 +212,7 @@ class EdgeAgent:
         diag = now >= self._next_diag
         if diag:
             self._next_diag = now + DIAG_PERIOD_S
+            self.contact.poll_calibration(self.slots)  # reads files: outside the lock
         out = Outbox()
         with self.lock:
             for arm, slot in self.slots.items():

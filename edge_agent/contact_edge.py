@@ -7,21 +7,28 @@ tells ``on_sent`` every command it wrote (it takes the lock itself). Nothing her
 blocks or does I/O under the lock: events go into the agent's outbox, DDS writes into
 ``_pending`` until ``flush``.
 
-Force limiting by position (the D1 has no torque limit): when a confirmed contact's tracking
-error passes ``force_limit_deg``, the joint's target becomes its measured angle (``1/1``), so
-the motor stops pushing; commands in flight that move that joint fail with 3205.
+Force limiting by position (the D1 has no torque limit): when a contact confirmed by a method
+trustworthy for this arm (never an uncalibrated or untrusted model: issue 13) has a tracking
+error past ``force_limit_deg``, the joint's target becomes its measured angle (``1/1``), so the
+motor stops pushing; commands in flight that move that joint fail with 3205.
+
+Calibration: each arm's file (``Inventory.calibration_path``) is read at start and again when it
+changes (``poll_calibration``, from the periodic job, outside the lock): ``fleet calibrate``
+takes effect without a restart. The model's state goes into the arm's status and diag.
 """
 
 from __future__ import annotations
 
 import logging
 import threading
+from pathlib import Path
 
 import zenoh
 
 from edge_agent.relay import ZenohRelay
 from edge_agent.slots import ArmSlot, Outbox
 from edge_agent.writer import ArmWriter, transient_seq
+from fleet.contact.calibration import Calibration, CalibrationError, load_calibration
 from fleet.contact.detector import ContactChange, ContactDetector
 from fleet.contact.feed import feed_command
 from fleet.d1 import protocol as p
@@ -59,9 +66,13 @@ class ContactEdge:
         relay: ZenohRelay,
         lock: threading.Lock,
         writer: ArmWriter,
+        calibrations: dict[str, Path] | None = None,
     ) -> None:
         self._lock = lock
         self._writer = writer
+        self._paths = calibrations or {}
+        self._stamps: dict[str, tuple[float, int] | None] = {}  # arm -> file (mtime, size)
+        self._problems: dict[str, str] = {}
         self.detectors: dict[str, ContactDetector] = {}
         self.publishers: dict[str, zenoh.Publisher] = {}
         for arm, arm_config in configs.items():
@@ -78,6 +89,51 @@ class ContactEdge:
             )
         self._pending: list[tuple[str, p.SetJointAngle]] = []  # guarded by lock
         writer.observers.append(self.on_sent)
+
+    def poll_calibration(self, slots: dict[str, ArmSlot]) -> None:
+        """Load each arm's calibration file when it appeared or changed (call without the lock:
+        this reads files); then tell the detector and the arm's tracker (under the lock)."""
+        loaded: dict[str, Calibration | None] = {}
+        for arm in self.detectors:
+            path = self._paths.get(arm)
+            try:
+                stat = None if path is None else path.stat()
+            except OSError:
+                stat = None
+            stamp = None if stat is None else (stat.st_mtime, stat.st_size)
+            if arm in self._stamps and self._stamps[arm] == stamp:
+                continue
+            self._stamps[arm] = stamp
+            self._problems.pop(arm, None)
+            try:
+                loaded[arm] = None if path is None or stamp is None else load_calibration(path)
+            except CalibrationError as exc:
+                loaded[arm] = None
+                self._problems[arm] = str(exc)
+                log.error("arm %s: %s", arm, exc)
+            if loaded[arm] is not None:
+                log.info("arm %s: contact model calibrated from %s", arm, path)
+        with self._lock:
+            for arm, calibration in loaded.items():
+                self.detectors[arm].set_calibration(calibration)
+            for arm, detector in self.detectors.items():
+                self._tell(arm, slots[arm], detector)
+
+    def _tell(self, arm: str, slot: ArmSlot, detector: ContactDetector) -> None:
+        """The detector's model state into the arm's tracker (caller holds the lock)."""
+        sanity = detector.sanity
+        tracker = slot.tracker
+        tracker.contact_model = (
+            "uncalibrated"
+            if not sanity.calibrated
+            else "calibrated"
+            if sanity.trusted
+            else "untrusted"
+        )
+        problem = self._problems.get(arm)
+        tracker.contact_note = sanity.note() if problem is None else f"{sanity.note()}; {problem}"
+        tracker.contact_free_moves = sanity.free_moves
+        tracker.contact_model_error_deg = sanity.last_error_deg
 
     def on_message(
         self,
@@ -104,6 +160,9 @@ class ContactEdge:
             else:
                 detector.set_tracking(False)  # unload / power off: the arm does not track
         report = detector.on_angles(message.angles_deg, now)
+        if report.model_note is not None:
+            log.warning("arm %s: contact detector: %s", arm, report.model_note)
+            self._tell(arm, slot, detector)
         limited = set()
         if not tracker.estopped:
             for joint, angle in report.force_limit.items():

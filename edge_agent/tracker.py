@@ -13,7 +13,7 @@ from edge_agent.safety import ArmSafety
 from fleet.d1 import protocol as p
 from fleet.d1.errors import MalformedMessage, UnknownMessage
 from fleet.inventory import ArmConfig
-from fleet.wire.messages import ArmStatus, Diag, LinkState
+from fleet.wire.messages import ArmStatus, ContactModel, Diag, LinkState
 
 RATE_WINDOW = 20
 """Feedback rate is measured over the last 20 angle reports (about 2 s)."""
@@ -63,6 +63,11 @@ class ArmTracker:
     acks_ignored: int = 0
     """Acks credited to no command: late or repeated, or with no command awaiting one."""
     last_error: str | None = None
+    # The contact detector's model of the arm (set by contact_edge; None: detection disabled)
+    contact_model: ContactModel | None = None
+    contact_note: str | None = None
+    contact_free_moves: int = 0
+    contact_model_error_deg: float | None = None
     _angle_times: deque[float] = field(default_factory=lambda: deque(maxlen=RATE_WINDOW))
     _writer: int | None = None
     _writer_s: float = 0.0
@@ -198,6 +203,7 @@ class ArmTracker:
             owner=None if lease is None else lease.owner,
             owned_s=None if lease is None else round(now - lease.since_s, 1),
             lease_left_s=None if lease is None else round(lease.expires_s - now, 1),
+            contact_model=self.contact_model,
         )
 
     def diag(self, now: float, stamp_ns: int) -> Diag:
@@ -220,6 +226,9 @@ class ArmTracker:
             feedback_rate_hz=round(self.feedback_rate_hz(), 2),
             last_feedback_age_s=None if age is None else round(age, 3),
             last_error=self.last_error,
+            contact_model=self.contact_note,
+            contact_free_moves=self.contact_free_moves,
+            contact_model_error_deg=self.contact_model_error_deg,
         )
 
 

@@ -15,6 +15,7 @@ import msgspec
 from msgspec import Struct
 
 from fleet.contact.config import ContactConfig, check_config
+from fleet.contact.dynamics import SimDynamics
 from fleet.d1 import topics
 from fleet.d1.limits import (
     GRIPPER_CLOSED_DEG,
@@ -125,6 +126,13 @@ class ArmConfig(Struct, frozen=True, forbid_unknown_fields=True):
         """-1.0 when closing lowers ``angle6`` (the default), +1.0 when it raises it."""
         return -1.0 if self.gripper_open_deg > self.gripper_closed_deg else 1.0
 
+    calibration: str = ""
+    """The arm's calibration file (``fleet calibrate`` writes it; the agent's contact detector
+    reads it): relative to the inventory's folder; default ``calibration/<id>.json``."""
+    sim_dynamics: SimDynamics = SimDynamics()
+    """How ``fleet sim`` makes this arm respond (dead time, lag, speed limit, servo per mode;
+    feedback rate and jitter): an arm unlike the detector's assumptions, for tests."""
+
 
 class CoordinatorSection(Struct, frozen=True, forbid_unknown_fields=True):
     """``[coordinator]``: heartbeat rate and the lead-in of synchronized starts."""
@@ -158,6 +166,12 @@ class Inventory(Struct, frozen=True):
         """A copy for a process acting as ``principal``."""
         check_name("principal", principal)
         return msgspec.structs.replace(self, principal=principal)
+
+    def calibration_path(self, arm_id: str) -> Path:
+        """The calibration file of ``arm_id`` (its ``calibration``, relative to the inventory's
+        folder; default ``calibration/<id>.json``)."""
+        name = self.arm(arm_id).calibration or f"calibration/{arm_id}.json"
+        return Path(self.path).parent / name
 
     def arm(self, arm_id: str) -> ArmConfig:
         """The arm ``arm_id``; raises InventoryError naming the known arms."""
@@ -304,6 +318,9 @@ def _check_arm(arm: ArmConfig, path: str) -> None:
     contact_problem = check_config(arm.contact)
     if contact_problem is not None:
         raise _fail(path, f"{where}.contact", contact_problem)
+    dynamics_problem = arm.sim_dynamics.problem()
+    if dynamics_problem is not None:
+        raise _fail(path, f"{where}.sim_dynamics", dynamics_problem)
 
 
 def parse_inventory(text: str, path: str = DEFAULT_INVENTORY) -> Inventory:

@@ -13,6 +13,7 @@ from importlib.metadata import PackageNotFoundError, version
 
 from fleet.cli import (
     arm_commands,
+    calibrate,
     choreo_cmds,
     processes,
     record_cmds,
@@ -40,6 +41,7 @@ def build_parser() -> argparse.ArgumentParser:
         processes,
         status,
         arm_commands,
+        calibrate,
         safety_cmds,
         viewer_cmd,
         choreo_cmds,

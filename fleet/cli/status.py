@@ -22,7 +22,11 @@ def register(
     sub: argparse._SubParsersAction, add_common: Callable[[argparse.ArgumentParser], None]
 ) -> None:  # type: ignore[type-arg]
     """Add ``status`` and ``schema``."""
-    status = sub.add_parser("status", help="one line per arm: agent, link, power, angles")
+    status = sub.add_parser(
+        "status",
+        help="one line per arm: agent, link, power, contact, calibration (calib NONE: run "
+        "fleet calibrate), angles",
+    )
     add_common(status)
     status.add_argument("--json", action="store_true", help="machine-readable output")
     status.add_argument("--watch", action="store_true", help="refresh every second until Ctrl-C")
@@ -46,13 +50,17 @@ def _contact(state: m.FleetState | None, arm: str) -> str:
     return "YES" if summary.contact else "no"
 
 
+MODEL = {"calibrated": "ok", "uncalibrated": "NONE", "untrusted": "OFF", None: "-"}
+"""The ``calib`` column: the contact detector's model of the arm (``fleet calibrate``)."""
+
+
 def status_lines(
     inventory: Inventory, snapshot: Snapshot, alive: set[str], state: m.FleetState | None = None
 ) -> list[str]:
     """A header and one fixed-width line per arm (the stop's reason under a stopped arm)."""
     lines = [
         f"{'arm':<8} {'agent':<7} {'link':<6} {'power':<6} {'torque':<7} {'error':<6} "
-        f"{'stop':<5} {'contact':<7} {'age_s':>6}  angles_deg"
+        f"{'stop':<5} {'contact':<7} {'calib':<5} {'age_s':>6}  angles_deg"
     ]
     for arm in inventory.arms:
         status, joints = snapshot.get(arm, (None, None))
@@ -61,7 +69,7 @@ def status_lines(
         if status is None:
             lines.append(
                 f"{arm:<8} {agent:<7} {'-':<6} {'-':<6} {'-':<7} {'-':<6} {'-':<5} "
-                f"{contact:<7} {'-':>6}  -"
+                f"{contact:<7} {'-':<5} {'-':>6}  -"
             )
             continue
         age = "-" if status.feedback_age_s is None else f"{status.feedback_age_s:.2f}"
@@ -69,7 +77,8 @@ def status_lines(
         lines.append(
             f"{arm:<8} {agent:<7} {status.link:<6} {_flag(status.powered, 'on', 'off'):<6} "
             f"{_flag(status.enabled, 'on', 'free'):<7} {_flag(status.error, 'ERROR', 'ok'):<6} "
-            f"{'YES' if status.estopped else 'no':<5} {contact:<7} {age:>6}  {angles}"
+            f"{'YES' if status.estopped else 'no':<5} {contact:<7} "
+            f"{MODEL[status.contact_model]:<5} {age:>6}  {angles}"
         )
         if status.estopped and status.stop_reason:
             lines.append(f"{'':<8} {status.stop_reason[:110]}")

@@ -2,5 +2,7 @@
 
 ``ContactDetector`` (``detector.py``) is fed targets, angle and status reports with their
 times; ``config.py`` holds the inventory's thresholds; ``methods.py`` the five methods;
-``predictor.py`` the model of the arm's command smoothing (method 5).
+``predictor.py`` method 5's model of the arm's response (``dynamics.py``, shared with the
+simulator), trusted only with a calibration (``calibration.py``, ``fit.py``) and while the online
+check (``sanity.py``) finds it right in free motion.
 """

@@ -1,9 +1,9 @@
 """Contact detector thresholds: the inventory's ``contact`` table (``[defaults.contact]`` or
 ``[arms.<id>.contact]``, with ``arm`` and ``gripper`` sub-tables).
 
-The defaults are justified by the benchmark (``bench/contact.py``, README "Contact detection"):
-the simulated arm's free-motion tracking and model residuals, its feedback noise and jitter.
-Re-measure on a real arm before trusting them.
+The defaults are justified by the benchmark (``bench/contact.py``, README "Contact detection"),
+which runs them on every plausible arm dynamics family (issue 13), uncalibrated and calibrated,
+with feedback noise and jitter. Method 2's figures follow from the plausible range itself.
 """
 
 from __future__ import annotations
@@ -27,14 +27,24 @@ oscillation (servo hunting), expected-versus-actual against the arm's smoothing 
 class Thresholds(Struct, frozen=True, forbid_unknown_fields=True):
     """Thresholds for one kind of joint (the six arm joints, or the gripper)."""
 
-    suspect_deg: float = 3.0
-    """Method 1: tracking error |target - measured| that raises suspicion."""
+    suspect_deg: float = 2.0
+    """No method but ``status`` fires while the tracking error |target - measured| is below
+    this: a joint (nearly) on its target is not in contact, whatever a model says."""
     confirm_deg: float = 5.0
     """Method 1: tracking error that, held for ``confirm_s``, confirms a contact."""
     stall_error_deg: float = 3.0
     """Method 2: tracking error above this ..."""
-    stall_velocity_deg_s: float = 4.0
-    """... while the measured speed (one feedback interval) is below this."""
+    stall_velocity_deg_s: float = 10.0
+    """... while the joint progresses towards its target slower than this over
+    ``stall_window_s`` (and slower than error / ``stall_lag_s``): half the slowest plausible
+    D1 speed limit (20 deg/s). The plan's 0.1 deg/s is below the feedback noise (0.1 deg over
+    0.1 s is 1 deg/s) and would miss a joint creeping into a compliant obstacle."""
+    stall_lag_s: float = 1.0
+    """Twice the slowest plausible first-order lag (0.5 s): a free joint with error e moves at
+    least e / 0.5 s."""
+    stall_window_s: float = 0.3
+    """The window over which method 2 measures progress: the dead time (up to 0.1 s) and a
+    second-order servo's start must not look like a stall."""
     model_error_deg: float = 1.0
     """Method 5: |measured - predicted by the smoothing model| above this ..."""
     timing_tolerance_s: float = 0.04
@@ -65,7 +75,6 @@ def _gripper() -> Thresholds:
         suspect_deg=3.0,
         confirm_deg=6.0,
         stall_error_deg=4.0,
-        stall_velocity_deg_s=4.0,
         model_error_deg=2.0,
         confirm_s=0.05,
         force_limit_deg=20.0,
@@ -96,7 +105,14 @@ def check_config(config: ContactConfig) -> str | None:
     for name, t in (("arm", config.arm), ("gripper", config.gripper)):
         if not 0 < t.release_deg < t.suspect_deg <= t.confirm_deg:
             return f"{name}: need 0 < release_deg < suspect_deg <= confirm_deg"
-        positive = (t.stall_error_deg, t.stall_velocity_deg_s, t.model_error_deg, t.release_s)
+        positive = (
+            t.stall_error_deg,
+            t.stall_velocity_deg_s,
+            t.stall_lag_s,
+            t.stall_window_s,
+            t.model_error_deg,
+            t.release_s,
+        )
         if min(positive) <= 0 or t.confirm_s < 0:
             return f"{name}: thresholds must be positive"
         if not 2 <= t.oscillation_reversals <= MAX_REVERSALS:

@@ -14,6 +14,11 @@ machine FREE -> SUSPECTED -> CONFIRMED -> RELEASED -> FREE:
 A joint that does not track (unloaded, unpowered, stopped with unload/power_off) is never in
 contact: moving it by hand is not a contact. The gripper uses its own thresholds; a confirmed
 gripper contact while closing is a grip.
+
+Trust (issue 13): method 5 needs a model of this arm's response. Without a calibration of the
+joint (``Calibration``), or once the online sanity check (``sanity.py``) found the model off in
+free motion, method 5 may raise suspicion but never confirms; a contact is confirmed only by a
+method trustworthy for this arm, and only such a contact is force-limited.
 """
 
 from __future__ import annotations
@@ -23,10 +28,15 @@ from collections import deque
 from dataclasses import dataclass, field
 
 from fleet.contact import methods as mth
+from fleet.contact.calibration import Calibration
 from fleet.contact.config import ContactConfig, Method, Thresholds
-from fleet.contact.predictor import SmoothingPredictor
+from fleet.contact.predictor import DEFAULT_DYNAMICS, SmoothingPredictor
+from fleet.contact.sanity import ModelSanity
 
 GRIPPER = 6
+FAST_CONFIRM_RATIO = 2.0
+"""Method 5 confirms on one sample when the joint is this many tolerances behind the model
+(a trusted model only: the calibrated benchmark's delay p95 needs it at 10 Hz feedback)."""
 
 
 class ContactState(str, enum.Enum):
@@ -61,12 +71,15 @@ class Report:
 
     changes: list[ContactChange] = field(default_factory=list)
     force_limit: dict[int, float] = field(default_factory=dict)
+    model_note: str | None = None
+    """Set when this report made the detector stop trusting its model (online sanity)."""
 
 
 @dataclass
 class _Joint:
     thresholds: Thresholds
     samples: deque[tuple[float, float]]
+    errors: deque[tuple[float, float]]
     target: float | None = None
     target_s: float = 0.0
     commanded: bool = False
@@ -76,20 +89,58 @@ class _Joint:
     quiet_s: float | None = None
     limited: bool = False
     onsets: dict[str, list[float]] = field(default_factory=dict)
+    demand: int = 0
+    """The side the joint was sent to (+1/-1), 0 once it settled on its target."""
+    confirmed_by: str = ""
+    model_ratio: float = 0.0
+    """How far behind the model the joint is, in multiples of method 5's tolerance."""
 
 
 class ContactDetector:
     """Contact detection for one arm of ``joints`` wire joints (the last is the gripper)."""
 
-    def __init__(self, config: ContactConfig, joints: int = 7) -> None:
+    def __init__(
+        self, config: ContactConfig, joints: int = 7, calibration: Calibration | None = None
+    ) -> None:
         self.config = config
         self.methods: frozenset[str] = frozenset(config.methods)
+        size = config.buffer_size
         self._joints = [
-            _Joint(config.for_joint(j), deque(maxlen=config.buffer_size)) for j in range(joints)
+            _Joint(config.for_joint(j), deque(maxlen=size), deque(maxlen=size))
+            for j in range(joints)
         ]
         self._model = SmoothingPredictor(joints)
+        self._calibrated: frozenset[int] = frozenset()
+        self.sanity = ModelSanity(calibrated=False)
+        self.set_calibration(calibration)
         self._arm_tracking = True
         self._error_flag = False
+
+    def set_calibration(self, calibration: Calibration | None) -> None:
+        """Use ``calibration`` for method 5's model (None: uncalibrated, model untrusted); the
+        online sanity check starts afresh."""
+        joints = len(self._joints)
+        fitted = [None if calibration is None else calibration.joint(j) for j in range(joints)]
+        dynamics = [DEFAULT_DYNAMICS if c is None else c.dynamics() for c in fitted]
+        old = self._model
+        self._model = SmoothingPredictor(joints, dynamics)
+        self._model.mode, self._model.time_s = old.mode, old.time_s
+        for j, joint in enumerate(self._joints):
+            if joint.target is not None:
+                self._model.set_target(j, joint.target)
+            if joint.samples:
+                self._model.resync(j, joint.samples[-1][1])
+        self._calibrated = frozenset(j for j, c in enumerate(fitted) if c is not None)
+        # The model's tolerance also covers the calibration's own error (3 x its RMS).
+        self._slack = [0.0 if c is None else 3.0 * c.rms_deg for c in fitted]
+        self._timing_s = 0.0 if calibration is None else calibration.feedback_jitter_s
+        self.sanity = ModelSanity(calibrated=bool(self._calibrated))
+
+    def trusted(self, joint: int, method: str) -> bool:
+        """Whether ``method`` may confirm a contact on ``joint`` (and so force-limit it)."""
+        if method != "model":
+            return True
+        return joint in self._calibrated and self.sanity.trusted
 
     # ------------------------------------------------------------------ inputs
 
@@ -105,6 +156,9 @@ class ContactDetector:
             joint.commanded = measured is not None and abs(target - measured) > (
                 joint.thresholds.release_deg
             )
+            if joint.commanded and measured is not None:
+                joint.demand = 1 if target > measured else -1
+                self.sanity.start(j)
             joint.target, joint.target_s, joint.limited = target, now_s, False
             if measured is not None and joint.state in (
                 ContactState.CONFIRMED,
@@ -149,17 +203,21 @@ class ContactDetector:
         self._model.advance(now_s)
         report = Report()
         errors: dict[int, float] = {}
+        predicted = self._model.predicted
         for j, angle in enumerate(angles_deg[: len(self._joints)]):
             joint = self._joints[j]
             joint.samples.append((now_s, angle))
-            if self._model.predicted[j] is None:
+            if predicted[j] is None:
                 self._model.resync(j, angle)  # the first sample anchors the prediction
             if not (self._arm_tracking and joint.torque_on) or joint.target is None:
+                joint.errors.append((now_s, 0.0))
                 self._model.resync(j, angle)
+                self.sanity.discard(j)
                 joint.since.clear()
                 self._to(report, j, ContactState.FREE, "not tracking", 0.0, 0.0, now_s)
                 continue
             errors[j] = joint.target - angle
+            joint.errors.append((now_s, errors[j]))
         status_joint = self._status_joint(errors, angles_deg)
         for j, error in errors.items():
             fired = self._evaluate(j, error, angles_deg[j], now_s, j == status_joint)
@@ -168,13 +226,52 @@ class ContactDetector:
             limit = joint.thresholds.force_limit_deg
             if (
                 joint.state is ContactState.CONFIRMED
+                and self.trusted(j, joint.confirmed_by)
+                and (joint.confirmed_by != "model" or self._held_back(joint, error))
                 and limit is not None
                 and abs(error) > limit
                 and not joint.limited
             ):
                 joint.limited = True
                 report.force_limit[j] = angles_deg[j]
+            self._check_model(report, j, error, angles_deg[j])
         return report
+
+    @staticmethod
+    def _held_back(joint: _Joint, error: float) -> bool:
+        """The joint is not making way towards its target (it moves slower than
+        ``stall_velocity_deg_s``): what the force limit asks of a contact only the model saw,
+        so that a calibration gone wrong can never retract a free move's target."""
+        speed = mth.velocity_deg_s(joint.samples)
+        return speed is None or speed * (1.0 if error > 0 else -1.0) < (
+            joint.thresholds.stall_velocity_deg_s
+        )
+
+    def _check_model(self, report: Report, j: int, error: float, angle: float) -> None:
+        """Online sanity: the model's error during a move, judged when the move ends free."""
+        joint = self._joints[j]
+        t = joint.thresholds
+        # A move is evidence about the model unless something else confirmed a contact on the
+        # way (or the force limit moved its target): a move the model alone called a contact
+        # that then reached its target was a false alarm of the model, and counts against it.
+        robust = joint.state is ContactState.CONFIRMED and joint.confirmed_by != "model"
+        if robust or joint.limited:
+            self.sanity.discard(j)
+            return
+        lag = mth.behind(self._model.residual(j, angle), joint.demand)
+        if lag is not None:
+            speed = self._model.velocity_deg_s(j)
+            tolerance = mth.model_tolerance(speed, t, self._timing_s) + self._slack[j]
+            self.sanity.sample(j, max(0.0, lag), tolerance)
+        speed = mth.velocity_deg_s(joint.samples)
+        settled = abs(error) < t.release_deg and (
+            speed is None or abs(speed) < t.stall_velocity_deg_s
+        )
+        if settled:
+            joint.demand = 0
+            note = self.sanity.complete(j)
+            if note is not None:
+                report.model_note = note
 
     def _status_joint(self, errors: dict[int, float], angles: tuple[float, ...]) -> int | None:
         """Method 3 names no joint: blame the arm joint furthest from where it should be."""
@@ -182,7 +279,9 @@ class ContactDetector:
             return None
         scores = {}
         for j, error in errors.items():
-            residual = self._model.residual(j, angles[j]) or 0.0
+            residual = (
+                (self._model.residual(j, angles[j]) or 0.0) if self.trusted(j, "model") else 0.0
+            )
             scores[j] = max(abs(error), abs(residual)) / self._joints[j].thresholds.release_deg
         best = max(scores, key=lambda j: scores[j])
         return best if scores[best] > 1.0 else None
@@ -192,16 +291,18 @@ class ContactDetector:
     ) -> set[Method]:
         joint = self._joints[j]
         t = joint.thresholds
+        # Near its target, only error_status and a trusted model may fire (ringing, noise).
+        near = abs(error) < t.suspect_deg
         fires: dict[Method, bool] = {
             "tracking": mth.tracking(error, t),
-            "stall": mth.stall(error, joint.samples, t),
+            "stall": mth.stall(joint.samples, joint.errors, joint.demand, t),
             "status": status,
-            "oscillation": mth.oscillation(joint.samples, joint.target_s, now_s, t),
-            "model": mth.model(self._model.residual(j, angle), self._model.velocity_deg_s(j), t),
+            "oscillation": mth.oscillation(joint.samples, joint.errors, joint.target_s, now_s, t),
+            "model": self._model_fires(joint, j, angle),
         }
         fired: set[Method] = set()
         for method, on in fires.items():
-            if not on:
+            if not on or (near and method != "status" and not self.trusted(j, method)):
                 joint.since.pop(method, None)
                 continue
             started = joint.since.setdefault(method, now_s)
@@ -212,16 +313,27 @@ class ContactDetector:
                 times.append(now_s)
         return fired
 
+    def _model_fires(self, joint: _Joint, j: int, angle: float) -> bool:
+        lag = mth.behind(self._model.residual(j, angle), joint.demand)
+        speed, t = self._model.velocity_deg_s(j), joint.thresholds
+        tolerance = mth.model_tolerance(speed, t, self._timing_s) + self._slack[j]
+        joint.model_ratio = 0.0 if lag is None else lag / tolerance
+        return mth.model(lag, speed, t, self._slack[j], self._timing_s)
+
     def _is_confirmed(self, joint: _Joint, method: str, now_s: float) -> bool:
         since = joint.since.get(method)
         if since is None:
             return False
+        if method == "model" and joint.model_ratio >= FAST_CONFIRM_RATIO:
+            return True  # far behind the model at once: one sample is enough
         return method == "status" or now_s - since >= joint.thresholds.confirm_s
 
     def _step(self, report: Report, j: int, error: float, fired: set[Method], now_s: float) -> None:
         joint = self._joints[j]
         active = sorted(m for m in fired if m in self.methods)
-        confirmed = [m for m in active if self._is_confirmed(joint, m, now_s)]
+        confirmed = [
+            m for m in active if self._is_confirmed(joint, m, now_s) and self.trusted(j, m)
+        ]
         confidence = round(len(fired - {"status"}) / 4.0, 2) if fired else 0.0
         if "status" in fired:
             confidence = 1.0
@@ -229,6 +341,7 @@ class ContactDetector:
         if confirmed and state is not ContactState.CONFIRMED:
             if state in (ContactState.FREE, ContactState.RELEASED) and confirmed != ["status"]:
                 self._to(report, j, ContactState.SUSPECTED, confirmed[0], error, 0.5, now_s)
+            joint.confirmed_by = confirmed[0]
             self._to(report, j, ContactState.CONFIRMED, confirmed[0], error, confidence, now_s)
         elif active and state in (ContactState.FREE, ContactState.RELEASED):
             self._to(report, j, ContactState.SUSPECTED, active[0], error, confidence / 2, now_s)

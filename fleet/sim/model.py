@@ -3,6 +3,9 @@
 What it models, and why:
 - joint tracking with the two smoothing modes of 1/2: mode 0 (small smoothing, for streaming
   at 10 Hz) follows quickly, mode 1 (large smoothing, for big moves) slowly, both speed-limited;
+  the response is ``fleet.contact.dynamics`` (dead time, lag, speed limit, second-order servo),
+  per arm in the inventory (``sim_dynamics``) so a test can run an arm whose dynamics differ
+  from the detector's assumptions (issue 13);
 - enable/unload per joint and power: an unloaded joint or a powered-off arm does not track;
 - the field-reported quirk that a re-enabled joint chases its old cached target (so the agent
   must set the target to the measured pose before re-enabling; the sim makes that testable);
@@ -17,10 +20,10 @@ What it models, and why:
 
 from __future__ import annotations
 
-import math
 import random
 from dataclasses import dataclass, field
 
+from fleet.contact.dynamics import SIM_DEFAULT, JointResponse, SimDynamics
 from fleet.d1 import protocol as p
 from fleet.d1.errors import InvalidJoint, MalformedMessage
 from fleet.d1.limits import JOINT_COUNT, JOINT_RANGE_DEG, JointRanges
@@ -28,9 +31,8 @@ from fleet.sim.obstacles import Obstacle, constrain
 
 PHYSICS_STEP_S = 0.01
 
-# (time constant s, speed limit deg/s) per smoothing mode; the spec gives no figures, these
-# make a 60 deg move take about 1 s in mode 1 and track a 10 Hz stream closely in mode 0.
-SMOOTHING = {0: (0.05, 180.0), 1: (0.25, 90.0)}
+SMOOTHING = {mode: (d.lag_s, d.rate_deg_s) for mode, d in SIM_DEFAULT.items()}
+"""(time constant s, speed limit deg/s) per smoothing mode of the default simulated arm."""
 
 
 @dataclass
@@ -70,8 +72,15 @@ class SimArmModel:
     joint_ranges_deg: JointRanges = JOINT_RANGE_DEG
     """What the arm accepts (its gripper's own range, from the inventory)."""
     rng: random.Random = field(default_factory=lambda: random.Random(0), repr=False)
+    dynamics: SimDynamics = field(default_factory=SimDynamics)
     # joint -> (stall angle, joint was at or below it when the stall was first met)
     _stall_side: dict[int, tuple[float, bool]] = field(default_factory=dict, repr=False)
+    _joints: list[JointResponse] = field(default_factory=list, repr=False)
+
+    def __post_init__(self) -> None:
+        self._joints = [JointResponse(a) for a in self.angles_deg]
+        for response, target in zip(self._joints, self.target_deg, strict=True):
+            response.target_deg, response.mode = target, self.mode
 
     # ------------------------------------------------------------------ physics
 
@@ -84,8 +93,8 @@ class SimArmModel:
             return
         steps = min(int((now_s - self.time_s) / PHYSICS_STEP_S) + 1, 1000)
         dt = (now_s - self.time_s) / steps
-        for _ in range(steps):
-            self._step(dt)
+        for k in range(steps):
+            self._step(dt, self.time_s + (k + 1) * dt)
         self.time_s = now_s
 
     def _at_rest(self) -> bool:
@@ -96,26 +105,35 @@ class SimArmModel:
         faults = self.faults
         if faults.stalls or faults.obstacles or faults.drags or self._stall_side:
             return False
-        return self.angles_deg == self.target_deg
+        return self.angles_deg == self.target_deg and all(r.at_rest() for r in self._joints)
 
     def _tracking(self, joint: int) -> bool:
         return self.powered and self.enabled[joint] and joint not in self.faults.motors_offline
 
-    def _step(self, dt: float) -> None:
-        tau, vmax = SMOOTHING[self.mode]
-        alpha = 1.0 - math.exp(-dt / tau)
+    def _step(self, dt: float, now_s: float) -> None:
         for j in range(JOINT_COUNT):
+            response = self._joints[j]
+            response.due(now_s)
+            if not response.pending() and response.target_deg != self.target_deg[j]:
+                response.target_deg = self.target_deg[j]  # set directly (a test)
             if not self._tracking(j):
                 self._dragged(j, dt)
+                response.hold(self.angles_deg[j])
                 continue
             current = self.angles_deg[j]
-            delta = (self.target_deg[j] - current) * alpha
-            limit = vmax * dt
-            delta = max(-limit, min(limit, delta))
-            new = self._stalled(j, current, current + delta)
+            if response.angle_deg != current:
+                response.hold(current)  # moved while it did not track (a drag)
+            dynamics = self.dynamics.mode(response.mode)
+            wanted = response.step(dynamics, dt)
+            new = self._stalled(j, current, wanted)
             obstacle = self.faults.obstacles.get(j)
             if obstacle is not None:
-                new = constrain(obstacle, current, new, self.target_deg[j], dt)
+                new = constrain(obstacle, current, new, response.target_deg, dt)
+            if new != wanted:
+                if dynamics.servo_hz > 0.0:
+                    response.angle_deg, response.velocity_deg_s = new, 0.0  # blocked
+                else:
+                    response.hold(new)
             self.angles_deg[j] = new
 
     def _dragged(self, joint: int, dt: float) -> None:
@@ -178,13 +196,24 @@ class SimArmModel:
             return False
         if isinstance(command, p.SetJointAngle):
             self.target_deg[command.joint] = command.angle_deg
+            self._command((command.joint,))
         elif isinstance(command, p.SetAllAngles):
             self.target_deg = list(command.angles_deg)
             self.mode = command.mode
+            self._command(range(JOINT_COUNT))
         elif isinstance(command, p.ReturnToZero):
             self.target_deg = [0.0] * JOINT_COUNT
             self.mode = 1
+            self._command(range(JOINT_COUNT))
         return True
+
+    def _command(self, joints: range | tuple[int, ...]) -> None:
+        """The servos of ``joints`` see their new targets after the mode's dead time."""
+        dead_s = self.dynamics.mode(self.mode).dead_s
+        for j in joints:
+            self._joints[j].command(self.target_deg[j], self.mode, self.time_s, dead_s)
+            if dead_s <= 0.0:
+                self._joints[j].due(self.time_s)
 
     # ------------------------------------------------------------------ reports
 

@@ -49,7 +49,8 @@ from fleet.wire.messages import encode
 log = logging.getLogger("fleet.sim")
 
 FEEDBACK_PERIOD_S = (0.100, 0.111)
-"""The real arm's feed runs at about 9-10 Hz: each period is drawn from this range."""
+"""The real arm's feed runs at about 9-10 Hz: each period is drawn from this range (an arm's
+``sim_dynamics.feedback_hz`` sets its own)."""
 MAX_PENDING_FAULTS = 64
 """Fault requests waiting for the simulator loop; more are dropped."""
 STATUS_EVERY = 5
@@ -97,10 +98,12 @@ class SimulatedArms:
             condition = ReadCondition(reader, _ANY)
             self._waitset.attach(condition)
             writer = DataWriter(participant, fb_topic, qos=dds.FEEDBACK_WRITER_QOS)
-            model = SimArmModel(time_s=now, joint_ranges_deg=arm.joint_ranges_deg)
+            model = SimArmModel(
+                time_s=now, joint_ranges_deg=arm.joint_ranges_deg, dynamics=arm.sim_dynamics
+            )
             model.faults.abnormal_value = arm.sim_error_status
             self._arms[arm.id] = _SimArm(arm, reader, condition, writer, model)
-            heapq.heappush(self._due, (now + self._period(), arm.id))
+            heapq.heappush(self._due, (now + self._period(model), arm.id))
         self._session: zenoh.Session | None = None
         self._queryables: list[zenoh.Queryable[None]] = []
         self._keys = keys.KeySpace(inventory.fleet)
@@ -108,8 +111,8 @@ class SimulatedArms:
         self.guard = ThreadGuard("fleet sim")
         self._thread = self.guard.thread(self._run, "sim-arms")
 
-    def _period(self) -> float:
-        return self._rng.uniform(*FEEDBACK_PERIOD_S)
+    def _period(self, model: SimArmModel) -> float:
+        return self._rng.uniform(*model.dynamics.period_s())
 
     def start(self, with_zenoh: bool = True) -> SimulatedArms:
         """Start serving; with_zenoh also serves fault injection on the key space."""
@@ -171,8 +174,9 @@ class SimulatedArms:
         while self._due[0][0] <= now + BATCH_S:
             due_s, arm_id = self._due[0]
             arm = self._arms[arm_id]
-            jitter = self._rng.uniform(0.0, arm.model.faults.jitter_s)  # the noise fault
-            next_s = max(due_s + self._period() + jitter, now + 0.05)
+            # the noise fault's jitter and the arm's own (sim_dynamics)
+            jitter = self._rng.uniform(0.0, arm.model.faults.jitter_s + arm.model.dynamics.jitter_s)
+            next_s = max(due_s + self._period(arm.model) + jitter, now + 0.05)
             heapq.heapreplace(self._due, (next_s, arm_id))
             self._reports += 1
             self._late_max_s = max(self._late_max_s, now - due_s)

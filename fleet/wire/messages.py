@@ -14,6 +14,7 @@ import msgspec
 from msgspec import Meta, Struct
 
 LinkState = Literal["ok", "stale", "lost"]
+ContactModel = Literal["calibrated", "uncalibrated", "untrusted"]
 
 # Bounded numbers: a peer's absurd value (a 400-digit stamp, a lead of 1e300 s) is refused at
 # decode time with a path, instead of overflowing later in arithmetic on a worker thread.
@@ -99,6 +100,10 @@ class ArmStatus(Struct, frozen=True):
     error_status: int | None = None
     """The arm's raw ``error_status`` (1 normal; 0 or any other value, perhaps a bitfield of
     fault flags, abnormal: then ``error`` is true)."""
+    contact_model: ContactModel | None = None
+    """The contact detector's model of this arm: ``uncalibrated`` (run ``fleet calibrate``),
+    ``calibrated``, or ``untrusted`` (calibrated, but found off in free motion: see diag);
+    None with contact detection disabled."""
 
 
 class Diag(Struct, frozen=True):
@@ -136,6 +141,13 @@ class Diag(Struct, frozen=True):
     spec's examples do): credited to the arm's oldest command awaiting that kind of ack."""
     acks_ignored: Count = 0
     """Acks credited to no command: late (after the ack timeout) or repeated, or none awaited."""
+    contact_model: Text | None = None
+    """What the contact detector's model of this arm is worth (uncalibrated, calibrated, or
+    why it stopped trusting it), and the calibration file's problem if it has one."""
+    contact_free_moves: Count = 0
+    """Moves that ended in free motion since the calibration was loaded (online sanity)."""
+    contact_model_error_deg: float | None = None
+    """How far the joint lagged the model during the latest of them (degrees)."""
 
 
 # ----------------------------------------------------------------------------- commands
