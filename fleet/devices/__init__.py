@@ -17,7 +17,7 @@ from typing import Any
 from fleet.devices.base import DeviceBase
 from fleet.wire.payloads import PayloadKind
 
-_KIND_MODULES = ("fleet.dex1.kind",)
+_KIND_MODULES = ("fleet.dex1.kind", "fleet.g1.kind")
 
 
 @dataclass(frozen=True)

@@ -281,7 +281,7 @@ class GripperRelay:
         """Latch and hold the measured position at once (repeated until seen still)."""
         with self._lock:
             new = self._latch.latch(request)
-            if new:
+            if new and self._latch.written_ns is None:
                 self._hold_written_s = None
         if new:
             self._write_hold(time.monotonic())
