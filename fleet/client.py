@@ -11,6 +11,7 @@ import threading
 import time
 import uuid
 from collections.abc import Iterable
+from typing import Any
 
 import msgspec
 import zenoh
@@ -264,6 +265,41 @@ class FleetClient:
                 subscriber.undeclare()
         with lock:
             return dict(acks)
+
+    def device_snapshot(self, wait_s: float = 1.2) -> dict[str, Any]:
+        """``<kind>/<id>`` -> the newest decoded state of every device (None: none heard
+        within ``wait_s``; every device state repeats at least once a second)."""
+        found: dict[str, Any] = dict.fromkeys(self.device_labels())
+        if not found:
+            return found
+        lock = threading.Lock()
+        subscribers = []
+        prefix = f"{self.keys.prefix}/"
+        for kind in {kind_of(d) for d in self.inventory.devices.values()}:
+            decoder = kind.payloads[keys.STATE]
+
+            def on_state(sample: zenoh.Sample, decoder: Any = decoder) -> None:
+                label = str(sample.key_expr)[len(prefix) :].removesuffix(f"/{keys.STATE}")
+                try:
+                    state = decoder.decode(sample.payload.to_bytes())
+                except payloads.PayloadError:
+                    return
+                with lock:
+                    if label in found:
+                        found[label] = state
+
+            key = self.keys.device(kind.key, "*", keys.STATE)
+            subscribers.append(self.session.declare_subscriber(key, on_state))
+        deadline = time.monotonic() + wait_s
+        while time.monotonic() < deadline:
+            with lock:
+                if all(v is not None for v in found.values()):
+                    break
+            time.sleep(0.05)
+        for subscriber in subscribers:
+            subscriber.undeclare()
+        with lock:
+            return dict(found)
 
     def device_labels(self) -> dict[str, str]:
         """``<kind>/<id>`` -> id for every device of the inventory (how ``estop`` and

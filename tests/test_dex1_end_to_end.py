@@ -4,6 +4,8 @@
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
 from collections.abc import Iterator
 
 import pytest
@@ -93,6 +95,22 @@ def test_gripper_state_commands_grip_and_stop(fleet: FleetHarness) -> None:
         wait_until(lambda: (s := states.latest()) is not None and not s.estopped, 3.0)
         assert client.device_command("gl", GripperMove(open_pct=80.0)).ok
         wait_until(lambda: abs((_opening(states) or 0) - 80.0) < 1.0, 5.0)
+        # fleet status lists the grippers with their opening (the arm has no agent here).
+        status = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "fleet.cli.main",
+                "status",
+                "--inventory",
+                str(fleet.inventory_path),
+            ],
+            capture_output=True,
+            text=True,
+            timeout=30,
+        )
+        line = next(x for x in status.stdout.splitlines() if x.startswith("gripper/gl"))
+        assert "open  80.0 %" in line and "on a1" in line, status.stdout
     finally:
         states.close()
         grips.close()

@@ -20,7 +20,7 @@ from fleet.wire.payloads import PayloadKind
 _KIND_MODULES = ("fleet.dex1.kind", "fleet.g1.kind")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class DeviceKind:
     """One kind of device. ``key``: its word in the key space (``fleet/<fleet>/<key>/<id>/``);
     ``section``: its inventory table; ``config``: the Struct of one device (a ``DeviceBase``);
