@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+import threading
 from pathlib import Path
 
 from edge_agent.agent import EdgeAgent
@@ -27,6 +28,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     which = parser.add_mutually_exclusive_group(required=True)
     which.add_argument("--arm", action="append", help="arm id to serve (repeatable)")
     which.add_argument("--interface", help="serve every arm of the inventory on this interface")
+    which.add_argument(
+        "--device",
+        action="append",
+        help="serve this device (gripper, G1; repeatable) in a devices-only agent process",
+    )
     parser.add_argument(
         "--state-dir",
         type=Path,
@@ -54,6 +60,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     setup_logging(args.log_level)
     stop = shutdown_event()
+    if args.device:
+        return run_devices(args, stop)
     try:
         inventory = inventory_from_args(args)
         arms = args.arm or [a.id for a in inventory.arms.values() if a.interface == args.interface]
@@ -74,6 +82,31 @@ def main(argv: list[str] | None = None) -> int:
             "%s; every arm was stopped and latched before shutting down: restart the agent",
             agent.guard.failure,
         )
+        return EXIT_THREAD_FAILED
+    log.info("stopped")
+    return 0
+
+
+def run_devices(args: argparse.Namespace, stop: threading.Event) -> int:
+    """``edge-agent --device ID ...``: the devices' host (``edge_agent/devices.py``)."""
+    from edge_agent.devices import DeviceHost
+
+    try:
+        inventory = inventory_from_args(args)
+        for device in args.device:
+            inventory.device(device)
+        principal = args.principal or inventory.device(args.device[0]).agent
+        host = DeviceHost(inventory.with_principal(principal), args.device)
+    except (InventoryError, RouterUnreachable, ValueError) as exc:
+        print(f"edge-agent: {exc}", file=sys.stderr)
+        return 2
+    with host:
+        host.start()
+        log.info("serving devices %s of fleet %r", ", ".join(args.device), inventory.fleet)
+        while not stop.wait(0.1) and not host.failed.is_set():
+            pass
+    if host.failed.is_set():
+        log.error("%s; every device was stopped before shutting down", host.guard.failure)
         return EXIT_THREAD_FAILED
     log.info("stopped")
     return 0

@@ -11,10 +11,14 @@ import threading
 import time
 import uuid
 from collections.abc import Iterable
+from typing import Any
 
 import msgspec
 import zenoh
 
+from fleet.devices import kind_of
+from fleet.devices.base import DeviceReply
+from fleet.devices.relay import error_reply
 from fleet.inventory import Inventory
 from fleet.security.session import open_session
 from fleet.wire import keys, payloads
@@ -22,6 +26,7 @@ from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, ErrorInfo, encode
 
 JSON = zenoh.Encoding.APPLICATION_JSON
+DEVICE_REPLY = payloads.payload_kind("device reply", DeviceReply, 8 * payloads.KIB)
 REPLY_MARGIN_S = 2.0
 """A command's query waits this much longer than the command's own timeout."""
 COMMAND_LIFETIME_S = 5.0
@@ -125,6 +130,29 @@ class FleetClient:
             )
         return _no_reply(arm, why)
 
+    def device_command(
+        self, device: str, command: msgspec.Struct | bytes, timeout_s: float = 3.0
+    ) -> DeviceReply:
+        """Send ``command`` (a kind's command Struct, or its JSON) to a device's agent
+        (``<kind>/<device>/cmd/<principal>``) and wait for its reply."""
+        kind = kind_of(self.inventory.device(device)).key
+        key = self.keys.device_command(kind, device, self.principal)
+        data = command if isinstance(command, bytes) else encode(command)
+        for reply in self.session.get(key, payload=data, encoding=JSON, timeout=timeout_s):
+            if reply.ok is None:
+                continue
+            try:
+                return DEVICE_REPLY.decode(reply.ok.payload.to_bytes())
+            except payloads.PayloadError as exc:
+                why = f"{kind} {device!r}: unreadable reply from its agent: {exc}"
+                return error_reply(device, ErrorCode.UNKNOWN, why)
+        why = (
+            f"{kind} {device!r}: no reply from its agent within {timeout_s:g} s (no token on "
+            f"{self.keys.device(kind, device, keys.AGENT)}?); is `edge-agent --device "
+            f"{device}` running?"
+        )
+        return error_reply(device, ErrorCode.NOT_REGISTERED, why)
+
     def multi(
         self,
         target: str,
@@ -167,7 +195,8 @@ class FleetClient:
         wait_still: bool = True,
         request: m.StopRequest | None = None,
     ) -> dict[str, m.StopAck | None]:
-        """Stop one arm (or every arm) and wait for the agents' acknowledgments.
+        """Stop one arm or device (or every arm and device) and wait for the agents'
+        acknowledgments (devices are named ``<kind>/<id>`` in the result).
 
         The stop is re-put every 100 ms with the same ``stop_id`` until every targeted arm
         acknowledged it (Zenoh's reliability is hop by hop, not end to end); agents ignore the
@@ -175,10 +204,15 @@ class FleetClient:
         last ack per arm (None: no ack within ``timeout_s``: is that arm's agent running?).
         ``request``: a stop already put once (its repeats and acks are handled here).
         """
-        arms = [self.inventory.arm(arm).id] if arm is not None else list(self.inventory.arms)
+        if arm is not None and arm in self.inventory.devices:
+            arms: list[str] = []
+            devices = {f"{kind_of(self.inventory.device(arm)).key}/{arm}": arm}
+        else:
+            arms = [self.inventory.arm(arm).id] if arm is not None else list(self.inventory.arms)
+            devices = {} if arm is not None else self.device_labels()
         if request is None:
             request = self.stop_request(reason, source)
-        acks: dict[str, m.StopAck | None] = dict.fromkeys(arms)
+        acks: dict[str, m.StopAck | None] = dict.fromkeys([*arms, *devices])
         lock = threading.Lock()
 
         def on_ack(sample: zenoh.Sample) -> None:
@@ -191,25 +225,86 @@ class FleetClient:
                 with lock:
                     acks[arm] = ack
 
+        def on_device_ack(sample: zenoh.Sample) -> None:
+            key = str(sample.key_expr)
+            label = key[len(self.keys.prefix) + 1 :].removesuffix(f"/{keys.ESTOP_ACK}")
+            try:
+                ack = payloads.STOP_ACK.decode(sample.payload.to_bytes())
+            except payloads.PayloadError:
+                return
+            if ack.stop_id == request.stop_id and label in devices:
+                with lock:
+                    acks[label] = ack
+
         def complete() -> bool:
             with lock:
                 return all(a is not None and (a.done or not wait_still) for a in acks.values())
 
-        subscriber = self.session.declare_subscriber(self.keys.all_arms(keys.ESTOP_ACK), on_ack)
+        subscribers = [self.session.declare_subscriber(self.keys.all_arms(keys.ESTOP_ACK), on_ack)]
+        for kind in sorted({label.partition("/")[0] for label in devices}):
+            ack_key = self.keys.device(kind, "*", keys.ESTOP_ACK)
+            subscribers.append(self.session.declare_subscriber(ack_key, on_device_ack))
         deadline = time.monotonic() + timeout_s
         try:
             while True:
                 with lock:
                     unacked = any(a is None for a in acks.values())
                 if unacked:
-                    self.put_stop(request, arm)
+                    if arm is not None and devices:
+                        label = next(iter(devices))
+                        kind = label.partition("/")[0]
+                        key = self.keys.device(kind, arm, keys.ESTOP)
+                        self.session.put(key, encode(request), encoding=JSON, **STOP_QOS)
+                    else:
+                        self.put_stop(request, arm)
                 if complete() or time.monotonic() >= deadline:
                     break
                 time.sleep(0.1)
         finally:
-            subscriber.undeclare()
+            for subscriber in subscribers:
+                subscriber.undeclare()
         with lock:
             return dict(acks)
+
+    def device_snapshot(self, wait_s: float = 1.2) -> dict[str, Any]:
+        """``<kind>/<id>`` -> the newest decoded state of every device (None: none heard
+        within ``wait_s``; every device state repeats at least once a second)."""
+        found: dict[str, Any] = dict.fromkeys(self.device_labels())
+        if not found:
+            return found
+        lock = threading.Lock()
+        subscribers = []
+        prefix = f"{self.keys.prefix}/"
+        for kind in {kind_of(d) for d in self.inventory.devices.values()}:
+            decoder = kind.payloads[keys.STATE]
+
+            def on_state(sample: zenoh.Sample, decoder: Any = decoder) -> None:
+                label = str(sample.key_expr)[len(prefix) :].removesuffix(f"/{keys.STATE}")
+                try:
+                    state = decoder.decode(sample.payload.to_bytes())
+                except payloads.PayloadError:
+                    return
+                with lock:
+                    if label in found:
+                        found[label] = state
+
+            key = self.keys.device(kind.key, "*", keys.STATE)
+            subscribers.append(self.session.declare_subscriber(key, on_state))
+        deadline = time.monotonic() + wait_s
+        while time.monotonic() < deadline:
+            with lock:
+                if all(v is not None for v in found.values()):
+                    break
+            time.sleep(0.05)
+        for subscriber in subscribers:
+            subscriber.undeclare()
+        with lock:
+            return dict(found)
+
+    def device_labels(self) -> dict[str, str]:
+        """``<kind>/<id>`` -> id for every device of the inventory (how ``estop`` and
+        ``fleet status`` name them)."""
+        return {f"{kind_of(d).key}/{d.id}": d.id for d in self.inventory.devices.values()}
 
     def stop_request(self, reason: str = "", source: str | None = None) -> m.StopRequest:
         """A new stop with a fresh ``stop_id``."""

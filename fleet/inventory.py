@@ -24,6 +24,8 @@ from fleet.d1.limits import (
     JointRanges,
     joint_ranges,
 )
+from fleet.devices import DeviceKind, kinds
+from fleet.devices.base import NETWORK_FIELDS, DeviceBase
 from fleet.security.config import (
     DEFAULT_PRINCIPALS,
     ROLES,
@@ -157,6 +159,37 @@ class Inventory(Struct, frozen=True):
     principals: dict[str, Role] = {}
     principal: str = "operator"
     """Who this process acts as (``--principal``; each process has its default)."""
+    devices: dict[str, DeviceBase] = {}
+    """Devices beside the arms (``fleet/devices``: grippers, G1s), by id; ids are unique
+    across arms and devices."""
+
+    def device(self, device_id: str) -> DeviceBase:
+        """The device ``device_id``; raises InventoryError naming the known devices."""
+        try:
+            return self.devices[device_id]
+        except KeyError:
+            known = ", ".join(self.devices) or "none"
+            raise InventoryError(
+                f"{self.path}: no device {device_id!r} (known devices: {known})"
+            ) from None
+
+    def device_network(self, device_ids: list[str]) -> DdsNetwork:
+        """The one DDS network ``device_ids`` share (one agent process per network)."""
+        found = {
+            DdsNetwork(
+                self.domain_id if d.domain_id is None else d.domain_id,
+                d.interface,
+                tuple(self.peers if d.peers is None else d.peers),
+                d.multicast,
+            )
+            for d in (self.device(i) for i in device_ids)
+        }
+        if len(found) != 1:
+            raise InventoryError(
+                f"{self.path}: devices {', '.join(device_ids)} are on different DDS networks: "
+                "one agent process per network interface"
+            )
+        return found.pop()
 
     def role_of(self, principal: str) -> Role | None:
         """The role of ``principal``; None for a principal the inventory does not know."""
@@ -215,7 +248,8 @@ class Inventory(Struct, frozen=True):
     def with_domain(self, domain_id: int) -> Inventory:
         """A copy with every arm on ``domain_id`` (tests and the demo isolate runs this way)."""
         arms = {k: msgspec.structs.replace(a, domain_id=None) for k, a in self.arms.items()}
-        return msgspec.structs.replace(self, domain_id=domain_id, arms=arms)
+        devices = {k: msgspec.structs.replace(d, domain_id=None) for k, d in self.devices.items()}
+        return msgspec.structs.replace(self, domain_id=domain_id, arms=arms, devices=devices)
 
     def with_endpoints(self, endpoints: list[str]) -> Inventory:
         """A copy whose processes meet on ``endpoints``."""
@@ -340,6 +374,8 @@ def parse_inventory(text: str, path: str = DEFAULT_INVENTORY) -> Inventory:
         "security",
         "principals",
     }
+    device_kinds = {kind.section: kind for kind in kinds().values()}
+    known |= set(device_kinds)
     for key in raw:
         if key not in known:
             raise InventoryError(
@@ -365,7 +401,8 @@ def parse_inventory(text: str, path: str = DEFAULT_INVENTORY) -> Inventory:
         raise InventoryError(f"{path}: defaults: 'id' cannot have a default")
     _convert(defaults, ArmConfig, path, "defaults")
     arms_raw = raw.get("arms", {})
-    if not isinstance(arms_raw, dict) or not arms_raw:
+    has_devices = any(raw.get(section) for section in device_kinds)
+    if not isinstance(arms_raw, dict) or not (arms_raw or has_devices):
         raise InventoryError(f"{path}: no arms: add at least one [arms.<id>] table")
     try:
         check_name("fleet", fleet.name)
@@ -396,9 +433,10 @@ def parse_inventory(text: str, path: str = DEFAULT_INVENTORY) -> Inventory:
         _check_arm(arm, path)
         arms[arm_id] = arm
     _check_unique_topics(arms, dds.domain_id, path)
+    devices = _parse_devices(raw, device_kinds, defaults, arms, path)
     groups = _parse_groups(raw.get("groups", {}), arms, path)
     security = _parse_security(raw.get("security", {}), path)
-    principals = _parse_principals(raw.get("principals", {}), arms, path)
+    principals = _parse_principals(raw.get("principals", {}), arms, path, devices)
     return Inventory(
         path=path,
         fleet=fleet.name,
@@ -410,7 +448,47 @@ def parse_inventory(text: str, path: str = DEFAULT_INVENTORY) -> Inventory:
         coordinator=coordinator,
         security=security,
         principals=principals,
+        devices=devices,
     )
+
+
+def _parse_devices(
+    raw: dict[str, Any],
+    device_kinds: dict[str, DeviceKind],
+    defaults: dict[str, Any],
+    arms: dict[str, ArmConfig],
+    path: str,
+) -> dict[str, DeviceBase]:
+    """Every ``[<section>.<id>]`` of every device kind; the network fields of ``[defaults]``
+    apply to devices too."""
+    inherited = {k: v for k, v in defaults.items() if k in NETWORK_FIELDS}
+    devices: dict[str, DeviceBase] = {}
+    for section, kind in device_kinds.items():
+        tables = raw.get(section, {})
+        if not isinstance(tables, dict):
+            raise InventoryError(f"{path}: {section}: expected tables ([{section}.<id>])")
+        for device_id, table in tables.items():
+            where = f"{section}.{device_id}"
+            try:
+                check_name("device", device_id)
+            except KeyError_ as exc:
+                raise InventoryError(f"{path}: {where}: {exc}") from None
+            if not isinstance(table, dict) or "id" in table:
+                raise InventoryError(f"{path}: {where}: expected a table without 'id'")
+            if device_id in arms or device_id in devices:
+                raise InventoryError(f"{path}: {where}: the id {device_id!r} is already used")
+            merged = {**inherited, **table, "id": device_id}
+            merged.setdefault("agent", f"agent-{device_id}")
+            device = _convert(merged, kind.config, path, where)
+            _check_finite(device, path, where)
+            problem = kind.check(device)
+            mount = getattr(device, "mount", "")
+            if problem is None and mount and mount not in arms:
+                problem = f"mount {mount!r} is not an arm of this inventory"
+            if problem is not None:
+                raise _fail(path, where, problem)
+            devices[device_id] = device
+    return devices
 
 
 def _parse_security(raw: Any, path: str) -> Security:
@@ -422,12 +500,17 @@ def _parse_security(raw: Any, path: str) -> Security:
     return security
 
 
-def _parse_principals(raw: Any, arms: dict[str, ArmConfig], path: str) -> dict[str, Role]:
+def _parse_principals(
+    raw: Any,
+    arms: dict[str, ArmConfig],
+    path: str,
+    devices: dict[str, DeviceBase] | None = None,
+) -> dict[str, Role]:
     """``[principals] name = "role"`` over the defaults, plus every arm's agent."""
     given = _convert(raw, dict[str, str], path, "principals")
     principals: dict[str, Role] = dict(DEFAULT_PRINCIPALS)
-    for arm in arms.values():
-        principals[arm.agent] = "agent"
+    for served in [*arms.values(), *(devices or {}).values()]:
+        principals[served.agent] = "agent"
     for name, role in given.items():
         if principals.get(name) == "agent" and role != "agent":
             raise InventoryError(f"{path}: principals.{name}: it is an arm's agent")

@@ -15,6 +15,7 @@ import tempfile
 import threading
 import time
 from collections.abc import Callable
+from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
@@ -23,7 +24,7 @@ import zenoh
 from fleet.cli.demo_secure import secure_demo_inventory
 from fleet.cli.supervise import Supervisor
 from fleet.client import FleetClient
-from fleet.guard import EXIT_THREAD_FAILED
+from fleet.guard import EXIT_THREAD_FAILED, ThreadGuard
 from fleet.inventory import Inventory
 from fleet.runtime import inventory_from_args, shutdown_event, wait_for
 from fleet.security.session import router_config
@@ -102,27 +103,53 @@ def run_router(args: argparse.Namespace) -> int:
 
 
 def run_sim(args: argparse.Namespace) -> int:
-    """Run simulated arms until SIGINT/SIGTERM."""
+    """Run simulated arms and devices (grippers, G1s) until SIGINT/SIGTERM."""
+    from fleet.sim.devices import SimulatedDevices
     from fleet.sim.node import SimulatedArms  # DDS is only loaded by the commands that use it
 
     inventory = inventory_from_args(args, "sim")
     arms = args.arm or [a.id for a in inventory.arms.values() if a.simulated]
-    if not arms:
-        print("fleet sim: the inventory marks no arm as simulated", file=sys.stderr)
+    devices = [] if args.arm else [d.id for d in inventory.devices.values() if d.simulated]
+    if not arms and not devices:
+        print("fleet sim: the inventory marks no arm or device as simulated", file=sys.stderr)
         return 2
     stop = shutdown_event()
-    with SimulatedArms(inventory, arms, seed=args.seed) as sim:
-        sim.start(with_zenoh=not args.no_zenoh)
-        log.info(
-            "simulating arms %s on DDS domain %d",
-            ", ".join(arms),
-            inventory.domain_of(inventory.arm(arms[0])),
-        )
-        failed = wait_for(stop, sim.guard.failed)
-    if failed:
-        log.error("%s: the simulator stopped; restart it", sim.guard.failure)
+    with ExitStack() as stack:
+        sim = stack.enter_context(SimulatedArms(inventory, arms, seed=args.seed)) if arms else None
+        guards = []
+        if sim is not None:
+            sim.start(with_zenoh=not args.no_zenoh)
+            guards.append(sim.guard)
+            log.info(
+                "simulating arms %s on DDS domain %d",
+                ", ".join(arms),
+                inventory.domain_of(inventory.arm(arms[0])),
+            )
+        if devices:
+            participant = sim.participant if sim is not None else None
+            device_sim = stack.enter_context(SimulatedDevices(inventory, devices, participant))
+            device_sim.start()
+            guards.append(device_sim.guard)
+            log.info("simulating devices %s", ", ".join(devices))
+        failed = wait_for(stop, guards[0].failed if len(guards) == 1 else _any_failed(guards))
+    failure = next((g.failure for g in guards if g.failed.is_set()), None)
+    if failed or failure:
+        log.error("%s: the simulator stopped; restart it", failure)
         return EXIT_THREAD_FAILED
     return 0
+
+
+def _any_failed(guards: list[ThreadGuard]) -> threading.Event:
+    """An Event set once any of ``guards`` failed (polled by a small daemon thread)."""
+    event = threading.Event()
+
+    def watch() -> None:
+        while not event.is_set():
+            if any(g.failed.wait(0.1) for g in guards):
+                event.set()
+
+    threading.Thread(target=watch, name="sim-failed", daemon=True).start()
+    return event
 
 
 def run_coordinator(args: argparse.Namespace) -> int:

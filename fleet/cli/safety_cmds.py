@@ -36,7 +36,14 @@ def run_estop(args: argparse.Namespace) -> int:
     """Stop, then print per arm the times to receipt, DDS write and standstill."""
     inventory = inventory_from_args(args)
     targets = [args.arm] if args.arm else list(inventory.arms)
-    for arm in targets:
+    for device in [args.arm] if args.arm in inventory.devices else list(inventory.devices):
+        if getattr(inventory.device(device), "stop_action", "") == "damp":
+            print(
+                f"WARNING: {device}'s stop action is damp: a damped G1 sinks to the ground "
+                "(README, Protective stop); make sure nobody is next to it",
+                file=sys.stderr,
+            )
+    for arm in [t for t in targets if t not in inventory.devices]:
         action = inventory.arm(arm).stop_action
         if action != "hold":
             print(
@@ -53,6 +60,13 @@ def run_estop(args: argparse.Namespace) -> int:
             print(f"{arm}: NO ACK: is its edge-agent running? (its arm was not confirmed stopped)")
             continue
         confirmed = ""
+        if "/" in arm:  # a device: its state confirmed the action
+            print(
+                f"{arm}: stopped ({ack.action}): received {_ms(ack.received_ns, sent_ns)}, "
+                f"DDS written {_ms(ack.dds_written_ns, sent_ns)}, "
+                f"confirmed {_ms(ack.still_ns, sent_ns)}"
+            )
+            continue
         if ack.action != "hold":
             state = "unloaded" if ack.action == "unload" else "unpowered"
             confirmed = f", {state} {_ms(ack.confirmed_ns, sent_ns)}"

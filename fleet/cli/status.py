@@ -6,10 +6,12 @@ import argparse
 import json
 import sys
 from collections.abc import Callable
+from typing import Any
 
 import msgspec
 
 from fleet.client import FleetClient
+from fleet.devices import kinds
 from fleet.inventory import Inventory
 from fleet.runtime import inventory_from_args, shutdown_event
 from fleet.wire import messages as m
@@ -85,6 +87,23 @@ def status_lines(
     return lines
 
 
+def device_lines(inventory: Inventory, states: dict[str, Any]) -> list[str]:
+    """One line per device (gripper opening, G1 FSM), after the arms."""
+    if not states:
+        return []
+    lines = [f"{'device':<16} {'link':<6} {'stop':<5} state"]
+    for label, state in states.items():
+        if state is None:
+            lines.append(f"{label:<16} {'-':<6} {'-':<5} no state (is `edge-agent --device` up?)")
+            continue
+        kind = kinds()[label.partition("/")[0]]
+        stop = "YES" if state.estopped else "no"
+        lines.append(f"{label:<16} {state.link:<6} {stop:<5} {kind.summary(state)}")
+        if state.estopped and state.stop_reason:
+            lines.append(f"{'':<16} {state.stop_reason[:110]}")
+    return lines
+
+
 def _as_json(snapshot: Snapshot, alive: set[str]) -> str:
     out = {
         arm: {
@@ -108,14 +127,16 @@ def run_status(args: argparse.Namespace) -> int:
             snapshot = client.snapshot()
             alive = client.agents_alive()
             state = client.fleet_state()
+            devices = client.device_snapshot()
             healthy = all(
                 arm in alive and status is not None and status.link == "ok"
                 for arm, (status, _j) in snapshot.items()
-            )
+            ) and all(d is not None and d.link == "ok" for d in devices.values())
             if args.json:
                 print(_as_json(snapshot, alive), flush=True)
             else:
                 lines = status_lines(inventory, snapshot, alive, state)
+                lines += device_lines(inventory, devices)
                 if printed and sys.stdout.isatty():
                     print(f"\033[{printed}F", end="")  # redraw in place
                 print("\n".join(lines), flush=True)

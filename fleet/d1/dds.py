@@ -41,9 +41,10 @@ for a host running a simulated fleet (one participant per simulator and agent pr
 
 @dataclass
 class ArmString_(IdlStruct, typename="unitree_arm::msg::dds_::ArmString_"):  # noqa: N801
-    """``unitree_arm::msg::dds_::ArmString_``: one JSON string in ``data_``."""
+    """``unitree_arm::msg::dds_::ArmString_``: one JSON string in ``data_`` (default ``""``:
+    helpers such as unitree-dds-wrapper's Publisher construct the type without arguments)."""
 
-    data_: str
+    data_: str = ""
 
 
 _PLAIN_ENCAPSULATIONS = {0x0000: ">I", 0x0001: "<I", 0x0006: ">I", 0x0007: "<I"}

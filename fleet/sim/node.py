@@ -111,6 +111,11 @@ class SimulatedArms:
         self.guard = ThreadGuard("fleet sim")
         self._thread = self.guard.thread(self._run, "sim-arms")
 
+    @property
+    def participant(self) -> object:
+        """The DDS participant (the device simulator of the same process shares it)."""
+        return self._channel.participant
+
     def _period(self, model: SimArmModel) -> float:
         return self._rng.uniform(*model.dynamics.period_s())
 

@@ -50,6 +50,11 @@ ARM_CHANNELS = (
 )
 
 
+DEVICE_CHANNELS = (STATE, CMD, CONTACT, AGENT, DIAG, ESTOP, ESTOP_ACK, RESET)
+"""Channels under ``fleet/<fleet>/<kind>/<device>/`` for the device kinds beside the D1 arm
+(``fleet/devices``: ``gripper``, ``g1``): the same words as the arm's, one meaning each."""
+
+
 class KeyError_(ValueError):  # noqa: N801 - not the builtin KeyError: a bad key expression
     """A fleet or arm name that cannot be part of a key, or a key outside the key space."""
 
@@ -77,6 +82,15 @@ class ArmKey(Struct, frozen=True):
     channel: str
 
 
+class DeviceKey(Struct, frozen=True):
+    """A concrete per-device key, parsed (``kind`` is a device kind's key word)."""
+
+    fleet: str
+    kind: str
+    device: str
+    channel: str
+
+
 class KeySpace:
     """Key builders for one fleet."""
 
@@ -91,6 +105,30 @@ class KeySpace:
         if channel not in ARM_CHANNELS:
             raise KeyError_(f"unknown arm channel {channel!r}")
         return f"{self.prefix}/arm/{arm}/{channel}"
+
+    def device(self, kind: str, device: str, channel: str) -> str:
+        """``fleet/<fleet>/<kind>/<device>/<channel>`` (``device`` may be ``*``); ``kind`` is
+        a device kind's key word (``gripper``, ``g1``), never ``arm``."""
+        check_name("device kind", kind)
+        if kind == "arm":
+            raise KeyError_("arms have their own keys: use KeySpace.arm")
+        if device != "*":
+            check_name("device", device)
+        if channel not in DEVICE_CHANNELS:
+            raise KeyError_(f"unknown device channel {channel!r}")
+        return f"{self.prefix}/{kind}/{device}/{channel}"
+
+    def device_command(self, kind: str, device: str, principal: str) -> str:
+        """``<kind>/<device>/cmd/<principal>``: ``principal``'s commands to one device."""
+        return f"{self.device(kind, device, CMD)}/{check_name('principal', principal)}"
+
+    def parse_device_key(self, key: str, kind: str) -> DeviceKey:
+        """Split ``fleet/<fleet>/<kind>/<device>/<channel>``; KeyError_ for anything else."""
+        head = f"{self.prefix}/{kind}/"
+        device, _, channel = key[len(head) :].partition("/")
+        if not key.startswith(head) or channel not in DEVICE_CHANNELS or not _NAME.match(device):
+            raise KeyError_(f"{key!r} is not a {kind} key of fleet {self.fleet!r}")
+        return DeviceKey(self.fleet, kind, device, channel)
 
     def all_arms(self, channel: str) -> str:
         """A wildcard over every arm for one channel."""

@@ -1,0 +1,45 @@
+"""What every device kind beside the D1 arm shares: its network fields and its replies.
+
+A device's inventory table (``[grippers.<id>]``, ``[g1.<id>]``) is a Struct deriving from
+``DeviceBase``; ``[defaults]`` gives it the network fields it sets (interface, peers, multicast,
+domain_id, simulated, agent), never the arm-only ones.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from msgspec import Meta, Struct
+
+from fleet.wire.messages import ErrorInfo
+
+NETWORK_FIELDS = ("interface", "peers", "multicast", "domain_id", "simulated")
+"""Fields of ``[defaults]`` that devices inherit too (the rest of it is the arms')."""
+
+
+class DeviceBase(Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
+    """Fields of every device: who serves it and on which DDS network."""
+
+    id: str = ""
+    agent: str = ""
+    """The principal of the edge agent serving this device (default ``agent-<id>``)."""
+    interface: str = "lo"
+    peers: list[str] | None = None
+    multicast: bool = False
+    domain_id: int | None = None
+    simulated: bool = False
+    link_stale_s: float = 0.35
+    """No state sample for this long: the link is ``stale`` (commands are refused)."""
+
+
+class DeviceReply(Struct, frozen=True):
+    """The reply to a device command (``<kind>/<device>/cmd/<principal>``): ``ok``, the device,
+    what was written (``written``: a short text of the DDS message) and the error, if any, with
+    the arm's error codes (``fleet.wire.messages.ErrorCode``)."""
+
+    ok: bool
+    device: Annotated[str, Meta(max_length=128)]
+    error: ErrorInfo | None = None
+    written_ns: Annotated[int, Meta(ge=0, le=2**63 - 1)] | None = None
+    result: Annotated[str, Meta(max_length=1024)] | None = None
+    """A query's answer (``get_fsm_id``: the id), as text."""

@@ -1,0 +1,303 @@
+"""The agent's side of one Dex1-1: DDS state in at 200-500 Hz, Zenoh state out at the relay
+rate (newest wins, nothing queued), grip detection on every sample, commands and stops out.
+
+Threads (see ``fleet/devices/relay.py``): ``on_data``/``tick`` on the host's relay thread,
+``command`` on its command thread, ``stop``/``reset`` on its safety thread. ``_lock`` guards the
+newest reading, the latch, the target and the counters (copied under it, published after);
+``_write`` serializes DDS writes with the latch decision, so no motion checked before a stop is
+written after the stop's hold (the arm's rule).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from typing import Any
+
+from cyclonedds.pub import DataWriter
+from cyclonedds.sub import DataReader
+from cyclonedds.topic import Topic
+
+from fleet.devices.base import DeviceReply
+from fleet.devices.latch import StopLatch
+from fleet.devices.relay import Put, error_reply
+from fleet.dex1 import dds as ddx
+from fleet.dex1 import idl
+from fleet.dex1.codec import READERS, BadSample, Limits, Reading, Target, target_problem
+from fleet.dex1.config import GripperConfig
+from fleet.dex1.grip import GripDetector
+from fleet.dex1.messages import GripEvent, GripperHold, GripperMove, GripperState
+from fleet.wire import keys
+from fleet.wire import messages as m
+from fleet.wire.payloads import PayloadError, payload_kind
+
+log = logging.getLogger("edge_agent.gripper")
+
+TAKE_BATCH = 64
+COMMAND = payload_kind("gripper command", GripperMove | GripperHold, 4 * 1024)
+STILL_RAD_S = 0.05
+"""A held gripper is confirmed still below this speed (measured over 20 ms)."""
+
+
+class GripperRelay:
+    """One Dex1-1 served by the agent (create on the host's start-up thread)."""
+
+    def __init__(self, config: GripperConfig, participant: Any, put: Put) -> None:
+        self.device = config.id
+        self.config = config
+        self._put = put
+        cmd_type, state_type = idl.FAMILIES[config.family]
+        state_topic = Topic(participant, config.state_topic, state_type)
+        cmd_topic = Topic(participant, config.cmd_topic, cmd_type)
+        self._reader = DataReader(participant, state_topic, qos=ddx.STATE_READER_QOS)
+        self._writer = DataWriter(participant, cmd_topic, qos=ddx.COMMAND_WRITER_QOS)
+        self.readers = [self._reader]
+        self._decode = READERS[config.family]
+        self._limits = Limits(
+            config.q_min_rad, config.q_max_rad, config.tau_max, config.kp_max, config.kd_max
+        )
+        self._grip = GripDetector(
+            config.grip_error_rad,
+            config.grip_speed_rad_s,
+            config.grip_confirm_s,
+            config.release_error_rad,
+            config.release_s,
+        )
+        self._period_s = 1.0 / config.relay_hz
+        self._lock = threading.Lock()
+        self._write = threading.Lock()
+        self._latch = StopLatch(config.id, "hold")
+        self._latest: tuple[Reading, float] | None = None
+        self._fresh = False  # a sample arrived since the last put
+        self._next_put_s = 0.0
+        self._target: float | None = None
+        self._hold_written_s: float | None = None
+        self._counts = {"dds_samples": 0, "relayed": 0, "bad_samples": 0, "commands": 0}
+        self._counts.update({"rejected": 0, "write_failures": 0})
+        self._rate_window: tuple[float, int] = (time.monotonic(), 0)
+        self._rate_hz = 0.0
+
+    # ------------------------------------------------------------------ relay thread
+
+    def on_data(self, index: int, now_s: float) -> None:
+        """Every waiting state sample: decode (bounded), grip detection, stop confirmation.
+        Only the newest reading is kept for the relay: nothing queues."""
+        events: list[bytes] = []
+        ack: m.StopAck | None = None
+        for sample in self._reader.take(N=TAKE_BATCH):
+            if not hasattr(sample, "__idl_typename__"):  # InvalidSample: a writer went away
+                continue
+            try:
+                reading = self._decode(sample)
+            except (BadSample, AttributeError, TypeError, IndexError) as exc:
+                with self._lock:
+                    self._counts["bad_samples"] += 1
+                log.debug("gripper %s: bad state sample: %s", self.device, exc)
+                continue
+            change = self._grip.on_sample(reading.q_rad, now_s)
+            with self._lock:
+                self._counts["dds_samples"] += 1
+                self._latest, self._fresh = (reading, now_s), True
+                written = self._hold_written_s
+                if written is not None and now_s - written > 0.02:
+                    speed = self._grip.speed()
+                    if speed is not None and abs(speed) < STILL_RAD_S and self._latch.confirm():
+                        ack = self._latch.ack()
+            if change is not None:
+                events.append(
+                    m.encode(
+                        GripEvent(
+                            stamp_ns=time.time_ns(),
+                            gripper=self.device,
+                            state=change.state,  # type: ignore[arg-type]
+                            q_rad=round(change.q_rad, 4),
+                            target_rad=round(change.target_rad, 4),
+                            error_rad=round(change.error_rad, 4),
+                            tau_est=reading.tau_est,
+                        )
+                    )
+                )
+        for event in events:
+            self._put(keys.CONTACT, event, True)
+        if ack is not None:
+            self._put(keys.ESTOP_ACK, m.encode(ack), True)
+
+    def tick(self, now_s: float) -> None:
+        """The state at the relay rate (newest wins; a 1 Hz repeat when nothing new, so a
+        stale link is seen), and the stop's hold until confirmed."""
+        with self._lock:
+            start, count = self._rate_window
+            if now_s - start >= 1.0:
+                self._rate_hz = (self._counts["dds_samples"] - count) / (now_s - start)
+                self._rate_window = (now_s, self._counts["dds_samples"])
+            due = now_s >= self._next_put_s and (self._fresh or now_s - self._next_put_s >= 1.0)
+            state = self._state(now_s) if due else None
+            if due:
+                self._fresh = False
+                # Keep the grid: a late tick does not shift the next put (the rate stays).
+                self._next_put_s = max(self._next_put_s + self._period_s, now_s - self._period_s)
+                self._counts["relayed"] += 1
+            hold_due = self._latch.due(now_s)
+        if state is not None:
+            self._put(keys.STATE, m.encode(state), False)
+        if hold_due:
+            self._write_hold(now_s)
+
+    def _state(self, now_s: float) -> GripperState | None:
+        if self._latest is None:
+            return None
+        reading, at_s = self._latest
+        stale = now_s - at_s > self.config.link_stale_s
+        return GripperState(
+            stamp_ns=time.time_ns(),
+            q_rad=round(reading.q_rad, 5),
+            opening_pct=round(reading.opening_pct, 2),
+            dq_rad_s=round(reading.dq_rad_s, 4),
+            tau_est=round(reading.tau_est, 4),
+            temperature_c=reading.temperature_c,
+            error=reading.error,
+            lost=reading.lost,
+            link="stale" if stale else "ok",
+            target_rad=self._target,
+            gripping=self._grip.gripping,
+            estopped=self._latch.latched,
+            stop_reason=self._latch.reason,
+            dds_samples=self._counts["dds_samples"],
+            relayed=self._counts["relayed"] + 1,
+            bad_samples=self._counts["bad_samples"],
+            dds_rate_hz=round(self._rate_hz, 1),
+            family=self.config.family,
+            mount=self.config.mount,
+        )
+
+    # ------------------------------------------------------------------ writes
+
+    def _fresh_q(self, now_s: float) -> float | None:
+        with self._lock:
+            latest = self._latest
+        if latest is None or now_s - latest[1] > self.config.link_stale_s:
+            return None
+        return latest[0].q_rad
+
+    def _write_target(self, target: Target) -> int:
+        """Write ``target`` (caller holds ``_write``); the wall-clock time it was written."""
+        self._writer.write(ddx.command_sample(self.config.family, target))
+        with self._lock:
+            self._target = target.q_rad
+        self._grip.on_target(target.q_rad)
+        return time.time_ns()
+
+    def _hold_target(self, q_rad: float) -> Target:
+        c = self.config
+        return Target(q_rad=min(max(q_rad, c.q_min_rad), c.q_max_rad), tau=c.tau, kp=c.kp, kd=c.kd)
+
+    def _write_hold(self, now_s: float) -> None:
+        ack = None
+        with self._write:
+            q = self._fresh_q(now_s)
+            with self._lock:
+                if not self._latch.latched:
+                    return
+                if q is None:
+                    first = self._latch.detail is None
+                    self._latch.detail = "no fresh position: the hold is written when one arrives"
+                    self._latch.last_write_s = now_s
+                    ack = self._latch.ack() if first else None
+            if q is not None:
+                self._write_target(self._hold_target(q))
+                with self._lock:
+                    first = self._latch.written_ns is None
+                    self._latch.detail = None
+                    self._latch.written(now_s)
+                    self._hold_written_s = now_s
+                    ack = self._latch.ack() if first else None
+        if ack is not None:
+            self._put(keys.ESTOP_ACK, m.encode(ack), True)
+
+    # ------------------------------------------------------------------ commands
+
+    def command(self, payload: bytes, principal: str) -> DeviceReply:
+        """Check and execute one command (3204 out of range, 3205 stopped or no state)."""
+        with self._lock:
+            self._counts["commands"] += 1
+        try:
+            cmd = COMMAND.decode(payload)
+        except PayloadError as exc:
+            code = m.ErrorCode.PARAMETER
+            if b'"op"' in payload and b'"move"' not in payload and b'"hold"' not in payload:
+                code = m.ErrorCode.NOT_IMPLEMENTED
+            return self._refuse(code, str(exc))
+        now_s = time.monotonic()
+        if isinstance(cmd, GripperHold):
+            q = self._fresh_q(now_s)
+            if q is None:
+                return self._refuse(m.ErrorCode.REJECTED, self._no_state())
+            target = self._hold_target(q)
+        else:
+            if (cmd.open_pct is None) == (cmd.q_rad is None):
+                return self._refuse(m.ErrorCode.PARAMETER, "give exactly one of open_pct, q_rad")
+            c = self.config
+            q_rad = cmd.q_rad if cmd.q_rad is not None else (cmd.open_pct or 0.0) / 50.0 * math.pi
+            target = Target(
+                q_rad=q_rad,
+                tau=c.tau if cmd.tau is None else cmd.tau,
+                kp=c.kp if cmd.kp is None else cmd.kp,
+                kd=c.kd if cmd.kd is None else cmd.kd,
+            )
+            problem = target_problem(target, self._limits)
+            if problem is not None:
+                return self._refuse(
+                    m.ErrorCode.PARAMETER, f"gripper {self.device!r}: {problem} (inventory limits)"
+                )
+        with self._write:
+            with self._lock:
+                reason = self._latch.reason if self._latch.latched else None
+            if reason is not None and isinstance(cmd, GripperMove):
+                return self._refuse(
+                    m.ErrorCode.REJECTED,
+                    f"gripper {self.device!r} is stopped ({reason}); `fleet reset` releases it",
+                )
+            if self._fresh_q(now_s) is None:
+                return self._refuse(m.ErrorCode.REJECTED, self._no_state())
+            written = self._write_target(target)
+        return DeviceReply(ok=True, device=self.device, written_ns=written)
+
+    def _no_state(self) -> str:
+        return (
+            f"gripper {self.device!r} has no fresh state on {self.config.state_topic} "
+            f"(within {self.config.link_stale_s:g} s); is it powered and on this network?"
+        )
+
+    def _refuse(self, code: m.ErrorCode, message: str) -> DeviceReply:
+        with self._lock:
+            self._counts["rejected"] += 1
+        return error_reply(self.device, code, message)
+
+    # ------------------------------------------------------------------ safety
+
+    def stop(self, request: m.StopRequest, repeat_ack: bool = True) -> None:
+        """Latch and hold the measured position at once (repeated until seen still)."""
+        with self._lock:
+            new = self._latch.latch(request)
+            if new and self._latch.written_ns is None:
+                self._hold_written_s = None
+        if new:
+            self._write_hold(time.monotonic())
+        elif repeat_ack:
+            with self._lock:
+                ack = self._latch.ack()
+            if ack is not None:
+                self._put(keys.ESTOP_ACK, m.encode(ack), True)
+
+    def reset(self) -> None:
+        """Release the latch; the target stays the held position (nothing moves)."""
+        with self._lock:
+            self._latch.reset()
+            self._hold_written_s = None
+
+    def counters(self) -> dict[str, int]:
+        """Counters since start."""
+        with self._lock:
+            return dict(self._counts)

@@ -1,0 +1,32 @@
+"""The G1 humanoid's high-level service as a device kind: key word ``g1``, inventory table
+``[g1.<id>]``."""
+
+from __future__ import annotations
+
+from fleet.devices import DeviceKind
+from fleet.g1.config import G1Config, check_g1
+from fleet.g1.messages import G1Command, G1State
+from fleet.wire import keys
+from fleet.wire.payloads import KIB, payload_kind
+
+
+def summary(state: G1State) -> str:
+    """One ``fleet status`` line's details."""
+    stopped = f" STOPPED ({state.stop_action})" if state.estopped else ""
+    return f"fsm {state.fsm_id} {state.fsm_name}, {state.mode}, {state.dds_rate_hz:.0f} Hz{stopped}"
+
+
+KIND = DeviceKind(
+    key="g1",
+    section="g1",
+    config=G1Config,
+    check=check_g1,
+    payloads={
+        keys.STATE: payload_kind("g1 state", G1State, 4 * KIB),
+        keys.CMD: payload_kind("g1 command", G1Command, 4 * KIB),
+    },
+    summary=summary,
+    agent="fleet.g1.relay:G1Relay",
+    sim="fleet.g1.sim:SimG1",
+    stop_actions=("stop_move", "damp"),
+)

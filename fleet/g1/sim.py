@@ -1,0 +1,140 @@
+"""A simulated G1 high-level motion service on real DDS: ``rt/sportmodestate`` at
+``sim_rate_hz``, the LocoClient API over ``rt/api/loco/request|response`` with seed 001's
+error codes, and the FSM transitions of seed 004's table.
+
+The model (``G1Model``) is pure: SetFsmId switches to a listed id (damping always; any other
+only in a static state, else 3205); SetVelocity needs the walking controller (500/501/801/802,
+else 3205), makes the robot dynamic (fsm_mode 1) for its duration plus ``settle_s`` of
+stepping, a zero velocity ends it after ``settle_s``; SetBalanceMode 1 is continuous gait
+(dynamic until 0); an unknown API id is 3203, a bad parameter 3204.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+from cyclonedds.core import Policy, Qos
+from cyclonedds.pub import DataWriter
+from cyclonedds.sub import DataReader
+from cyclonedds.topic import Topic
+
+from fleet.g1 import idl, loco
+from fleet.g1.config import G1Config
+from fleet.g1.relay import RPC_QOS
+from fleet.wire.messages import ErrorCode
+
+STATE_WRITER_QOS = Qos(
+    Policy.Reliability.BestEffort, Policy.History.KeepLast(1), Policy.Durability.Volatile
+)
+
+
+class G1Model:
+    """The FSM and motion of the simulated service. Pure (times are passed in)."""
+
+    def __init__(self, fsm_id: int, settle_s: float) -> None:
+        self.fsm_id = fsm_id
+        self.settle_s = settle_s
+        self.moving_until_s = 0.0
+        self.continuous = False
+        self.velocity = (0.0, 0.0, 0.0)
+
+    def fsm_mode(self, now_s: float) -> int:
+        """1 (dynamic) while stepping, else 0."""
+        return loco.DYNAMIC if self.continuous or now_s < self.moving_until_s else loco.STATIC
+
+    def call(self, api_id: int, parameter: str, now_s: float) -> tuple[int, str]:
+        """One request -> (status code, JSON data)."""
+        if api_id not in loco.API_IDS:
+            return int(ErrorCode.NOT_IMPLEMENTED), ""
+        try:
+            params = json.loads(parameter) if parameter else {}
+        except ValueError:
+            return int(ErrorCode.PARAMETER), ""
+        if not isinstance(params, dict):
+            return int(ErrorCode.PARAMETER), ""
+        if api_id == loco.GET_FSM_ID:
+            return 0, json.dumps({"data": self.fsm_id})
+        if api_id == loco.GET_FSM_MODE:
+            return 0, json.dumps({"data": self.fsm_mode(now_s)})
+        if api_id == loco.SET_FSM_ID:
+            return self._set_fsm(params.get("data"), now_s), ""
+        if api_id == loco.SET_BALANCE_MODE:
+            return self._balance(params.get("data"), now_s), ""
+        return self._velocity(params, now_s), ""
+
+    def _set_fsm(self, fsm_id: Any, now_s: float) -> int:
+        if not isinstance(fsm_id, int) or fsm_id not in loco.FSM_NAMES:
+            return int(ErrorCode.PARAMETER)
+        if fsm_id != loco.DAMP_FSM and self.fsm_mode(now_s) == loco.DYNAMIC:
+            return int(ErrorCode.REJECTED)
+        self.fsm_id, self.moving_until_s, self.continuous = fsm_id, 0.0, False
+        self.velocity = (0.0, 0.0, 0.0)
+        return 0
+
+    def _balance(self, mode: Any, now_s: float) -> int:
+        if mode not in (0, 1):
+            return int(ErrorCode.PARAMETER)
+        if self.fsm_id not in loco.WALK_FSMS:
+            return int(ErrorCode.REJECTED)
+        self.continuous = mode == 1
+        return 0
+
+    def _velocity(self, params: dict[str, Any], now_s: float) -> int:
+        velocity, duration_s = params.get("velocity"), params.get("duration", 1.0)
+        if (
+            not isinstance(velocity, list)
+            or len(velocity) != 3
+            or not all(isinstance(v, int | float) for v in [*velocity, duration_s])
+        ):
+            return int(ErrorCode.PARAMETER)
+        if self.fsm_id not in loco.WALK_FSMS:
+            return int(ErrorCode.REJECTED)
+        self.velocity = (float(velocity[0]), float(velocity[1]), float(velocity[2]))
+        if any(self.velocity):
+            self.moving_until_s = now_s + float(duration_s) + self.settle_s
+        else:  # stepping ends within settle_s (a repeated zero does not prolong it)
+            self.moving_until_s = min(self.moving_until_s, now_s + self.settle_s)
+        return 0
+
+
+class SimG1:
+    """One simulated G1's DDS endpoints and model."""
+
+    def __init__(self, config: G1Config, participant: Any, now_s: float) -> None:
+        self.device = config.id
+        self.config = config
+        state = Topic(participant, loco.STATE_TOPIC, idl.SportModeState_)
+        request = Topic(participant, loco.REQUEST_TOPIC, idl.Request_)
+        response = Topic(participant, loco.RESPONSE_TOPIC, idl.Response_)
+        self._requests = DataReader(participant, request, qos=RPC_QOS)
+        self._responses = DataWriter(participant, response, qos=RPC_QOS)
+        self._state = DataWriter(participant, state, qos=STATE_WRITER_QOS)
+        self.readers = [self._requests]
+        self.model = G1Model(config.sim_fsm_id, config.sim_settle_s)
+        self.period_s = 1.0 / config.sim_rate_hz
+        self.next_s = now_s
+        self.calls = 0
+
+    def on_data(self, index: int, now_s: float) -> None:
+        """Answer every request (identity echoed, status code, data)."""
+        for request in self._requests.take(N=32):
+            if not isinstance(request, idl.Request_):
+                continue
+            identity = request.header.identity
+            code, data = self.model.call(int(identity.api_id), request.parameter, now_s)
+            self.calls += 1
+            if request.header.policy.noreply:
+                continue
+            header = idl.ResponseHeader_(
+                identity=idl.RequestIdentity_(identity.id, identity.api_id),
+                status=idl.ResponseStatus_(code),
+            )
+            self._responses.write(idl.Response_(header=header, data=data))
+
+    def step(self, now_s: float) -> float:
+        """Publish one sportmodestate; the next time it is due."""
+        mode = self.model.fsm_mode(now_s)
+        self._state.write(idl.SportModeState_(fsm_id=self.model.fsm_id, fsm_mode=mode))
+        self.next_s = max(self.next_s + self.period_s, now_s)
+        return self.next_s
