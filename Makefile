@@ -36,7 +36,7 @@ lint: $(STAMP)
 
 test: $(STAMP) lint
 	sh scripts/ensure-chromium
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n 2 --dist loadgroup
 
 bench: $(STAMP)
 	$(BIN)/python -m bench
