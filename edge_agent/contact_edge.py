@@ -79,7 +79,9 @@ class ContactEdge:
             config = arm_config.contact
             if not config.enabled:
                 continue
-            self.detectors[arm] = ContactDetector(config)
+            self.detectors[arm] = ContactDetector(
+                config, gripper_closing_sign=arm_config.gripper_closing_sign
+            )
             # Events must arrive: BLOCK, like status (a contact is rare and small).
             self.publishers[arm] = relay.session.declare_publisher(
                 relay.keys.arm(arm, keys.CONTACT),

@@ -155,6 +155,24 @@ def test_gripper_closing_on_an_object_is_a_grip() -> None:
     assert (C, True) in grips
 
 
+def test_a_gripper_that_closes_upwards_grips_when_it_rises_onto_an_object() -> None:
+    """An arm whose ``angle6`` reads 100 closed and 0 open (``gripper_closing_sign`` +1): its
+    closing is a rising angle, and the contact that stops it is a grip; the same motion on a
+    default arm (0 closed) is opening, never a grip."""
+    for sign, expect_grip in ((1.0, True), (-1.0, False)):
+        det = ContactDetector(ContactConfig(), gripper_closing_sign=sign)
+        det.on_targets(dict.fromkeys(range(7), 0.0) | {6: 5.0}, 1, 0.0)
+        det.on_angles((0.0,) * 6 + (5.0,), 0.0)
+        det.on_targets({6: 60.0}, None, 0.05)
+        confirmed = []
+        for k in range(1, 10):
+            angle = min(40.0, 5.0 + 9.0 * k)  # stopped by the object at 40
+            for c in det.on_angles((0.0,) * 6 + (angle,), 0.1 * k).changes:
+                if c.state is C:
+                    confirmed.append(c.grip)
+        assert confirmed and all(g is expect_grip for g in confirmed), (sign, confirmed)
+
+
 def _event(joint: int, commanded: bool, state: str = "confirmed") -> m.ContactEvent:
     return m.ContactEvent(
         stamp_ns=1,

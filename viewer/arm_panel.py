@@ -83,6 +83,7 @@ def arm_info_html(
         ("owner", "owner", owner_text(status)),
         ("stop", "stop", stop),
         ("contact", "contact", " ".join(joints) if joints else "none"),
+        ("model", "contact model", _model_text(status)),
         ("agent", "agent", "online" if online else "OFFLINE"),
         ("link", "link", f"{link}, joints {age_text(joints_age_s)} old"),
     ]
@@ -103,6 +104,14 @@ def arm_info_html(
         for field, label, text in lines
     )
     return f"<div id='arm-{html.escape(arm)}-info' style='font-size:0.8em'>{body}</div>"
+
+
+def _model_text(status: m.ArmStatus | None) -> str:
+    """The detector's model of the arm, with what to do about it."""
+    model = None if status is None else status.contact_model
+    if model == "uncalibrated":
+        return "uncalibrated (run fleet calibrate)"
+    return model or "-"
 
 
 def readout_text(angles: npt.NDArray[np.float64], contact: tuple[bool, ...]) -> str:

@@ -100,9 +100,16 @@ class ContactDetector:
     """Contact detection for one arm of ``joints`` wire joints (the last is the gripper)."""
 
     def __init__(
-        self, config: ContactConfig, joints: int = 7, calibration: Calibration | None = None
+        self,
+        config: ContactConfig,
+        joints: int = 7,
+        calibration: Calibration | None = None,
+        gripper_closing_sign: float = -1.0,
     ) -> None:
+        """``gripper_closing_sign``: -1 when closing the gripper lowers ``angle6`` (the default
+        reading, 0 closed), +1 when it raises it (the arm's inventory says which)."""
         self.config = config
+        self.gripper_closing_sign = gripper_closing_sign
         self.methods: frozenset[str] = frozenset(config.methods)
         size = config.buffer_size
         self._joints = [
@@ -380,7 +387,7 @@ class ContactDetector:
             j == GRIPPER
             and state is ContactState.CONFIRMED
             and joint.target is not None
-            and joint.target < measured
+            and (joint.target - measured) * self.gripper_closing_sign > 0  # it was closing
         )
         report.changes.append(
             ContactChange(
