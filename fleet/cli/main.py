@@ -14,12 +14,14 @@ from importlib.metadata import PackageNotFoundError, version
 from fleet.cli import (
     arm_commands,
     choreo_cmds,
+    doctor_cmd,
     processes,
     record_cmds,
     safety_cmds,
     security_cmds,
     status,
     viewer_cmd,
+    wire_tools,
 )
 from fleet.d1.errors import NetworkInterfaceError
 from fleet.inventory import InventoryError
@@ -45,6 +47,8 @@ def build_parser() -> argparse.ArgumentParser:
         choreo_cmds,
         record_cmds,
         security_cmds,
+        wire_tools,  # after processes: it adds `fleet sim fault`
+        doctor_cmd,
     ):
         module.register(sub, add_inventory_options)
     return parser

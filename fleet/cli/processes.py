@@ -25,6 +25,7 @@ from fleet.cli.supervise import Supervisor
 from fleet.client import FleetClient
 from fleet.guard import EXIT_THREAD_FAILED
 from fleet.inventory import Inventory
+from fleet.observe import Observed, add_observe_options
 from fleet.runtime import inventory_from_args, shutdown_event, wait_for
 from fleet.security.session import router_config
 
@@ -50,6 +51,7 @@ def register(
     router.add_argument(
         "--connect", action="append", metavar="EP", help="also join the router at EP (repeatable)"
     )
+    add_observe_options(router)
     router.set_defaults(run=run_router)
 
     sim = sub.add_parser("sim", help="run the inventory's simulated arms on DDS")
@@ -61,10 +63,12 @@ def register(
         action="store_true",
         help="DDS only, no fault-injection queryable (a simulated arm alone on its own network)",
     )
+    add_observe_options(sim)
     sim.set_defaults(run=run_sim)
 
     coordinator = sub.add_parser("coordinator", help="fleet state, heartbeat, multi-arm commands")
     add_common(coordinator)
+    add_observe_options(coordinator)
     coordinator.set_defaults(run=run_coordinator)
 
     demo = sub.add_parser("demo", help="router + simulated arms + one agent per arm, with status")
@@ -95,7 +99,8 @@ def run_router(args: argparse.Namespace) -> int:
     joined = f", joined to {', '.join(connect)}" if connect else ""
     log.info("Zenoh router listening on %s%s", ", ".join(listen), joined)
     try:
-        wait_for(stop)
+        with Observed(session, inventory, "router", args.metrics_port):
+            wait_for(stop)
     finally:
         session.close()
     return 0
@@ -103,6 +108,7 @@ def run_router(args: argparse.Namespace) -> int:
 
 def run_sim(args: argparse.Namespace) -> int:
     """Run simulated arms until SIGINT/SIGTERM."""
+    from fleet.sim.metrics import sim_collectors
     from fleet.sim.node import SimulatedArms  # DDS is only loaded by the commands that use it
 
     inventory = inventory_from_args(args, "sim")
@@ -118,7 +124,10 @@ def run_sim(args: argparse.Namespace) -> int:
             ", ".join(arms),
             inventory.domain_of(inventory.arm(arms[0])),
         )
-        failed = wait_for(stop, sim.guard.failed)
+        with Observed(
+            sim.session, inventory, "sim", args.metrics_port, arms, lambda: sim_collectors(sim)
+        ):
+            failed = wait_for(stop, sim.guard.failed)
     if failed:
         log.error("%s: the simulator stopped; restart it", sim.guard.failure)
         return EXIT_THREAD_FAILED
@@ -127,13 +136,21 @@ def run_sim(args: argparse.Namespace) -> int:
 
 def run_coordinator(args: argparse.Namespace) -> int:
     """Run the coordinator until SIGINT/SIGTERM."""
+    from fleet.coordinator.metrics import coordinator_collectors
     from fleet.coordinator.service import Coordinator
 
     inventory = inventory_from_args(args, "coordinator")
     stop = shutdown_event()
     with Coordinator(inventory) as coordinator:
         coordinator.start()
-        failed = wait_for(stop, coordinator.failed)
+        with Observed(
+            coordinator.session,
+            inventory,
+            "coordinator",
+            args.metrics_port,
+            collectors=lambda: coordinator_collectors(coordinator),
+        ):
+            failed = wait_for(stop, coordinator.failed)
     if failed:
         log.error(
             "%s: the heartbeat stopped (agents hold the arms it commanded); restart it",
