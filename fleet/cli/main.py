@@ -15,6 +15,7 @@ from fleet.cli import (
     arm_commands,
     choreo_cmds,
     doctor_cmd,
+    foxglove_cmd,
     processes,
     record_cmds,
     safety_cmds,
@@ -49,6 +50,7 @@ def build_parser() -> argparse.ArgumentParser:
         security_cmds,
         wire_tools,  # after processes: it adds `fleet sim fault`
         doctor_cmd,
+        foxglove_cmd,
     ):
         module.register(sub, add_inventory_options)
     return parser
