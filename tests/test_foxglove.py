@@ -187,3 +187,31 @@ def test_recording_opens_in_3d_and_still_replays(tmp_path: Path) -> None:
     source = replay_source(recording)
     assert list(source.layout.arms) == ["a1"]
     assert not any(r.key.startswith("/d1/") for r in source.messages)
+
+
+def test_demo_option_serves_foxglove(tmp_path: Path) -> None:
+    from tests.harness import claim_domain
+
+    domain, lock = claim_domain()
+    port, fox_port = free_port(), free_port()
+    repo = Path(__file__).resolve().parent.parent
+    with open(tmp_path / "demo.log", "wb") as log:
+        demo = subprocess.Popen(
+            [sys.executable, "-m", "fleet.cli.main", "demo", "--no-viewer", "--no-dance"]
+            + ["--foxglove", str(fox_port), "--for-s", "40", "--domain", str(domain)]
+            + ["--endpoint", f"tcp/127.0.0.1:{port}", "--inventory", str(repo / "inventory.toml")],
+            stdout=log,
+            stderr=subprocess.STDOUT,
+        )
+    try:
+        wait_until(lambda: _listening(fox_port) or demo.poll() is not None, 60.0)
+        assert demo.poll() is None, (tmp_path / "demo.log").read_text()
+        fox = FoxgloveClient(f"ws://127.0.0.1:{fox_port}")
+        try:
+            fox.wait_for_topics({transforms_topic("a1"), urdf_topic("a1")}, 20.0)
+        finally:
+            fox.close()
+    finally:
+        demo.terminate()
+        demo.wait(timeout=20)
+        lock.close()

@@ -23,6 +23,8 @@ import numpy as np
 from foxglove.messages import FrameTransform, FrameTransforms, Quaternion, Timestamp, Vector3
 
 from fleet.record.layout import ArmPlacement, FleetLayout
+from fleet.record.writer import DerivedMessage
+from fleet.wire import keys
 from viewer import kinematics as k
 
 WORLD_FRAME = "world"
@@ -111,3 +113,47 @@ class ArmFrames:
             local = np.linalg.solve(links[parent], links[i])  # parent-from-child
             out.append(_transform(names[parent], names[i], local, stamp))
         return FrameTransforms(transforms=out)
+
+
+class RecordingExtras:
+    """What ``fleet record`` writes next to the key-space channels so that Foxglove shows the
+    arms in 3D: each arm's URDF (as a message at the start and as the attachment
+    ``d1_550.urdf``) and a ``foxglove.FrameTransforms`` per joints sample."""
+
+    def __init__(self, frames: ArmFrames) -> None:
+        self.frames = frames
+        schema = FrameTransforms.get_schema()
+        self._tf_schema = (schema.name, schema.encoding, bytes(schema.data))
+
+    def attachments(self) -> list[tuple[str, bytes, str]]:
+        """The URDF as it is in the package."""
+        return [("d1_550.urdf", self.frames.urdf_text.encode(), "application/xml")]
+
+    def initial(self) -> list[DerivedMessage]:
+        """Each arm's prefixed URDF."""
+        schema = json.dumps(URDF_SCHEMA).encode()
+        return [
+            DerivedMessage(
+                urdf_topic(arm),
+                "std_msgs/String",
+                "jsonschema",
+                schema,
+                "json",
+                self.frames.urdf_message(arm),
+            )
+            for arm in self.frames.layout.arms
+        ]
+
+    def derive(self, arm: str | None, channel: str, payload: Any) -> list[DerivedMessage]:
+        """The transforms of a joints sample of a laid-out arm."""
+        if arm is None or channel != keys.JOINTS or arm not in self.frames.layout.arms:
+            return []
+        if len(payload.angles_deg) != 7:
+            return []
+        message = self.frames.transforms(arm, payload.angles_deg, payload.stamp_ns)
+        name, encoding, data = self._tf_schema
+        return [
+            DerivedMessage(
+                transforms_topic(arm), name, encoding, data, "protobuf", bytes(message.encode())
+            )
+        ]

@@ -81,6 +81,15 @@ def register(
     )
     demo.add_argument("--dance", default="choreo/demo.toml", help="the choreography the demo loops")
     demo.add_argument(
+        "--foxglove",
+        nargs="?",
+        type=int,
+        const=8765,
+        default=None,
+        metavar="PORT",
+        help="also serve the fleet to Foxglove on ws://127.0.0.1:PORT (default 8765)",
+    )
+    demo.add_argument(
         "--secure",
         action="store_true",
         help="mutual TLS and the inventory's access control (certificates made for the run)",
@@ -251,6 +260,9 @@ def _run_demo(args: argparse.Namespace, inventory: Inventory) -> int:
             # fleet is fine without it.
             dance = ["play", args.dance, "--loops", "0", "--quiet", "--ready-s", "30"]
             children.append(_spawn(["-m", "fleet.cli.main", *dance, *common]))
+        if args.foxglove is not None:
+            fox = ["-m", "fleet.cli.main", "foxglove", "--port", str(args.foxglove), *common]
+            supervisor.start("foxglove", fox)
         url = "not started (--no-viewer)"
         if not args.no_viewer:
             # The person running the demo operates their own simulated fleet: the viewer acts
@@ -264,6 +276,11 @@ def _run_demo(args: argparse.Namespace, inventory: Inventory) -> int:
             f"d1-fleet demo: fleet {inventory.fleet!r}, DDS domain {inventory.domain_id}, "
             f"Zenoh router on {', '.join(inventory.endpoints)}\n"
             f"viewer: {url}\n"
+            + (
+                ""
+                if args.foxglove is None
+                else f"foxglove: ws://127.0.0.1:{args.foxglove} (Open connection in Foxglove)\n"
+            )
             + (
                 ""
                 if args.no_dance
