@@ -14,6 +14,7 @@ from importlib.metadata import PackageNotFoundError, version
 from fleet.cli import (
     arm_commands,
     choreo_cmds,
+    deploy_cmd,
     doctor_cmd,
     foxglove_cmd,
     processes,
@@ -51,6 +52,7 @@ def build_parser() -> argparse.ArgumentParser:
         wire_tools,  # after processes: it adds `fleet sim fault`
         doctor_cmd,
         foxglove_cmd,
+        deploy_cmd,
     ):
         module.register(sub, add_inventory_options)
     return parser
