@@ -11,6 +11,7 @@ from pathlib import Path
 from edge_agent.agent import EdgeAgent
 from fleet.guard import EXIT_THREAD_FAILED
 from fleet.inventory import Inventory, InventoryError
+from fleet.observe import Observed, add_observe_options
 from fleet.runtime import (
     add_inventory_options,
     inventory_from_args,
@@ -25,6 +26,7 @@ log = logging.getLogger("edge_agent")
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="edge-agent", description=__doc__)
     add_inventory_options(parser)
+    add_observe_options(parser)
     which = parser.add_mutually_exclusive_group(required=True)
     which.add_argument("--arm", action="append", help="arm id to serve (repeatable)")
     which.add_argument("--interface", help="serve every arm of the inventory on this interface")
@@ -72,11 +74,15 @@ def main(argv: list[str] | None = None) -> int:
     except (InventoryError, RouterUnreachable, ValueError) as exc:
         print(f"edge-agent: {exc}", file=sys.stderr)
         return 2
+    from edge_agent.metrics import agent_collectors
+
     with agent:
         agent.start()
         log.info("serving arms %s of fleet %r", ", ".join(arms), inventory.fleet)
-        while not stop.wait(0.1) and not agent.failed.is_set():
-            pass
+        collectors = lambda: agent_collectors(agent)  # noqa: E731
+        with Observed(agent.relay.session, inventory, "agent", args.metrics_port, arms, collectors):
+            while not stop.wait(0.1) and not agent.failed.is_set():
+                pass
     if agent.failed.is_set():
         log.error(
             "%s; every arm was stopped and latched before shutting down: restart the agent",

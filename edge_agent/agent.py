@@ -18,6 +18,7 @@ after. Every D1 command goes through ``writer`` (writer.py), one arm at a time.
 
 from __future__ import annotations
 
+import collections
 import logging
 import threading
 import time
@@ -69,6 +70,9 @@ class EdgeAgent:
         self.guard = ThreadGuard("edge-agent", self._on_thread_failure)
         self.failed = self.guard.failed
         self.counters = InboxCounters()
+        # Seconds from each served command's arrival to its reply, for metrics (scraped and
+        # drained by edge_agent/metrics.py; bounded, one append per reply).
+        self.reply_latencies_s: collections.deque[float] = collections.deque(maxlen=10_000)
         self.safety_inbox = SafetyInbox(self.counters)
         self.command_inbox = CommandInbox(
             self.counters, lambda item: self.commands.busy(item), principal_of
@@ -260,6 +264,7 @@ class EdgeAgent:
         for publisher, payload in out.puts:
             publisher.put(payload)
         for query, reply in out.replies:
+            self.reply_latencies_s.append(reply.latency_ms / 1000.0)
             # On the arm's own key, not the query's: a wildcard query (arm/*/cmd/<principal>)
             # gets one reply per arm, which consolidation would merge on one wildcard key.
             principal = principal_of(query.key_expr) or "unknown"

@@ -81,6 +81,10 @@ class SafetyInbox:
         self._beats: dict[str, tuple[str, m.Heartbeat, float]] = {}
         self._keep: frozenset[str] = frozenset()
 
+    def depth(self) -> int:
+        """Stops and resets waiting for the safety thread (metrics)."""
+        return len(self._control)
+
     def on_stop(self, arm: str | None, data: bytes) -> None:
         """A sample on ``estop`` or ``arm/<arm>/estop`` (Zenoh thread)."""
         try:
@@ -190,6 +194,10 @@ class CommandInbox:
         self._busy = busy
         self._lock = threading.Lock()
         self._queries: deque[IncomingQuery] = deque()
+
+    def depth(self) -> int:
+        """Commands waiting for the commands thread (metrics)."""
+        return len(self._queries)
 
     def on_query(self, arm: str, query: zenoh.Query) -> None:
         """A query on ``arm/<arm>/cmd`` (Zenoh thread)."""

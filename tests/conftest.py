@@ -25,6 +25,14 @@ def fleet3_harness(tmp_path: Path) -> Iterator[FleetHarness]:
         yield harness
 
 
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Every browser test on one xdist worker: two software-rendered Chromiums at once on this
+    2-core machine made a page take over 30 s to answer a click."""
+    for item in items:
+        if "browser" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.xdist_group("browser"))
+
+
 @pytest.fixture
 def browser(tmp_path: Path) -> Iterator[Browser]:
     """One page of a real headless Chromium in a fresh profile."""

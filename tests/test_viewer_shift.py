@@ -335,6 +335,7 @@ def test_a_recording_replays_with_a_timeline_and_no_command_control(
     page.get_by_role("button", name="Play").click()
     wait_until(lambda: position() > 1.0, 10.0)
     page.get_by_role("button", name="Pause").click()
+    wait_until(lambda: "paused" in page.locator("#replay-position").inner_text(), 10.0)
     paused = position()
     time.sleep(1.0)
     assert abs(position() - paused) < 0.3

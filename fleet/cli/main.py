@@ -15,12 +15,16 @@ from fleet.cli import (
     arm_commands,
     calibrate,
     choreo_cmds,
+    deploy_cmd,
+    doctor_cmd,
+    foxglove_cmd,
     processes,
     record_cmds,
     safety_cmds,
     security_cmds,
     status,
     viewer_cmd,
+    wire_tools,
 )
 from fleet.d1.errors import NetworkInterfaceError
 from fleet.inventory import InventoryError
@@ -47,6 +51,10 @@ def build_parser() -> argparse.ArgumentParser:
         choreo_cmds,
         record_cmds,
         security_cmds,
+        wire_tools,  # after processes: it adds `fleet sim fault`
+        doctor_cmd,
+        foxglove_cmd,
+        deploy_cmd,
     ):
         module.register(sub, add_inventory_options)
     return parser

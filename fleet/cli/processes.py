@@ -26,6 +26,7 @@ from fleet.cli.supervise import Supervisor
 from fleet.client import FleetClient
 from fleet.guard import EXIT_THREAD_FAILED, ThreadGuard
 from fleet.inventory import Inventory
+from fleet.observe import Observed, add_observe_options
 from fleet.runtime import inventory_from_args, shutdown_event, wait_for
 from fleet.security.session import router_config
 
@@ -51,6 +52,7 @@ def register(
     router.add_argument(
         "--connect", action="append", metavar="EP", help="also join the router at EP (repeatable)"
     )
+    add_observe_options(router)
     router.set_defaults(run=run_router)
 
     sim = sub.add_parser("sim", help="run the inventory's simulated arms on DDS")
@@ -62,10 +64,12 @@ def register(
         action="store_true",
         help="DDS only, no fault-injection queryable (a simulated arm alone on its own network)",
     )
+    add_observe_options(sim)
     sim.set_defaults(run=run_sim)
 
     coordinator = sub.add_parser("coordinator", help="fleet state, heartbeat, multi-arm commands")
     add_common(coordinator)
+    add_observe_options(coordinator)
     coordinator.set_defaults(run=run_coordinator)
 
     demo = sub.add_parser("demo", help="router + simulated arms + one agent per arm, with status")
@@ -77,6 +81,15 @@ def register(
         "--no-dance", action="store_true", help="do not play the default choreography"
     )
     demo.add_argument("--dance", default="choreo/demo.toml", help="the choreography the demo loops")
+    demo.add_argument(
+        "--foxglove",
+        nargs="?",
+        type=int,
+        const=8765,
+        default=None,
+        metavar="PORT",
+        help="also serve the fleet to Foxglove on ws://127.0.0.1:PORT (default 8765)",
+    )
     demo.add_argument(
         "--secure",
         action="store_true",
@@ -96,7 +109,8 @@ def run_router(args: argparse.Namespace) -> int:
     joined = f", joined to {', '.join(connect)}" if connect else ""
     log.info("Zenoh router listening on %s%s", ", ".join(listen), joined)
     try:
-        wait_for(stop)
+        with Observed(session, inventory, "router", args.metrics_port):
+            wait_for(stop)
     finally:
         session.close()
     return 0
@@ -105,6 +119,7 @@ def run_router(args: argparse.Namespace) -> int:
 def run_sim(args: argparse.Namespace) -> int:
     """Run simulated arms and devices (grippers, G1s) until SIGINT/SIGTERM."""
     from fleet.sim.devices import SimulatedDevices
+    from fleet.sim.metrics import sim_collectors
     from fleet.sim.node import SimulatedArms  # DDS is only loaded by the commands that use it
 
     inventory = inventory_from_args(args, "sim")
@@ -124,6 +139,17 @@ def run_sim(args: argparse.Namespace) -> int:
                 "simulating arms %s on DDS domain %d",
                 ", ".join(arms),
                 inventory.domain_of(inventory.arm(arms[0])),
+            )
+            arm_sim = sim
+            stack.enter_context(
+                Observed(
+                    sim.session,
+                    inventory,
+                    "sim",
+                    args.metrics_port,
+                    arms,
+                    lambda: sim_collectors(arm_sim),
+                )
             )
         if devices:
             participant = sim.participant if sim is not None else None
@@ -154,13 +180,21 @@ def _any_failed(guards: list[ThreadGuard]) -> threading.Event:
 
 def run_coordinator(args: argparse.Namespace) -> int:
     """Run the coordinator until SIGINT/SIGTERM."""
+    from fleet.coordinator.metrics import coordinator_collectors
     from fleet.coordinator.service import Coordinator
 
     inventory = inventory_from_args(args, "coordinator")
     stop = shutdown_event()
     with Coordinator(inventory) as coordinator:
         coordinator.start()
-        failed = wait_for(stop, coordinator.failed)
+        with Observed(
+            coordinator.session,
+            inventory,
+            "coordinator",
+            args.metrics_port,
+            collectors=lambda: coordinator_collectors(coordinator),
+        ):
+            failed = wait_for(stop, coordinator.failed)
     if failed:
         log.error(
             "%s: the heartbeat stopped (agents hold the arms it commanded); restart it",
@@ -261,6 +295,9 @@ def _run_demo(args: argparse.Namespace, inventory: Inventory) -> int:
             # fleet is fine without it.
             dance = ["play", args.dance, "--loops", "0", "--quiet", "--ready-s", "30"]
             children.append(_spawn(["-m", "fleet.cli.main", *dance, *common]))
+        if args.foxglove is not None:
+            fox = ["-m", "fleet.cli.main", "foxglove", "--port", str(args.foxglove), *common]
+            supervisor.start("foxglove", fox)
         url = "not started (--no-viewer)"
         if not args.no_viewer:
             # The person running the demo operates their own simulated fleet: the viewer acts
@@ -274,6 +311,11 @@ def _run_demo(args: argparse.Namespace, inventory: Inventory) -> int:
             f"d1-fleet demo: fleet {inventory.fleet!r}, DDS domain {inventory.domain_id}, "
             f"Zenoh router on {', '.join(inventory.endpoints)}\n"
             f"viewer: {url}\n"
+            + (
+                ""
+                if args.foxglove is None
+                else f"foxglove: ws://127.0.0.1:{args.foxglove} (Open connection in Foxglove)\n"
+            )
             + (
                 ""
                 if args.no_dance

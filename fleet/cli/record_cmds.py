@@ -6,7 +6,7 @@ import argparse
 import sys
 import time
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from fleet.client import FleetClient
 from fleet.runtime import inventory_from_args, shutdown_event
@@ -56,7 +56,8 @@ def run_record(args: argparse.Namespace) -> int:
     with FleetClient(inventory, connect_timeout_s=args.connect_timeout) as client:
         try:
             layout = layout_of(inventory, arms)
-            rec = Recorder(client.session, client.keys, arms, path, layout=layout)
+            extras = _extras(layout)
+            rec = Recorder(client.session, client.keys, arms, path, layout=layout, extras=extras)
         except OSError as exc:
             print(f"fleet record: {path}: cannot write it: {exc.strerror or exc}", file=sys.stderr)
             return 2
@@ -74,6 +75,13 @@ def run_record(args: argparse.Namespace) -> int:
         print(f"fleet record: the recorder failed ({why}); {path} is {state}", file=sys.stderr)
         return 1
     return 0
+
+
+def _extras(layout: Any) -> Any:
+    """The 3D channels (URDF, foxglove.FrameTransforms) for Foxglove, next to the keys."""
+    from viewer.frames3d import ArmFrames, RecordingExtras  # numpy, yourdfpy, foxglove-sdk
+
+    return RecordingExtras(ArmFrames.load(layout))
 
 
 def open_recording(path: str, command: str) -> Recording | None:

@@ -14,6 +14,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from fleet.guard import EXIT_THREAD_FAILED
+from fleet.observe import Observed, add_observe_options
 from fleet.runtime import inventory_from_args, shutdown_event, wait_for
 
 if TYPE_CHECKING:
@@ -49,6 +50,7 @@ def register(
     """Add ``viewer``."""
     viewer = sub.add_parser("viewer", help="serve the live 3D fleet viewer (viser) on a web port")
     add_common(viewer)
+    add_observe_options(viewer)
     viewer.add_argument(
         "--host",
         default="127.0.0.1",
@@ -141,6 +143,17 @@ def run_replay_viewer(args: argparse.Namespace) -> int:
     return _serve(args, describe, replay=source)
 
 
+def viewer_collectors(viewer: Viewer) -> list[Any]:
+    """The viewer's metrics: browsers connected (read at scrape time)."""
+    from fleet.metrics import FunctionCollector, gauge
+
+    def collect() -> list[Any]:
+        clients = len(viewer.server.get_clients())
+        return [gauge("d1_viewer_clients", "browsers connected", [], [([], clients)])]
+
+    return [FunctionCollector(collect)]
+
+
 def _serve(args: argparse.Namespace, describe: Callable[[Viewer], str], **shows: Any) -> int:
     """Run a viewer of ``shows`` (``inventory=`` or ``replay=``) until SIGINT/SIGTERM; prints
     its URL and ``describe(viewer)``."""
@@ -158,7 +171,14 @@ def _serve(args: argparse.Namespace, describe: Callable[[Viewer], str], **shows:
         if viewer.port != args.port:
             log.warning("port %d was busy; the viewer took %d", args.port, viewer.port)
         print(f"d1-fleet viewer: {viewer.url}  ({describe(viewer)}; Ctrl-C stops)", flush=True)
-        failed = wait_for(stop, viewer.failed)
+        with Observed(
+            viewer.session,
+            shows.get("inventory"),
+            "viewer",
+            args.metrics_port,
+            collectors=lambda: viewer_collectors(viewer),
+        ):
+            failed = wait_for(stop, viewer.failed)
     if failed:
         log.error("%s: the viewer stopped; restart it", viewer.guard.failure)
         return EXIT_THREAD_FAILED

@@ -34,12 +34,13 @@ import threading
 import time
 from collections.abc import Iterable
 from pathlib import Path
+from typing import Any, Protocol
 
 import zenoh
 
 from fleet.record.gaps import SeqGaps
 from fleet.record.layout import LAYOUT_METADATA, FleetLayout, layout_metadata
-from fleet.record.writer import FLUSH_PERIOD_S, RecordingWriter
+from fleet.record.writer import FLUSH_PERIOD_S, DerivedMessage, RecordingWriter
 from fleet.wire import keys, payloads
 
 log = logging.getLogger("fleet.record")
@@ -63,6 +64,19 @@ LOGGED_BAD = 10
 """The first bad samples are logged one by one; the rest are only counted."""
 
 
+class Extras(Protocol):
+    """Channels derived from the recorded ones, written next to them."""
+
+    def attachments(self) -> list[tuple[str, bytes, str]]:
+        """(name, data, media type) attached to the file at its start."""
+
+    def initial(self) -> list[DerivedMessage]:
+        """Messages written once at the start."""
+
+    def derive(self, arm: str | None, channel: str, payload: Any) -> list[DerivedMessage]:
+        """Messages derived from one recorded, decoded sample (logged at its receive time)."""
+
+
 class Recorder:
     """Records ``arms`` of one fleet to ``path``. A context manager; ``close()`` finishes the
     file (an unfinished one, after a SIGKILL, is readable up to its last flush)."""
@@ -75,8 +89,11 @@ class Recorder:
         path: str | Path,
         flush_period_s: float = FLUSH_PERIOD_S,
         layout: FleetLayout | None = None,
+        extras: Extras | None = None,
     ) -> None:
-        """``layout``: where the arms stand (kept in the file, for ``fleet viewer --replay``)."""
+        """``layout``: where the arms stand (kept in the file, for ``fleet viewer --replay``);
+        ``extras``: channels derived from the recorded ones (the 3D channels: the CLI passes
+        viewer/frames3d.py's, which this package may not import)."""
         self.space = space
         self.arms = list(arms)
         self.path = Path(path)
@@ -105,6 +122,13 @@ class Recorder:
         self._routes: dict[str, tuple[str | None, str]] = {}  # key -> (arm, channel), cached
         metadata = None if layout is None else {LAYOUT_METADATA: layout_metadata(layout)}
         self._file = RecordingWriter(self.path, metadata)
+        self._extras = extras
+        if extras is not None:
+            started_ns = time.time_ns()
+            for name, data, media_type in extras.attachments():
+                self._file.attach(name, data, media_type, started_ns)
+            for message in extras.initial():
+                self._file.add_foreign(message, started_ns)
         self._stop = threading.Event()
         self._abandon = threading.Event()
         self._closed = False
@@ -179,6 +203,9 @@ class Recorder:
         count = self.counts.get(key, 0)
         self._file.add(key, channel, payload, stamp_ns, count % 2**32)  # MCAP: a uint32
         self.counts[key] = count + 1
+        if self._extras is not None:
+            for message in self._extras.derive(arm, channel, decoded):
+                self._file.add_foreign(message, stamp_ns)
 
     def _where(self, key: str) -> tuple[str | None, str] | None:
         """(arm, channel) of a recorded key, (None, estop) for the fleet's stop, else None."""

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import json
 import os
+from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
@@ -62,6 +63,18 @@ def channel_schema(channel: str) -> tuple[str, dict[str, Any]]:
     return struct.__name__, _struct_schema(struct)
 
 
+@dataclass(frozen=True)
+class DerivedMessage:
+    """A message on a channel that is not a Zenoh key (e.g. ``foxglove.FrameTransforms``)."""
+
+    topic: str
+    schema_name: str
+    schema_encoding: str
+    schema_data: bytes
+    message_encoding: str
+    data: bytes
+
+
 class RecordingWriter:
     """One recording file. Not thread-safe: one thread writes (the recorder's), and
     ``finish``/``abandon`` run once that thread has stopped."""
@@ -81,6 +94,7 @@ class RecordingWriter:
         self._file.flush()  # the header: a recorder killed at once leaves an empty recording
         self._channels: dict[str, int] = {}
         self._schemas: dict[str, int] = {}
+        self._foreign_counts: dict[str, int] = {}
 
     def add(self, key: str, channel: str, data: bytes, log_time_ns: int, sequence: int) -> None:
         """One message on ``key`` (an arm ``channel``, or ``estop`` for the fleet's stop)."""
@@ -92,6 +106,37 @@ class RecordingWriter:
             sequence=sequence,
         )
         self.added += 1
+
+    def add_foreign(self, message: DerivedMessage, log_time_ns: int) -> None:
+        """A message of a channel that is no key (Foxglove's 3D channels: frames3d.py), with
+        its own schema and encoding; readers of keys ignore it (its topic is no key)."""
+        if message.topic not in self._channels:
+            schema_key = f"{message.schema_encoding}:{message.schema_name}"
+            if schema_key not in self._schemas:
+                self._schemas[schema_key] = self._writer.register_schema(
+                    name=message.schema_name,
+                    encoding=message.schema_encoding,
+                    data=message.schema_data,
+                )
+            self._channels[message.topic] = self._writer.register_channel(
+                topic=message.topic,
+                message_encoding=message.message_encoding,
+                schema_id=self._schemas[schema_key],
+            )
+        sequence = self._foreign_counts.get(message.topic, 0)
+        self._foreign_counts[message.topic] = sequence + 1
+        self._writer.add_message(
+            channel_id=self._channels[message.topic],
+            log_time=log_time_ns,
+            publish_time=log_time_ns,
+            data=message.data,
+            sequence=sequence % 2**32,
+        )
+        self.added += 1
+
+    def attach(self, name: str, data: bytes, media_type: str, log_time_ns: int) -> None:
+        """An MCAP attachment (the URDF)."""
+        self._writer.add_attachment(log_time_ns, log_time_ns, name, media_type, data)
 
     def flush(self) -> None:
         """Close the open chunk and hand everything to the OS (nothing to do if nothing new)."""

@@ -142,6 +142,16 @@ class SimulatedArms:
 
         return self.guard.wrap(handler, "sim/fault")
 
+    @property
+    def session(self) -> zenoh.Session | None:
+        """The fault-injection session (None before ``start`` or without Zenoh)."""
+        return self._session
+
+    def stats(self) -> tuple[int, int, float, float]:
+        """(angle reports served, arms, seconds since the start, worst lateness in s)."""
+        elapsed_s = time.monotonic() - self._started_s
+        return self._reports, len(self._arms), elapsed_s, self._late_max_s
+
     def model(self, arm_id: str) -> SimArmModel:
         """The model of ``arm_id`` (for in-process inspection only)."""
         return self._arms[arm_id].model

@@ -33,6 +33,7 @@ STATE = "state"
 STOP_REPORT = "estop/report"
 COORDINATOR_CMD = "coordinator/cmd"
 COORDINATOR_DIAG = "coordinator/diag"
+INFO = "info"  # info/<role>/<instance>: every long-running process's queryable (fleet doctor)
 
 ARM_CHANNELS = (
     JOINTS,
@@ -185,6 +186,15 @@ class KeySpace:
     def stop_report(self) -> str:
         """The coordinator's per-arm timing of each stop."""
         return f"{self.prefix}/{STOP_REPORT}"
+
+    def info(self, role: str, instance: str) -> str:
+        """``info/<role>/<instance>``: one process's ProcessInfo queryable."""
+        return f"{self.prefix}/{INFO}/{check_name('role', role)}/{check_name('instance', instance)}"
+
+    @property
+    def all_info(self) -> str:
+        """Every process's info queryable (``fleet doctor`` queries this)."""
+        return f"{self.prefix}/{INFO}/**"
 
     @property
     def everything(self) -> str:

@@ -425,6 +425,22 @@ class StopReport(Struct, frozen=True):
     arms: Annotated[dict[Name, StopTiming], Meta(max_length=MAX_ARMS_REPORTED)]
 
 
+class ProcessInfo(Struct, frozen=True):
+    """``fleet/<fleet>/info/<role>/<instance>`` (reply): who a long-running process is. ``stamp_ns``
+    is its wall clock when it replied (``fleet doctor`` measures clock offsets from it);
+    ``metrics_port`` its Prometheus port on 127.0.0.1, if serving."""
+
+    role: Word
+    principal: Name
+    host: Name
+    pid: Count
+    version: Word
+    started_ns: StampNs
+    stamp_ns: StampNs
+    arms: Annotated[list[Name], Meta(max_length=MAX_ARMS_REPORTED)] = []
+    metrics_port: Annotated[int, Meta(ge=1, le=65535)] | None = None
+
+
 # ----------------------------------------------------------------------------- helpers
 
 _encoder = msgspec.json.Encoder()

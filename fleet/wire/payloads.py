@@ -104,6 +104,7 @@ CONTACT: PayloadKind[m.ContactEvent] = payload_kind("contact", m.ContactEvent, 2
 COORDINATOR_DIAG: PayloadKind[m.CoordinatorDiag] = payload_kind(
     "coordinator diag", m.CoordinatorDiag, 8 * KIB
 )
+PROCESS_INFO: PayloadKind[m.ProcessInfo] = payload_kind("process info", m.ProcessInfo, 1 * MIB)
 
 RAW_COMMAND: PayloadKind[dict[str, Any]] = payload_kind("raw command", dict[str, Any], 4 * KIB)
 """The agent's mirror of what it wrote to DDS: a JSON object (the D1 codec caps it at 4 KiB).
@@ -143,6 +144,7 @@ CHANNELS: dict[str, Channel] = {
         Channel(keys.COORDINATOR_DIAG, "coordinator/diag", COORDINATOR_DIAG),
         Channel(keys.STOP_REPORT, "estop/report", STOP_REPORT),
         Channel(keys.CONTACT, "arm/<arm>/contact", CONTACT),
+        Channel(keys.INFO, "info/<role>/<instance> (reply)", PROCESS_INFO),
     )
 }
 """THE channel table: every key kind that carries a decodable payload, with its payload kind.

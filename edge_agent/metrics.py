@@ -1,0 +1,71 @@
+"""The agent's Prometheus collectors: read at scrape time from the counters the agent keeps for
+its diag anyway (the relay thread does nothing more for metrics); command latencies from the
+agent's bounded ``reply_latencies_s`` deque."""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+from fleet.metrics import FunctionCollector, LatencySink, counter, gauge
+
+# (counter or gauge, name, help, value from (diag, status, commands in flight)) per arm
+PER_ARM: tuple[tuple[Any, str, str, Any], ...] = (
+    (counter, "d1_agent_relayed", "angle and status reports relayed", lambda d, s, f: d.relayed),
+    (counter, "d1_agent_malformed", "feedback that did not decode", lambda d, s, f: d.malformed),
+    (counter, "d1_agent_refused", "commands refused by the agent", lambda d, s, f: d.rejected),
+    (counter, "d1_agent_commands", "commands written to the arm", lambda d, s, f: d.commands),
+    (counter, "d1_agent_ack_timeouts", "acks that did not arrive", lambda d, s, f: d.ack_timeouts),
+    (gauge, "d1_agent_feedback_rate_hz", "angle reports/s", lambda d, s, f: d.feedback_rate_hz),
+    (gauge, "d1_agent_feedback_age_seconds", "feedback age", lambda d, s, f: d.last_feedback_age_s),
+    (gauge, "d1_agent_link_ok", "1 when the link is ok", lambda d, s, f: d.link == "ok"),
+    (gauge, "d1_agent_estopped", "1 while a stop is latched", lambda d, s, f: s.estopped),
+    (gauge, "d1_agent_lease_held", "1 while a lease is held", lambda d, s, f: s.owner is not None),
+    (gauge, "d1_agent_lease_left_seconds", "lease seconds left", lambda d, s, f: s.lease_left_s),
+    (gauge, "d1_agent_in_flight", "commands awaiting acks or targets", lambda d, s, f: f),
+)
+
+
+def agent_collectors(agent: Any) -> list[Any]:
+    """The collectors of an ``EdgeAgent`` (registered by ``--metrics-port``; typed Any: nothing
+    imports edge_agent.agent but __main__). Reads its ``lock``, ``slots``, ``counters``,
+    inboxes and ``reply_latencies_s``."""
+    latency = LatencySink(pending=agent.reply_latencies_s)
+
+    def collect() -> list[Any]:
+        now, stamp_ns = time.monotonic(), time.time_ns()
+        with agent.lock:  # copies only: no I/O under the lock
+            rows = {
+                arm: (
+                    slot.tracker.diag(now, stamp_ns),
+                    slot.tracker.status(now, stamp_ns),
+                    len(slot.in_flight),
+                )
+                for arm, slot in agent.slots.items()
+            }
+            counters = agent.counters
+            own = {
+                "d1_agent_bad_payloads": counters.bad_payloads,
+                "d1_agent_busy": counters.busy,
+                "d1_agent_dropped_events": counters.dropped_events,
+            }
+        metrics = [
+            kind(name, text, ["arm"], [([arm], get(*row)) for arm, row in rows.items()])
+            for kind, name, text, get in PER_ARM
+        ]
+        metrics += [
+            counter(name, "the agent's own count", [], [([], v)]) for name, v in own.items()
+        ]
+        depths = [
+            (["safety"], agent.safety_inbox.depth()),
+            (["commands"], agent.command_inbox.depth()),
+        ]
+        metrics.append(
+            gauge("d1_agent_queue_depth", "items in the agent's inboxes", ["queue"], depths)
+        )
+        metrics.append(
+            latency.family("d1_agent_command_latency_seconds", "a command's arrival to its reply")
+        )
+        return metrics
+
+    return [FunctionCollector(collect)]

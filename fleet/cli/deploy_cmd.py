@@ -1,0 +1,109 @@
+"""``fleet deploy systemd [--out DIR]``: systemd units for the fleet's long-running processes.
+
+One unit each for the router, the coordinator and the viewer, and one agent per network card
+(``edge-agent --interface CARD``: one DDS participant per card, NIC binding). Every unit
+restarts on failure, logs to the journal, and starts after the router (agents and the
+coordinator retry the router anyway; the order keeps the journal quiet). Stopping the router
+does not stop the others: an agent without a router keeps holding its arms (watchdog).
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+from fleet.inventory import Inventory
+from fleet.runtime import inventory_from_args
+
+PREFIX = "d1-fleet"
+
+
+def register(
+    sub: argparse._SubParsersAction, add_common: Callable[[argparse.ArgumentParser], None]
+) -> None:  # type: ignore[type-arg]
+    """Add ``deploy systemd``."""
+    deploy = sub.add_parser("deploy", help="write service files for the fleet's processes")
+    kinds = deploy.add_subparsers(dest="deploy_kind", required=True, metavar="systemd")
+    systemd = kinds.add_parser(
+        "systemd", help="systemd units (router, coordinator, agents, viewer)"
+    )
+    add_common(systemd)
+    systemd.add_argument("--out", default="systemd", help="directory for the units (./systemd)")
+    systemd.add_argument("--user", default=None, help="User= of every unit (default: none)")
+    systemd.add_argument(
+        "--bin-dir",
+        default=str(Path(sys.executable).parent),
+        help="where `fleet` and `edge-agent` are installed (default: this Python's bin)",
+    )
+    systemd.set_defaults(run=run_systemd)
+
+
+def _unit(description: str, exec_start: list[str], user: str | None, after_router: bool) -> str:
+    order = f"After=network-online.target {PREFIX}-router.service\nWants=network-online.target\n"
+    lines = [
+        "[Unit]",
+        f"Description=d1-fleet {description}",
+        order.rstrip()
+        if after_router
+        else "After=network-online.target\nWants=network-online.target",
+        "StartLimitIntervalSec=120",
+        "StartLimitBurst=10",
+        "",
+        "[Service]",
+        "Type=simple",
+        f"ExecStart={' '.join(exec_start)}",
+        "Restart=on-failure",
+        "RestartSec=2",
+        "KillSignal=SIGTERM",
+        "TimeoutStopSec=15",
+        "StandardOutput=journal",
+        "StandardError=journal",
+        f"SyslogIdentifier={PREFIX}",
+        "Environment=PYTHONUNBUFFERED=1",
+    ]
+    if user:
+        lines.append(f"User={user}")
+    lines += ["", "[Install]", "WantedBy=multi-user.target", ""]
+    return "\n".join(lines)
+
+
+def units(inventory: Inventory, bin_dir: Path, user: str | None = None) -> dict[str, str]:
+    """File name -> unit text."""
+    inv = ["--inventory", str(Path(inventory.path).resolve())]
+    fleet, agent = str(bin_dir / "fleet"), str(bin_dir / "edge-agent")
+    out = {
+        f"{PREFIX}-router.service": _unit("Zenoh router", [fleet, "router", *inv], user, False),
+        f"{PREFIX}-coordinator.service": _unit(
+            "coordinator", [fleet, "coordinator", *inv], user, True
+        ),
+        f"{PREFIX}-viewer.service": _unit("viewer", [fleet, "viewer", *inv], user, True),
+    }
+    cards = sorted({arm.interface for arm in inventory.arms.values()})
+    for card in cards:
+        arms = [a.id for a in inventory.arms.values() if a.interface == card]
+        name = re.sub(r"[^A-Za-z0-9_.-]", "_", card) or "any"
+        argv = [agent, "--interface", card or '""', *inv]
+        text = _unit(f"edge agent of {', '.join(arms)} ({card or 'any card'})", argv, user, True)
+        out[f"{PREFIX}-agent-{name}.service"] = text
+    return out
+
+
+def run_systemd(args: argparse.Namespace) -> int:
+    """Write the units and say how to install them."""
+    inventory = inventory_from_args(args)
+    bin_dir = Path(args.bin_dir)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    written = units(inventory, bin_dir, args.user)
+    for name, text in written.items():
+        (out / name).write_text(text, encoding="utf-8")
+        print(out / name)
+    print(
+        f"install: sudo cp {out}/{PREFIX}-*.service /etc/systemd/system/ && sudo systemctl "
+        f"daemon-reload && sudo systemctl enable --now {' '.join(written)}\n"
+        f"logs: journalctl -u '{PREFIX}-*' -f"
+    )
+    return 0
