@@ -14,6 +14,8 @@ from pathlib import Path
 
 import pytest
 
+from edge_agent.__main__ import parse_args
+from fleet.cli.main import build_parser
 from fleet.cli.processes import _common_argv
 from fleet.inventory import load_inventory
 from fleet.runtime import setup_logging
@@ -128,3 +130,16 @@ def test_demo_passes_its_log_options_to_its_children() -> None:
     assert argv[argv.index("--log-format") + 1] == "json"
     args = argparse.Namespace(inventory="inventory.toml", log_file=None, log_format="text")
     assert "--log-file" not in _common_argv(args, inventory)
+
+
+@pytest.mark.parametrize(
+    "command", ["router", "sim", "coordinator", "viewer", "foxglove", "record", "demo", "play"]
+)
+def test_every_long_running_command_takes_the_log_options(command: str) -> None:
+    args = build_parser().parse_args([command, "--log-file", "f.log", "--log-format", "json"])
+    assert (args.log_file, args.log_format) == ("f.log", "json")
+
+
+def test_edge_agent_takes_the_log_options() -> None:
+    args = parse_args(["--arm", "a1", "--log-file", "f.log", "--log-format", "json"])
+    assert (args.log_file, args.log_format) == ("f.log", "json")
