@@ -13,9 +13,10 @@ from fleet.guard import EXIT_THREAD_FAILED
 from fleet.inventory import Inventory, InventoryError
 from fleet.observe import Observed, add_observe_options
 from fleet.runtime import (
+    LogFileError,
     add_inventory_options,
     inventory_from_args,
-    setup_logging,
+    setup_logging_from_args,
     shutdown_event,
 )
 from fleet.wire.session import RouterUnreachable
@@ -60,7 +61,11 @@ def agent_principal(inventory: Inventory, arms: list[str]) -> str:
 def main(argv: list[str] | None = None) -> int:
     """Run until SIGINT/SIGTERM. Exit 0 on a clean stop, 2 on a configuration error."""
     args = parse_args(argv)
-    setup_logging(args.log_level)
+    try:
+        setup_logging_from_args(args, role="agent")
+    except LogFileError as exc:
+        print(f"edge-agent: {exc}", file=sys.stderr)
+        return 2
     stop = shutdown_event()
     if args.device:
         return run_devices(args, stop)

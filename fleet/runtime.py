@@ -1,22 +1,127 @@
-"""Process plumbing shared by every entry point: logging, signals, the inventory options."""
+"""Process plumbing shared by every entry point: logging (text or JSON lines, stderr or a file),
+signals, the inventory options."""
 
 from __future__ import annotations
 
 import argparse
+import json
 import logging
+import logging.handlers
 import os
 import signal
+import sys
 import threading
-from types import FrameType
+from datetime import datetime, timezone
+from types import FrameType, TracebackType
 
 from fleet.inventory import DEFAULT_INVENTORY, Inventory, InventoryError, load_inventory
 
+LOG_FORMATS = ("text", "json")
+TEXT_FORMAT = (
+    "%(asctime)s %(levelname)s %(role)s[%(process)d] %(name)s [%(threadName)s] %(message)s"
+)
 
-def setup_logging(level: str = "INFO") -> None:
-    """One log format for every process of the fleet."""
-    logging.basicConfig(
-        level=getattr(logging, level.upper(), logging.INFO),
-        format="%(asctime)s %(levelname)s %(name)s [%(threadName)s] %(message)s",
+
+class LogFileError(Exception):
+    """``--log-file`` names a file this process cannot open for append (a usage error: exit 2)."""
+
+
+class JsonLineFormatter(logging.Formatter):
+    """One JSON object per line: ``time`` (ISO 8601, UTC, microseconds), ``level``, ``logger``,
+    ``thread``, ``message``, ``role`` (router, sim, agent, ...), ``pid``, and ``exc`` (the
+    traceback) when there is one. A message's own newlines are escaped, so a line is a record."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        line: dict[str, object] = {
+            "time": datetime.fromtimestamp(record.created, timezone.utc).isoformat(
+                timespec="microseconds"
+            ),
+            "level": record.levelname,
+            "logger": record.name,
+            "thread": record.threadName,
+            "message": record.getMessage(),
+            "role": getattr(record, "role", ""),
+            "pid": record.process,
+        }
+        if record.exc_info:
+            line["exc"] = self.formatException(record.exc_info)
+        if record.stack_info:
+            line["stack"] = self.formatStack(record.stack_info)
+        return json.dumps(line, ensure_ascii=False)
+
+
+class _RoleFilter(logging.Filter):
+    """Stamps every record that reaches our handler with the process's role."""
+
+    def __init__(self, role: str) -> None:
+        super().__init__()
+        self.role = role
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        record.role = self.role
+        return True
+
+
+_OUR_HANDLERS: list[logging.Handler] = []
+"""The handler the last setup_logging installed (a list, so a later call can replace it)."""
+
+
+def setup_logging(
+    level: str = "INFO", log_file: str | None = None, log_format: str = "text", role: str = "fleet"
+) -> None:
+    """The one logging set-up of every process of the fleet: text or JSON lines, to stderr
+    (the journal, under systemd) or appended to ``log_file``. The file is a WatchedFileHandler:
+    logrotate may move it away and the next record reopens the path, and several processes (the
+    demo's children) may append to one file (O_APPEND; a record is one write). Raises
+    LogFileError when the file cannot be opened. Calling it again replaces our handler only."""
+    handler: logging.Handler
+    if log_file is None:
+        handler = logging.StreamHandler(sys.stderr)
+    else:
+        try:
+            handler = logging.handlers.WatchedFileHandler(log_file, mode="a", encoding="utf-8")
+        except OSError as exc:
+            raise LogFileError(
+                f"--log-file {log_file}: cannot open it for append: {exc.strerror or exc}"
+            ) from None
+    formatter = JsonLineFormatter() if log_format == "json" else logging.Formatter(TEXT_FORMAT)
+    handler.setFormatter(formatter)
+    handler.addFilter(_RoleFilter(role))
+    root = logging.getLogger()
+    while _OUR_HANDLERS:  # ours only: pytest's capture (or anyone's) stays
+        old = _OUR_HANDLERS.pop()
+        root.removeHandler(old)
+        old.close()
+    root.addHandler(handler)
+    _OUR_HANDLERS.append(handler)
+    root.setLevel(getattr(logging, level.upper(), logging.INFO))
+    if log_file is not None:
+        _log_uncaught(logging.getLogger(role))
+
+
+def _log_uncaught(log: logging.Logger) -> None:
+    """A crash of the main thread lands in the log file too (threads log theirs: fleet.guard).
+    Installed once per process; the interpreter's own hook still prints to stderr."""
+    previous = sys.excepthook
+    if getattr(previous, "_d1_fleet_logs", False):
+        return
+
+    def hook(kind: type[BaseException], exc: BaseException, tb: TracebackType | None) -> None:
+        if not issubclass(kind, KeyboardInterrupt):
+            log.critical("uncaught exception", exc_info=(kind, exc, tb))
+        previous(kind, exc, tb)
+
+    hook._d1_fleet_logs = True  # type: ignore[attr-defined]
+    sys.excepthook = hook
+
+
+def setup_logging_from_args(args: argparse.Namespace, role: str) -> None:
+    """``setup_logging`` with ``--log-level``, ``--log-file`` and ``--log-format``."""
+    setup_logging(
+        getattr(args, "log_level", "INFO"),
+        getattr(args, "log_file", None),
+        getattr(args, "log_format", "text"),
+        role,
     )
 
 
@@ -79,6 +184,19 @@ def add_inventory_options(parser: argparse.ArgumentParser) -> None:
         help=f"how long a command waits for the router (default {CLI_CONNECT_TIMEOUT_S:g} s)",
     )
     parser.add_argument("--log-level", default="INFO")
+    parser.add_argument(
+        "--log-file",
+        default=None,
+        metavar="PATH",
+        help="append the log to PATH instead of stderr (reopened when logrotate moves it)",
+    )
+    parser.add_argument(
+        "--log-format",
+        choices=LOG_FORMATS,
+        default="text",
+        help="text (default) or json: one object per line with time (UTC), level, logger, "
+        "thread, message, role and pid",
+    )
 
 
 PRINCIPAL_ENV = "D1_FLEET_PRINCIPAL"

@@ -28,7 +28,7 @@ from fleet.cli import (
 )
 from fleet.d1.errors import NetworkInterfaceError
 from fleet.inventory import InventoryError
-from fleet.runtime import add_inventory_options, setup_logging
+from fleet.runtime import LogFileError, add_inventory_options, setup_logging_from_args
 from fleet.wire.session import RouterUnreachable
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_UNREACHABLE = 0, 1, 2, 3
@@ -70,10 +70,10 @@ def _version() -> str:
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``fleet`` console script."""
     args = build_parser().parse_args(argv)
-    setup_logging(args.log_level)
     try:
+        setup_logging_from_args(args, role=args.command)
         return int(args.run(args))
-    except (InventoryError, NetworkInterfaceError) as exc:
+    except (InventoryError, NetworkInterfaceError, LogFileError) as exc:
         print(f"fleet: {exc}", file=sys.stderr)
         return EXIT_USAGE
     except RouterUnreachable as exc:

@@ -245,7 +245,10 @@ def _common_argv(args: argparse.Namespace, inventory: Inventory) -> list[str]:
     argv = ["--inventory", args.inventory, "--domain", str(inventory.domain_id)]
     for endpoint in inventory.endpoints:
         argv += ["--endpoint", endpoint]
-    return argv + ["--log-level", "WARNING"]
+    # The children append to the demo's --log-file too (one file, each line with its role).
+    if args.log_file is not None:
+        argv += ["--log-file", args.log_file]
+    return argv + ["--log-level", "WARNING", "--log-format", args.log_format]
 
 
 def run_demo(args: argparse.Namespace) -> int:
