@@ -133,8 +133,11 @@ def test_the_camera_frames_the_fleet_at_start_and_on_fit(
         wait_until(lambda: camera.span(points)[1] < 0.3, 10.0)
         reports = camera.reports
         browser.page.get_by_role("button", name="Fit view").click()
-        inside, span = wait_until(lambda: (c := camera.span(points))[1] > 0.6 and c, 15.0)
-        assert inside and camera.reports > reports  # the browser moved its own camera
+        # The server sets the camera at once; the browser's own report of it is the proof.
+        inside, span = wait_until(
+            lambda: camera.reports > reports and (c := camera.span(points))[1] > 0.6 and c, 15.0
+        )
+        assert inside
         print(f"after Fit view: the arms span {span:.0%} of the view")
         browser.save_page("11-fit-after-button")
 
@@ -240,7 +243,17 @@ def test_one_arms_stop_and_reset_and_the_event_log(
         wait_until(
             lambda: any(k == "contact" and "j1 contact" in t for k, t in event_rows(browser)), 10
         )
-        wait_until(lambda: "j1" in arm_info(browser, "a1", "contact"), 5.0)
+        # The arm's folder shows the contact while it lasts; the agent's force limit retracts
+        # the target, so it may be released before a slow browser draws it.
+        wait_until(
+            lambda: (
+                "j1" in arm_info(browser, "a1", "contact")
+                or any(
+                    k == "contact" and "j1 contact released" in t for k, t in event_rows(browser)
+                )
+            ),
+            10.0,
+        )
         browser.save_page("14-contact-event")
     # The log is newest first, with wall-clock times.
     times = [t.split("\t")[0] for _k, t in rows]
