@@ -2,8 +2,9 @@
 
 A relay owns one device's DDS readers and writers (created once, at start-up, on the host's
 thread), its stop latch and its edge logic. The host calls it from three threads:
-- ``relay``: ``on_data(index, now_s)`` when ``readers[index]`` has samples, and ``tick(now_s)``
-  between them (publishing at the relay rate, repeating stop actions, link watch);
+- ``relay``: ``on_data(index, now_s)`` when ``readers[index]`` has samples (then ``tick``), and
+  ``tick(now_s)`` when the time it returned last comes (publishing at the relay rate, polling
+  readers it does not want waited on, repeating stop actions, link watch);
 - ``commands``: ``command(payload, principal)`` for each query (it may block on an RPC reply,
   bounded);
 - ``safety``: ``stop(request)`` and ``reset()``.
@@ -29,10 +30,11 @@ class DeviceRelay(Protocol):
     readers: list[Any]
 
     def on_data(self, index: int, now_s: float) -> None:
-        """Take and handle every sample of ``readers[index]``."""
+        """Take and handle every sample of ``readers[index]`` (the readers waited on)."""
 
-    def tick(self, now_s: float) -> None:
-        """Periodic work; called at least every ``TICK_S``."""
+    def tick(self, now_s: float) -> float:
+        """Periodic work; returns when it wants the next tick (monotonic seconds; the host
+        ticks at least every ``TICK_MAX_S`` anyway)."""
 
     def command(self, payload: bytes, principal: str) -> DeviceReply:
         """Check and execute one command; the reply."""

@@ -48,6 +48,8 @@ RPC_QOS = Qos(
 CONFIRM_SAMPLES = 3
 """The stop is confirmed by this many consecutive sportmodestate samples after its write."""
 MAX_PENDING = 16
+TICK_MAX_S = 0.05
+"""Ticks at least this often: the stop action's repeat and the link's staleness."""
 _ids = itertools.count(time.time_ns())
 
 
@@ -123,8 +125,9 @@ class G1Relay:
                 waiter[1].append(response)
             waiter[0].set()
 
-    def tick(self, now_s: float) -> None:
-        """The state on change and at the relay rate; the stop action until confirmed."""
+    def tick(self, now_s: float) -> float:
+        """The state on change and at the relay rate; the stop action until confirmed.
+        Returns when the next tick is due (the host also ticks after each ``on_data``)."""
         with self._lock:
             start, count, rate = self._rate
             if now_s - start >= 1.0:
@@ -136,10 +139,12 @@ class G1Relay:
                 self._changed = False
                 self._next_put_s = now_s + 1.0 / self.config.relay_hz
             action_due = self._latch.due(now_s)
+            next_s = min(self._next_put_s, now_s + TICK_MAX_S)
         if state is not None:
             self._put(keys.STATE, m.encode(state), False)
         if action_due:
             self._write_stop_action(now_s)
+        return next_s
 
     def _state(self, now_s: float) -> G1State | None:
         if self._latest is None:
