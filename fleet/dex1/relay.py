@@ -6,18 +6,14 @@ The state reader is not waited on: ``tick`` polls it at the relay's grid (at mos
 uses from the serialized bytes (``codec.CDR_READERS``). A 500 Hz stream costs 50 wake-ups a
 second, not 500 plus the ticks between them (issue 14's benchmark: README, Benchmark).
 
-Threads (see ``fleet/devices/relay.py``): ``on_data``/``tick`` on the host's relay thread,
-``command`` on its command thread, ``stop``/``reset`` on its safety thread. ``_lock`` guards the
-newest reading, the latch, the target and the counters (copied under it, published after);
-``_write`` serializes DDS writes with the latch decision, so no motion checked before a stop is
-written after the stop's hold (the arm's rule).
+Threads and locks: ``fleet/devices/relay.py`` (``LatchedRelay``; ``_lock`` also guards the
+target).
 """
 
 from __future__ import annotations
 
 import logging
 import math
-import threading
 import time
 from typing import Any
 
@@ -28,8 +24,7 @@ from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 
 from fleet.devices.base import DeviceReply
-from fleet.devices.latch import StopLatch
-from fleet.devices.relay import Put, error_reply
+from fleet.devices.relay import LatchedRelay, Put
 from fleet.dex1 import dds as ddx
 from fleet.dex1 import idl
 from fleet.dex1.codec import (
@@ -65,13 +60,12 @@ STILL_RAD_S = 0.05
 """A held gripper is confirmed still below this speed (measured over 20 ms)."""
 
 
-class GripperRelay:
+class GripperRelay(LatchedRelay):
     """One Dex1-1 served by the agent (create on the host's start-up thread)."""
 
     def __init__(self, config: GripperConfig, participant: Any, put: Put) -> None:
-        self.device = config.id
+        super().__init__(config.id, "hold", put, ("relayed", "commands", "write_failures"))
         self.config = config
-        self._put = put
         cmd_type, state_type = idl.FAMILIES[config.family]
         state_topic = Topic(participant, config.state_topic, state_type)
         cmd_topic = Topic(participant, config.cmd_topic, cmd_type)
@@ -93,18 +87,10 @@ class GripperRelay:
         )
         self._period_s = 1.0 / config.relay_hz
         self._poll_s = min(self._period_s, POLL_MAX_S)
-        self._lock = threading.Lock()
-        self._write = threading.Lock()
-        self._latch = StopLatch(config.id, "hold")
         self._latest: tuple[Reading, float] | None = None
         self._fresh = False  # a sample arrived since the last put
         self._next_put_s = 0.0
         self._target: float | None = None
-        self._hold_written_s: float | None = None
-        self._counts = {"dds_samples": 0, "relayed": 0, "bad_samples": 0, "commands": 0}
-        self._counts.update({"rejected": 0, "write_failures": 0})
-        self._rate_window: tuple[float, int] = (time.monotonic(), 0)
-        self._rate_hz = 0.0
 
     # ------------------------------------------------------------------ relay thread
 
@@ -156,7 +142,7 @@ class GripperRelay:
             self._counts["dds_samples"] += len(valid) - bad
             if reading is not None:
                 self._latest, self._fresh = (reading, at_s), True
-            written = self._hold_written_s
+            written = self._action_written_s
             if written is not None and now_s - written > 0.02:
                 speed = self._grip.speed()
                 if speed is not None and abs(speed) < STILL_RAD_S and self._latch.confirm():
@@ -173,8 +159,7 @@ class GripperRelay:
                 tau_est=tau_est,  # the batch's newest: within one poll period of the change
             )
             self._put(keys.CONTACT, m.encode(event), True)
-        if ack is not None:
-            self._put(keys.ESTOP_ACK, m.encode(ack), True)
+        self._put_ack(ack)
 
     def _position(self, serialized: bytes, family: str) -> float:
         try:
@@ -201,10 +186,7 @@ class GripperRelay:
         stop's hold until confirmed; returns when the next tick is due (the relay's grid)."""
         self._take(now_s)
         with self._lock:
-            start, count = self._rate_window
-            if now_s - start >= 1.0:
-                self._rate_hz = (self._counts["dds_samples"] - count) / (now_s - start)
-                self._rate_window = (now_s, self._counts["dds_samples"])
+            self._update_rate(now_s)
             due = now_s >= self._next_put_s and (self._fresh or now_s - self._next_put_s >= 1.0)
             state = self._state(now_s) if due else None
             if due:
@@ -217,7 +199,7 @@ class GripperRelay:
         if state is not None:
             self._put(keys.STATE, m.encode(state), False)
         if hold_due:
-            self._write_hold(now_s)
+            self._write_stop_action(now_s)
         return min(next_s, now_s + self._poll_s)
 
     def _state(self, now_s: float) -> GripperState | None:
@@ -268,7 +250,9 @@ class GripperRelay:
         c = self.config
         return Target(q_rad=min(max(q_rad, c.q_min_rad), c.q_max_rad), tau=c.tau, kp=c.kp, kd=c.kd)
 
-    def _write_hold(self, now_s: float) -> None:
+    def _write_stop_action(self, now_s: float) -> None:
+        """The hold of the measured position (only a fresh one: else latched, written when
+        one arrives)."""
         ack = None
         with self._write:
             q = self._fresh_q(now_s)
@@ -286,10 +270,9 @@ class GripperRelay:
                     first = self._latch.written_ns is None
                     self._latch.detail = None
                     self._latch.written(now_s)
-                    self._hold_written_s = now_s
+                    self._action_written_s = now_s
                     ack = self._latch.ack() if first else None
-        if ack is not None:
-            self._put(keys.ESTOP_ACK, m.encode(ack), True)
+        self._put_ack(ack)
 
     # ------------------------------------------------------------------ commands
 
@@ -344,35 +327,3 @@ class GripperRelay:
             f"gripper {self.device!r} has no fresh state on {self.config.state_topic} "
             f"(within {self.config.link_stale_s:g} s); is it powered and on this network?"
         )
-
-    def _refuse(self, code: m.ErrorCode, message: str) -> DeviceReply:
-        with self._lock:
-            self._counts["rejected"] += 1
-        return error_reply(self.device, code, message)
-
-    # ------------------------------------------------------------------ safety
-
-    def stop(self, request: m.StopRequest, repeat_ack: bool = True) -> None:
-        """Latch and hold the measured position at once (repeated until seen still)."""
-        with self._lock:
-            new = self._latch.latch(request)
-            if new and self._latch.written_ns is None:
-                self._hold_written_s = None
-        if new:
-            self._write_hold(time.monotonic())
-        elif repeat_ack:
-            with self._lock:
-                ack = self._latch.ack()
-            if ack is not None:
-                self._put(keys.ESTOP_ACK, m.encode(ack), True)
-
-    def reset(self) -> None:
-        """Release the latch; the target stays the held position (nothing moves)."""
-        with self._lock:
-            self._latch.reset()
-            self._hold_written_s = None
-
-    def counters(self) -> dict[str, int]:
-        """Counters since start."""
-        with self._lock:
-            return dict(self._counts)
