@@ -180,8 +180,11 @@ def payload_limits(inventory: Inventory) -> list[dict[str, Any]]:
         f"{f}/reset",
         f"{f}/arm/*/reset",
     ]
-    for kind in _device_kinds(inventory):
-        small += [f"{f}/{kind}/*/cmd/**", f"{f}/{kind}/*/estop", f"{f}/{kind}/*/reset"]
+    # Device keys are NOT added here: with `<kind>/*/cmd/**`, `<kind>/*/estop` and
+    # `<kind>/*/reset` in this filter, zenohd 1.x's router stopped passing anything in the
+    # secure demo (every arm and device offline; tests/test_security.py) -- not investigated.
+    # Device commands, stops and resets are bounded by the "everything" filter below and by
+    # the device agent's own 4 KiB decode limit.
     messages = ["put", "delete", "query", "reply"]
     return [
         {
