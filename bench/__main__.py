@@ -15,7 +15,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from bench import contact, fleet_runs, raw, relay, report, scale, viewer_cpu
+from bench import contact, devices, fleet_runs, raw, relay, report, scale, viewer_cpu
 from bench.proc import REPO
 
 
@@ -40,9 +40,9 @@ def _strip_samples(value: Any) -> Any:
     return value
 
 
-SECTIONS = ("raw", "relay", "fleet", "viewer", "contact", "scale", "routers")
+SECTIONS = ("raw", "relay", "fleet", "viewer", "contact", "devices", "scale", "routers")
 """raw: hops and fan-outs; relay: latency and cost at 1-100 arms; fleet: command and stop;
-scale: 1000 arms; routers: two routers (issue 12)."""
+devices: one Dex1-1 at 500 Hz (issue 14); scale: 1000 arms; routers: two routers (issue 12)."""
 
 
 _STEPS: tuple[tuple[str, str, Callable[[bool], Any]], ...] = (
@@ -51,6 +51,7 @@ _STEPS: tuple[tuple[str, str, Callable[[bool], Any]], ...] = (
     ("viewer", "viewer CPU at 10, 50, 200 arms", viewer_cpu.run),
     ("contact", "contact detection: labelled episodes (pure simulator + detector)",
      lambda _quick: contact.bench_contact()),
+    ("devices", "one Dex1-1 at 500 Hz: devices agent CPU, latency DDS -> Zenoh", devices.run),
     ("scale", "1000 arms at 10 Hz: 4 fleet sim, 4 agents, coordinator, viewer; stops",
      scale.run_thousand),
     ("routers", "two routers: raw hop and fan-out over them; relay and stops of 100 arms",

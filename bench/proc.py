@@ -143,9 +143,10 @@ class Worker:
 
 class BenchFleet:
     """A router on a free port, a DDS domain of our own and an inventory of ``arms`` simulated
-    arms (a1.., suffixes _1..), plus every process started for one measurement."""
+    arms (a1.., suffixes _1..; ``extra``: more inventory text, e.g. devices), plus every
+    process started for one measurement."""
 
-    def __init__(self, arms: int, tag: str) -> None:
+    def __init__(self, arms: int, tag: str, extra: str = "") -> None:
         self._tmp = tempfile.TemporaryDirectory(prefix=f"d1-bench-{tag}-")
         self.dir = Path(self._tmp.name)
         self.port = free_port()
@@ -153,7 +154,7 @@ class BenchFleet:
         self.arms = [f"a{i}" for i in range(1, arms + 1)]
         self.inventory = self.dir / "inventory.toml"
         # An inventory needs one arm at least, even for the raw measurements that use none.
-        text = inventory_text(FLEET, self.port, self.domain, max(1, arms))
+        text = inventory_text(FLEET, self.port, self.domain, max(1, arms), extra)
         self.inventory.write_text(text, encoding="utf-8")
         self.endpoint = f"tcp/127.0.0.1:{self.port}"
         self.workers: list[Worker] = []

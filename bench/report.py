@@ -41,6 +41,8 @@ STOP_FANOUT_RATIO = 1.5
 """Stop to the last of 100 arms p99 over the raw fan-out p99, issue 12 (was 2)."""
 ONE_ARM_CPU_PCT = 0.5
 """The agent of one arm at 10 Hz, % of a core (issue 12)."""
+GRIPPER_CPU_PCT = 3.0
+"""The devices agent serving one Dex1-1 at 500 Hz, % of a core (issue 14)."""
 
 
 def goals(r: dict[str, Any]) -> list[dict[str, Any]]:
@@ -62,6 +64,10 @@ def goals(r: dict[str, Any]) -> list[dict[str, Any]]:
         _scale_goals(r["scale"], add)
     if "routers" in r:
         _routers_goals(r["routers"], add)
+    if "devices" in r:
+        grip = r["devices"]["gripper_500"]
+        add("gripper relay, 1 gripper at 500 Hz (% of a core)", grip["agent_cpu_pct"],
+            GRIPPER_CPU_PCT, "%")  # fmt: skip
     return out
 
 
@@ -185,7 +191,27 @@ def rows(r: dict[str, Any]) -> list[Row]:
         table += _scale_rows(r["scale"])
     if "routers" in r:
         table += _routers_rows(r["routers"])
+    if "devices" in r:
+        table += _devices_rows(r["devices"])
     return table
+
+
+def _devices_rows(r: dict[str, Any]) -> list[Row]:
+    grip = r["gripper_500"]
+    lat = grip["latency"]
+    rates = (f"DDS {grip['dds_rate_hz']:g} Hz -> Zenoh {grip['zenoh_rate_hz']:g} Hz "
+             f"(configured {grip['relay_hz']:g})")  # fmt: skip
+    ok = grip["agent_cpu_pct"] <= GRIPPER_CPU_PCT
+    busiest = list(grip["agent_threads_pct"].items())[:4]
+    threads = ", ".join(f"{name} {pct:g}" for name, pct in busiest)
+    return [
+        (f"gripper relay CPU, 1 Dex1-1 at {grip['rate_hz']:g} Hz (devices agent)",
+         f"{grip['agent_cpu_us_per_sample']:g} us/DDS sample", f"{grip['agent_cpu_pct']:g} % core",
+         "", f"<= {GRIPPER_CPU_PCT:g} % core", _verdict(ok)),
+        ("gripper relay CPU by thread (% core)", threads, "", "", "", ""),
+        (f"gripper state DDS -> agent -> Zenoh, newest sample at {grip['relay_hz']:g} Hz "
+         f"(n={lat['n']})", _ms(lat["p50_ms"]), _ms(lat["p99_ms"]), rates, "", ""),
+    ]  # fmt: skip
 
 
 def _stop_row(name: str, stop: dict[str, Any], fan99: float | None, goal: str, ok: bool) -> Row:
@@ -324,7 +350,7 @@ def markdown(r: dict[str, Any]) -> str:
         "|---|---|---|---|---|---|",
     ]
     lines += ["| " + " | ".join(row) + " |" for row in rows(r)]
-    lines += ["", "Goals (issues 7 and 12):", ""]
+    lines += ["", "Goals (issues 7, 12, 13 and 14):", ""]
     for g in r["goals"]:
         lines.append(
             f"- {_verdict(g['ok'])}: {g['goal']}: {g['figure']:.2f} {g['unit']} "

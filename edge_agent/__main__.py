@@ -114,7 +114,8 @@ def run_devices(args: argparse.Namespace, stop: threading.Event) -> int:
     with host:
         host.start()
         log.info("serving devices %s of fleet %r", ", ".join(args.device), inventory.fleet)
-        while not stop.wait(0.1) and not host.failed.is_set():
+        # A failed thread has latched every device already (DeviceHost._on_failure).
+        while not stop.wait(0.5) and not host.failed.is_set():
             pass
     if host.failed.is_set():
         log.error("%s; every device was stopped before shutting down", host.guard.failure)

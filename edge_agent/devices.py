@@ -6,8 +6,10 @@ process (``edge-agent --device ID``), with their own DDS participant and Zenoh s
 
 Threads, all under one ``ThreadGuard`` (a failure stops and latches every device, then the
 process exits 1):
-- ``dev-relay``: a DDS WaitSet over every device reader (``ReadySet``); ready readers go to
-  their relay's ``on_data``; ``tick`` runs every ``TICK_S`` between samples;
+- ``dev-relay``: a DDS WaitSet over the device readers that want waking (``ReadySet``); ready
+  readers go to their relay's ``on_data``, then its ``tick``; each relay's ``tick`` also runs
+  when the time it asked for comes (a gripper polls its 500 Hz state there, at its relay rate:
+  waking for every sample cost more than the work), at least every ``TICK_MAX_S``;
 - ``dev-commands``: commands from a bounded queue (full: 3205 "busy" at once, from the
   callback); a G1 RPC may block it up to its timeout, never the stops;
 - ``dev-safety``: stops and resets from a bounded FIFO (a stop that finds it full still
@@ -19,6 +21,7 @@ close.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import queue
 import threading
@@ -41,8 +44,11 @@ from fleet.wire import messages as m
 
 log = logging.getLogger("edge_agent.devices")
 
-TICK_S = 0.002
-"""The relay thread's longest wait: ticks (the relay rate's grid, stop repeats) run this often."""
+TICK_MAX_S = 0.1
+"""The relay thread's longest wait: every relay ticks at least this often (it asks for more)."""
+IDLE_WAIT_S = 1.0
+"""The command and safety loops' longest wait (close wakes them at once): a device agent that
+serves a 500 Hz gripper should not spend its budget waking up to find nothing."""
 COMMAND_DEPTH = 64
 SAFETY_DEPTH = 256
 JSON = zenoh.Encoding.APPLICATION_JSON
@@ -83,9 +89,9 @@ class DeviceHost:
                 readers.append(reader)
                 self._reader_map.append((relay, index))
         self._ready = ReadySet(self._channel.participant, readers)
-        self._commands: queue.Queue[_Command] = queue.Queue(maxsize=COMMAND_DEPTH)
-        self._safety: queue.Queue[tuple[str, str | None, m.StopRequest | None]] = queue.Queue(
-            maxsize=SAFETY_DEPTH
+        self._commands: queue.Queue[_Command | None] = queue.Queue(maxsize=COMMAND_DEPTH)
+        self._safety: queue.Queue[tuple[str, str | None, m.StopRequest | None] | None] = (
+            queue.Queue(maxsize=SAFETY_DEPTH)
         )
         self.bad_payloads = 0
         self._zenoh: list[Any] = []
@@ -207,24 +213,28 @@ class DeviceHost:
     # ------------------------------------------------------------------ threads
 
     def _relay_loop(self) -> None:
-        relays = list(self.relays.values())
-        next_tick = time.monotonic()
+        now = time.monotonic()
+        due = {device: now for device in self.relays}
         while not self._stopping.is_set():
-            ready = self._ready.wait(max(0.0, min(TICK_S, next_tick - time.monotonic())))
+            wake = min(due.values(), default=now + TICK_MAX_S)
+            ready = self._ready.wait(max(0.0, min(wake, now + TICK_MAX_S) - time.monotonic()))
             now = time.monotonic()
+            ticked: set[str] = set()
             for index in ready:
                 relay, local = self._reader_map[index]
                 relay.on_data(local, now)
-            if now >= next_tick:
-                for relay in relays:
-                    relay.tick(now)
-                next_tick = now + TICK_S
+                ticked.add(relay.device)
+            for device, relay in self.relays.items():
+                if device in ticked or now >= due[device]:
+                    due[device] = relay.tick(now)
 
     def _command_loop(self) -> None:
         while not self._stopping.is_set():
             try:
-                item = self._commands.get(timeout=0.1)
+                item = self._commands.get(timeout=IDLE_WAIT_S)
             except queue.Empty:
+                continue
+            if item is None:  # close's wake-up
                 continue
             reply: DeviceReply = item.relay.command(item.payload, item.principal)
             item.query.reply(item.key, m.encode(reply), encoding=JSON)
@@ -233,9 +243,12 @@ class DeviceHost:
     def _safety_loop(self) -> None:
         while not self._stopping.is_set():
             try:
-                what, device, request = self._safety.get(timeout=0.1)
+                item = self._safety.get(timeout=IDLE_WAIT_S)
             except queue.Empty:
                 continue
+            if item is None:  # close's wake-up
+                continue
+            what, device, request = item
             targets = [self.relays[device]] if device is not None else list(self.relays.values())
             for relay in targets:
                 if what == "reset":
@@ -261,6 +274,10 @@ class DeviceHost:
         self._zenoh.clear()
         self._stopping.set()
         self._ready.wake()
+        for waiting in (self._commands, self._safety):
+            # Wake the loop now (a full queue: it is busy and sees _stopping next).
+            with contextlib.suppress(queue.Full):
+                waiting.put_nowait(None)
         for thread in self._threads:
             if thread.is_alive():
                 thread.join(timeout=2.0)

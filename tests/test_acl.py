@@ -108,3 +108,36 @@ def test_security_needs_tls_endpoints_and_known_roles(tmp_path: Path) -> None:
         parse_inventory(INVENTORY + 'root = "admin"\n', str(tmp_path / "inventory.toml"))
     with pytest.raises(InventoryError, match="an arm's agent"):
         parse_inventory(INVENTORY + 'agent-a1 = "operator"\n', str(tmp_path / "inventory.toml"))
+
+
+DEVICES = """
+[grippers.gl]
+mount = "a1"
+[grippers.gr]
+agent = "agent-cell2"
+side = "right"
+[g1.h1]
+"""
+
+
+def test_device_agents_publish_their_devices_and_only_commanders_command(tmp_path: Path) -> None:
+    """Issue 14: device keys are covered like the arms' (deny by default)."""
+    inventory = parse_inventory(INVENTORY + DEVICES, str(tmp_path / "inventory.toml"))
+    acl = access_control(inventory)
+    puts = _allowed(acl, "agent-gl", "put", "ingress")
+    assert "fleet/lab/gripper/gl/state" in puts and "fleet/lab/gripper/gl/estop/ack" in puts
+    assert not any("/gr/" in key or "/h1/" in key or "/arm/" in key for key in puts)
+    assert _allowed(acl, "agent-gl", "declare_queryable", "ingress") == {
+        "fleet/lab/gripper/gl/cmd/*"
+    }
+    cell2 = _allowed(acl, "agent-cell2", "put", "ingress")
+    assert "fleet/lab/gripper/gr/state" in cell2 and "fleet/lab/arm/a2/joints" in cell2
+    assert "fleet/lab/g1/h1/state" in _allowed(acl, "agent-h1", "put", "ingress")
+    # Commands: an operator under its own name only; an observer may stop, never command.
+    assert "fleet/lab/g1/*/cmd/ann" in _allowed(acl, "ann", "query", "ingress")
+    assert "fleet/lab/gripper/*/cmd/kiosk" not in _allowed(acl, "kiosk", "query", "ingress")
+    assert "fleet/lab/g1/*/estop" in _allowed(acl, "kiosk", "put", "ingress")
+    assert "fleet/lab/g1/*/reset" not in _allowed(acl, "kiosk", "put", "ingress")
+    assert not any("/gripper/" in k for k in _allowed(acl, "agent-a1", "put", "ingress"))
+    coordinator = _allowed(acl, "coordinator", "declare_subscriber", "ingress")
+    assert {"fleet/lab/gripper/*/state", "fleet/lab/g1/*/estop/ack"} <= coordinator

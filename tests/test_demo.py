@@ -96,6 +96,8 @@ def test_a_reset_never_restarts_the_demos_dance(
     wait_until(dancing, 60.0)
     acks = client.estop(timeout_s=5.0)
     assert all(acks.values()), acks
+    # The mixed demo (issue 14): the Dex1-1 on a1 and the G1 are stopped and confirmed too.
+    assert {"a1", "a2", "a3", "gripper/gl", "g1/h1"} <= set(acks), acks
     time.sleep(1.0)
     client.reset()
     after = _joint0(client)

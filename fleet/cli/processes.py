@@ -72,7 +72,9 @@ def register(
     add_observe_options(coordinator)
     coordinator.set_defaults(run=run_coordinator)
 
-    demo = sub.add_parser("demo", help="router + simulated arms + one agent per arm, with status")
+    demo = sub.add_parser(
+        "demo", help="router + simulated arms and devices + their agents, with status"
+    )
     add_common(demo)
     demo.add_argument("--for-s", type=float, default=None, help="stop after this many seconds")
     demo.add_argument("--port", type=int, default=8080, help="viewer web port (default 8080)")
@@ -291,6 +293,14 @@ def _run_demo(args: argparse.Namespace, inventory: Inventory) -> int:
             supervisor.start("simulator", ["-m", "fleet.cli.main", "sim", *common])
         for arm in inventory.arms:
             supervisor.start(f"agent of {arm}", ["-m", "edge_agent", "--arm", arm, *common])
+        # Devices beside the arms: one agent process per agent principal (issue 14).
+        served: dict[str, list[str]] = {}
+        for device, config in inventory.devices.items():
+            served.setdefault(config.agent, []).append(device)
+        for principal, devices in served.items():
+            argv = ["-m", "edge_agent", "--principal", principal]
+            argv += [x for d in devices for x in ("--device", d)]
+            supervisor.start(f"agent of {', '.join(devices)}", [*argv, *common])
         supervisor.start("coordinator", ["-m", "fleet.cli.main", "coordinator", *common])
         if not args.no_dance:
             # Loops until a stop, which ends it: a reset permits motion, never restarts it (the
@@ -361,7 +371,7 @@ def _print_status_until(
 ) -> str | None:
     """Print the status block once a second and keep the children running; why the demo gave
     up on a child, or None."""
-    from fleet.cli.status import status_lines
+    from fleet.cli.status import device_lines, status_lines
 
     deadline = None if for_s is None else time.monotonic() + for_s
     printed = 0
@@ -372,6 +382,7 @@ def _print_status_until(
                 return gave_up
             snapshot, alive = client.snapshot(wait_s=1.0), client.agents_alive()
             lines = status_lines(inventory, snapshot, alive, client.fleet_state(wait_s=0.3))
+            lines += device_lines(inventory, client.device_snapshot(wait_s=0.3))
             if printed and sys.stdout.isatty():
                 print(f"\033[{printed}F", end="")  # redraw the block in place
             print("\n".join(lines), flush=True)

@@ -44,20 +44,41 @@ def run_record(args: argparse.Namespace) -> int:
     """``fleet record``: until Ctrl-C or ``--for-s``; prints what it wrote, what it lost and
     the joints' gaps by seq. Exit 1 if the recorder failed (the file is finished as far as
     possible; an unfinished one is readable up to its last flush)."""
+    from fleet.devices import kind_of
     from fleet.record.layout import layout_of
     from fleet.record.recorder import Recorder
 
     inventory = inventory_from_args(args)
     arms: list[str] = []
     for target in args.arm or ["all"]:
+        if target in inventory.devices:  # a device id: its keys only (below)
+            continue
         arms += [a for a in inventory.resolve(target) if a not in arms]
     path = args.output or time.strftime("fleet-%Y%m%d-%H%M%S.mcap")
     stop = shutdown_event()
     with FleetClient(inventory, connect_timeout_s=args.connect_timeout) as client:
         try:
             layout = layout_of(inventory, arms)
+            # Devices: those of the inventory (all of them with ``all``, else those mounted on
+            # a recorded arm); their state, grip events and stop acks.
+            devices = {
+                d: kind_of(config)
+                for d, config in inventory.devices.items()
+                if args.arm is None
+                or "all" in args.arm
+                or getattr(config, "mount", "") in arms
+                or d in args.arm
+            }
             extras = _extras(layout)
-            rec = Recorder(client.session, client.keys, arms, path, layout=layout, extras=extras)
+            rec = Recorder(
+                client.session,
+                client.keys,
+                arms,
+                path,
+                layout=layout,
+                extras=extras,
+                devices=devices,
+            )
         except OSError as exc:
             print(f"fleet record: {path}: cannot write it: {exc.strerror or exc}", file=sys.stderr)
             return 2

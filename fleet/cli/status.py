@@ -104,8 +104,10 @@ def device_lines(inventory: Inventory, states: dict[str, Any]) -> list[str]:
     return lines
 
 
-def _as_json(snapshot: Snapshot, alive: set[str]) -> str:
-    out = {
+def _as_json(snapshot: Snapshot, alive: set[str], devices: dict[str, Any] | None = None) -> str:
+    """Arms by id (as before issue 14), then devices by ``<kind>/<id>`` (a ``/`` no arm id
+    has, so the two never collide): ``{"kind", "state"}`` (``state`` null: none heard)."""
+    out: dict[str, Any] = {
         arm: {
             "agent": arm in alive,
             "status": None if status is None else msgspec.to_builtins(status),
@@ -113,6 +115,11 @@ def _as_json(snapshot: Snapshot, alive: set[str]) -> str:
         }
         for arm, (status, joints) in snapshot.items()
     }
+    for label, state in (devices or {}).items():
+        out[label] = {
+            "kind": label.partition("/")[0],
+            "state": None if state is None else msgspec.to_builtins(state),
+        }
     return json.dumps(out, indent=2)
 
 
@@ -133,7 +140,7 @@ def run_status(args: argparse.Namespace) -> int:
                 for arm, (status, _j) in snapshot.items()
             ) and all(d is not None and d.link == "ok" for d in devices.values())
             if args.json:
-                print(_as_json(snapshot, alive), flush=True)
+                print(_as_json(snapshot, alive, devices), flush=True)
             else:
                 lines = status_lines(inventory, snapshot, alive, state)
                 lines += device_lines(inventory, devices)

@@ -15,10 +15,11 @@ from __future__ import annotations
 import threading
 from collections import deque
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import zenoh
 
+from fleet.devices import DeviceKind
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
 
@@ -70,6 +71,7 @@ class CoordinatorIntake:
         self._flooded: dict[str | None, None] = {}
         self._status: dict[str, m.ArmStatus] = {}
         self._reports: deque[Report] = deque()
+        self._device_states: dict[str, tuple[DeviceKind, Any]] = {}
 
     def _arm(self, sample: zenoh.Sample) -> str | None:
         """The inventory arm whose key the sample came on; None (counted) otherwise."""
@@ -155,12 +157,69 @@ class CoordinatorIntake:
         except payloads.PayloadError:
             self._bad()
             return
+        self._push_report(Report(arm, payload))
+
+    def _push_report(self, report: Report) -> None:
         with self._lock:
             if len(self._reports) >= REPORT_DEPTH:
                 self.counters.dropped_events += 1
                 return
-            self._reports.append(Report(arm, payload))
+            self._reports.append(report)
         self.wake.set()
+
+    # ------------------------------------------------------------------ devices (issue 14)
+
+    def on_device(self, kind: DeviceKind, devices: frozenset[str]):  # type: ignore[no-untyped-def]
+        """The callbacks (token, state, ack) of one device kind's keys: tokens and acks go
+        with the arms' (an ack's device id stands where an arm's would), states latest-wins."""
+        prefix = f"{self._space.prefix}/{kind.key}/"
+        decode = kind.payloads[keys.STATE].decode
+
+        def device_of(sample: zenoh.Sample) -> str | None:
+            device = str(sample.key_expr)[len(prefix) :].partition("/")[0]
+            if device not in devices:
+                with self._lock:
+                    self.counters.unknown_arms += 1
+                return None
+            return device
+
+        def on_token(sample: zenoh.Sample) -> None:
+            device = device_of(sample)
+            if device is not None:
+                present = sample.kind == zenoh.SampleKind.PUT
+                self._push_control(Control("token", device, present=present))
+
+        def on_state(sample: zenoh.Sample) -> None:
+            device = device_of(sample)
+            if device is None:
+                return
+            try:
+                state = decode(sample.payload.to_bytes())
+            except payloads.PayloadError:
+                self._bad()
+                return
+            with self._lock:
+                self._device_states[device] = (kind, state)
+            self.wake.set()
+
+        def on_ack(sample: zenoh.Sample) -> None:
+            device = device_of(sample)
+            if device is None:
+                return
+            try:
+                ack = payloads.decode(keys.ESTOP_ACK, sample.payload.to_bytes())
+            except payloads.PayloadError:
+                self._bad()
+                return
+            self._push_report(Report(device, ack))
+
+        return on_token, on_state, on_ack
+
+    def take_device_states(self) -> dict[str, tuple[DeviceKind, Any]]:
+        """The newest state of each device heard since the last call."""
+        with self._lock:
+            states, self._device_states = self._device_states, {}
+        return states
 
     def _push_control(self, event: Control) -> None:
         with self._lock:

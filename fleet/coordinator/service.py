@@ -28,6 +28,7 @@ from fleet.coordinator.desk import RequestDesk, error_reply
 from fleet.coordinator.intake import Control, CoordinatorIntake
 from fleet.coordinator.state import FleetStateTracker
 from fleet.coordinator.stops import FLEET, StopBook
+from fleet.devices import kind_of
 from fleet.guard import ThreadGuard
 from fleet.heartbeat import beat_until
 from fleet.inventory import Inventory, InventoryError
@@ -57,8 +58,11 @@ class Coordinator:
         arms = list(inventory.arms)
         settings = inventory.coordinator
         self.period_s = 1.0 / settings.heartbeat_hz
-        self.state = FleetStateTracker(arms, settings.offline_after_s)
-        self.stops = StopBook(arms)
+        self.devices = {d: kind_of(c) for d, c in inventory.devices.items()}
+        self.state = FleetStateTracker(
+            arms, settings.offline_after_s, {d: k.key for d, k in self.devices.items()}
+        )
+        self.stops = StopBook(arms, devices=list(self.devices))
         self.contacts = ContactPolicy()  # fleet contact table, policies, collision memory
         self.lock = threading.Lock()  # guards self.state, self.stops and self.contacts
         self.stopping = threading.Event()
@@ -109,6 +113,16 @@ class Coordinator:
                 self.keys.coordinator_cmd, wrap(self.desk.on_query, "coordinator-cmd")
             ),
         ]
+        for kind in {k.key: k for k in self.devices.values()}.values():
+            on_token, on_state, on_ack = intake.on_device(kind, frozenset(self.devices))
+            key = self.keys.device
+            self._declared += [
+                self.session.liveliness().declare_subscriber(
+                    key(kind.key, "*", keys.AGENT), wrap(on_token, "device-token"), history=True
+                ),
+                sub(key(kind.key, "*", keys.STATE), wrap(on_state, "device-state")),
+                sub(key(kind.key, "*", keys.ESTOP_ACK), wrap(on_ack, "device-ack")),
+            ]
 
     # ------------------------------------------------------------------ threads
 
@@ -162,6 +176,10 @@ class Coordinator:
                     self._apply_control(event, now)
                 for arm, status in statuses.items():
                     self.state.on_status(arm, status, now)
+                for device, (kind, state) in self.intake.take_device_states().items():
+                    self.state.on_device_state(
+                        device, state.link, state.estopped, kind.summary(state), now
+                    )
                 for report in reports:
                     if isinstance(report.payload, m.StopAck):
                         stop_report = self.stops.on_ack(report.arm, report.payload)
@@ -186,7 +204,9 @@ class Coordinator:
 
     def _apply_control(self, event: Control, now: float) -> None:
         """Apply one token change, stop or reset (caller holds the lock)."""
-        if event.kind == "token" and event.arm is not None:
+        if event.kind == "token" and event.arm in self.devices:
+            self.state.on_device_token(event.arm, event.present, now)
+        elif event.kind == "token" and event.arm is not None:
             self.state.on_token(event.arm, event.present, now)
         elif event.kind == "stop" and event.stop is None:
             # The agents stopped on it themselves. It is not repeated: an id made up here would

@@ -22,12 +22,57 @@ class _ArmView:
     contact: bool | None = None
 
 
-class FleetStateTracker:
-    """The coordinator's view of every arm of the inventory."""
+@dataclass
+class _DeviceView:
+    kind: str
+    token: bool = False
+    heard_s: float | None = None
+    link: str = "lost"
+    estopped: bool = False
+    summary: str | None = None
 
-    def __init__(self, arms: list[str], offline_after_s: float) -> None:
+
+class FleetStateTracker:
+    """The coordinator's view of every arm and device of the inventory (``devices``: id ->
+    its kind's key word)."""
+
+    def __init__(
+        self, arms: list[str], offline_after_s: float, devices: dict[str, str] | None = None
+    ) -> None:
         self.offline_after_s = offline_after_s
         self._arms = {arm: _ArmView() for arm in arms}
+        self._devices = {d: _DeviceView(kind) for d, kind in (devices or {}).items()}
+
+    def on_device_token(self, device: str, present: bool, now: float) -> None:
+        """A device agent's liveliness token appeared or went away."""
+        view = self._devices.get(device)
+        if view is not None:
+            view.token = present
+            if present:
+                view.heard_s = now
+
+    def on_device_state(
+        self, device: str, link: str, estopped: bool, summary: str, now: float
+    ) -> None:
+        """A device's latest state (its relay repeats it at least once a second)."""
+        view = self._devices.get(device)
+        if view is not None:
+            view.link, view.estopped, view.summary, view.heard_s = link, estopped, summary, now
+
+    def device_summary(self, device: str, now: float) -> m.DeviceSummary:
+        """One device's line of the fleet state."""
+        view = self._devices[device]
+        heard = None if view.heard_s is None else round(now - view.heard_s, 3)
+        online = view.token and heard is not None and heard <= self.offline_after_s
+        link = view.link if online and view.link in ("ok", "stale") else "lost"
+        return m.DeviceSummary(
+            kind=view.kind,
+            online=online,
+            link=link,  # type: ignore[arg-type]
+            estopped=view.estopped,
+            summary=view.summary[:256] if view.summary is not None else None,
+            heard_age_s=heard,
+        )
 
     def on_token(self, arm: str, present: bool, now: float) -> None:
         """The agent's liveliness token appeared or went away."""
@@ -101,4 +146,5 @@ class FleetStateTracker:
             stamp_ns=stamp_ns,
             coordinator=coordinator,
             arms={arm: self.summary(arm, now) for arm in self._arms},
+            devices={d: self.device_summary(d, now) for d in self._devices},
         )

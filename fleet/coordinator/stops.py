@@ -19,8 +19,11 @@ class _Fanout:
 class StopBook:
     """Which stops are latched, and how each one fanned out."""
 
-    def __init__(self, arms: list[str], keep: int = 32) -> None:
+    def __init__(self, arms: list[str], keep: int = 32, devices: list[str] | None = None) -> None:
         self._arms = frozenset(arms)
+        self._acking = self._arms | frozenset(devices or ())
+        """Arms and devices (issue 14): both acknowledge a fleet stop and are in its report;
+        the latch bookkeeping (per-target stops, resets one by one) is the arms'."""
         self._latched: dict[str, m.StopRequest] = {}
         self._reset_since_fleet_stop: set[str] = set()
         self._fanouts: dict[str, _Fanout] = {}
@@ -62,7 +65,7 @@ class StopBook:
         """Record the ack published on ``arm``'s key (the key says which arm, not the payload);
         returns the updated report of that stop (None if the stop or the arm is unknown)."""
         fanout = self._fanouts.get(ack.stop_id)
-        if fanout is None or arm not in self._arms:
+        if fanout is None or arm not in self._acking:
             return None
         fanout.acks[arm] = ack
         return self.report(ack.stop_id)

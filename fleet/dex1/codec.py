@@ -10,6 +10,7 @@ number we use must be finite; anything else is a ``BadSample`` (counted by the a
 from __future__ import annotations
 
 import math
+import struct
 from dataclasses import dataclass
 from typing import Any
 
@@ -112,6 +113,111 @@ def reading_from_go(sample: Any) -> Reading:
 
 
 READERS = {"hg": reading_from_hg, "go": reading_from_go}
+"""family -> Reading of a sample decoded by the binding (the slow path, see ``CDR_READERS``)."""
+
+# ----------------------------------------------------------------------------- serialized
+# The relay's hot path reads the few fields it needs straight from the serialized sample: the
+# binding's generic IDL deserialiser builds every field of every nested struct (a HandState_ is
+# 40 numbers and 4 objects) and cost most of a 500 Hz gripper's CPU. Layouts follow the IDL in
+# ``idl.py`` (every struct final; no 8-byte members, so XCDR1 and plain XCDR2 align alike);
+# offsets are from the start of the body (after the 4-byte encapsulation header).
+
+_ENCODINGS = {0x0000: (">", 0), 0x0001: ("<", 0), 0x0006: (">", 4), 0x0007: ("<", 4)}
+"""CDR and plain XCDR2, big and little endian -> (byte order, bytes of the DHEADER that XCDR2
+puts before a sequence of structs). Anything else: ``UnsupportedEncoding``."""
+_GO_STATE = 48
+"""bytes of one ``unitree_go`` MotorState_: mode, 7 float32, temperature, lost, reserve[2]."""
+_HG_STATE = 56
+"""bytes of one ``unitree_hg`` MotorState_: mode, 4 float32, int16[2], vol, sensor[2],
+motorstate, reserve[4]."""
+_PRESS = 104
+"""bytes of one PressSensorState_: float32[12] twice, lost, reserve."""
+_HG_TAIL = 56 + 16
+"""IMUState_ (13 float32 and an int16, padded to 4) and power_v, power_a, system_v, device_v:
+from the end of ``press_sensor_state`` to ``error``."""
+_MOTOR_BYTES = {"go": _GO_STATE, "hg": _HG_STATE}
+_COUNT_AND_Q = {
+    kind: struct.Struct(f"{order}{dh}xI4xf") for kind, (order, dh) in _ENCODINGS.items()
+}
+"""The motor count and the first motor's q in one unpack from offset 4 (both families)."""
+
+
+class UnsupportedEncoding(ValueError):
+    """A serialized sample in an encapsulation this reader does not lay out (decode it with the
+    binding instead)."""
+
+
+def _encoding(serialized: bytes) -> tuple[str, int]:
+    if len(serialized) < 8:
+        raise BadSample(f"{len(serialized)} bytes: no state sample")
+    kind = int.from_bytes(serialized[:2], "big")
+    found = _ENCODINGS.get(kind)
+    if found is None:
+        raise UnsupportedEncoding(f"encapsulation 0x{kind:04x}")
+    return found
+
+
+def _count(serialized: bytes, order: str, offset: int, what: str) -> int:
+    if offset + 4 > len(serialized):
+        raise BadSample(f"{what}: sample ends at {len(serialized)} bytes")
+    (count,) = struct.unpack_from(order + "I", serialized, offset)
+    return int(count)
+
+
+def _motors(serialized: bytes, order: str, dh: int, family: str) -> int:
+    """The first motor's offset, after checking the motor list's count and length."""
+    count = _count(serialized, order, 4 + dh, "motor list")
+    if not 1 <= count <= MAX_MOTORS:
+        raise BadSample(f"the state holds {count} motors (a Dex1-1 sends 1..{MAX_MOTORS})")
+    if len(serialized) < 8 + dh + count * _MOTOR_BYTES[family]:
+        raise BadSample(f"{count} motors in {len(serialized)} bytes")
+    return 8 + dh
+
+
+def position_cdr(serialized: bytes, family: str) -> float:
+    """Only the first motor's position of a serialized state sample of ``family`` (the relay
+    runs grip detection on every sample but decodes in full only the newest of a batch);
+    BadSample when it is not one, or the position is not finite and plausible."""
+    layout = _COUNT_AND_Q.get(int.from_bytes(serialized[:2], "big"))
+    if layout is None or len(serialized) < layout.size + 4:
+        _encoding(serialized)  # raises the precise error (too short, or UnsupportedEncoding)
+        raise BadSample(f"{len(serialized)} bytes: no state sample")
+    count, q = layout.unpack_from(serialized, 4)
+    dh = layout.size - 12
+    if not 1 <= count <= MAX_MOTORS or len(serialized) < 8 + dh + count * _MOTOR_BYTES[family]:
+        raise BadSample(f"{count} motors in {len(serialized)} bytes")
+    if not Q_PLAUSIBLE_RAD[0] <= q <= Q_PLAUSIBLE_RAD[1]:  # False for NaN too
+        raise BadSample(f"position {q!r} rad is outside {Q_PLAUSIBLE_RAD}")
+    return float(q)
+
+
+def reading_from_go_cdr(serialized: bytes) -> Reading:
+    """A serialized ``MotorStates_`` -> its first motor's Reading (BadSample otherwise)."""
+    order, dh = _encoding(serialized)
+    at = _motors(serialized, order, dh, "go")
+    q, dq, _ddq, tau = struct.unpack_from(order + "4f", serialized, at + 4)
+    (lost,) = struct.unpack_from(order + "I", serialized, at + 36)
+    return _checked(Reading(q, dq, tau, float(serialized[at + 32]), 0, int(lost)))
+
+
+def reading_from_hg_cdr(serialized: bytes) -> Reading:
+    """A serialized ``HandState_`` -> its first motor's Reading (BadSample otherwise)."""
+    order, dh = _encoding(serialized)
+    at = _motors(serialized, order, dh, "hg")
+    count = _count(serialized, order, 4 + dh, "motor list")
+    press_at = at + count * _HG_STATE + dh
+    presses = _count(serialized, order, press_at, "HandState_.press_sensor_state")
+    error_at = press_at + 4 + presses * _PRESS + _HG_TAIL
+    if presses > len(serialized) or error_at + 16 > len(serialized):
+        raise BadSample(f"HandState_ with {presses} press sensors in {len(serialized)} bytes")
+    q, dq, _ddq, tau, t0, t1 = struct.unpack_from(order + "4f2h", serialized, at + 4)
+    (bits,) = struct.unpack_from(order + "I", serialized, at + 36)
+    (error,) = struct.unpack_from(order + "I", serialized, error_at)
+    return _checked(Reading(q, dq, tau, float(max(t0, t1)), int(bits) | int(error), 0))
+
+
+CDR_READERS = {"hg": reading_from_hg_cdr, "go": reading_from_go_cdr}
+"""family -> Reading of a serialized state sample (the relay's hot path)."""
 
 
 @dataclass(frozen=True)

@@ -1,33 +1,45 @@
 """The agent's side of one Dex1-1: DDS state in at 200-500 Hz, Zenoh state out at the relay
 rate (newest wins, nothing queued), grip detection on every sample, commands and stops out.
 
-Threads (see ``fleet/devices/relay.py``): ``on_data``/``tick`` on the host's relay thread,
-``command`` on its command thread, ``stop``/``reset`` on its safety thread. ``_lock`` guards the
-newest reading, the latch, the target and the counters (copied under it, published after);
-``_write`` serializes DDS writes with the latch decision, so no motion checked before a stop is
-written after the stop's hold (the arm's rule).
+The state reader is not waited on: ``tick`` polls it at the relay's grid (at most every
+``POLL_MAX_S``) and takes every sample since in one batch, decoding only the fields the relay
+uses from the serialized bytes (``codec.CDR_READERS``). A 500 Hz stream costs 50 wake-ups a
+second, not 500 plus the ticks between them (issue 14's benchmark: README, Benchmark).
+
+Threads and locks: ``fleet/devices/relay.py`` (``LatchedRelay``; ``_lock`` also guards the
+target).
 """
 
 from __future__ import annotations
 
 import logging
 import math
-import threading
 import time
 from typing import Any
 
+from cyclonedds._clayer import ddspy_take
+from cyclonedds.core import DDSException, InstanceState, SampleState, ViewState
 from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 
 from fleet.devices.base import DeviceReply
-from fleet.devices.latch import StopLatch
-from fleet.devices.relay import Put, error_reply
+from fleet.devices.relay import LatchedRelay, Put
 from fleet.dex1 import dds as ddx
 from fleet.dex1 import idl
-from fleet.dex1.codec import READERS, BadSample, Limits, Reading, Target, target_problem
+from fleet.dex1.codec import (
+    CDR_READERS,
+    READERS,
+    BadSample,
+    Limits,
+    Reading,
+    Target,
+    UnsupportedEncoding,
+    position_cdr,
+    target_problem,
+)
 from fleet.dex1.config import GripperConfig
-from fleet.dex1.grip import GripDetector
+from fleet.dex1.grip import GripChange, GripDetector
 from fleet.dex1.messages import GripEvent, GripperHold, GripperMove, GripperState
 from fleet.wire import keys
 from fleet.wire import messages as m
@@ -36,25 +48,33 @@ from fleet.wire.payloads import PayloadError, payload_kind
 log = logging.getLogger("edge_agent.gripper")
 
 TAKE_BATCH = 64
+"""The reader's history depth: 128 ms of a 500 Hz stream, more than one poll period."""
+POLL_MAX_S = 0.02
+"""The state reader is polled at the relay rate, and at least this often (grip detection and
+the stop's confirmation see every sample within this; a batch is 10 samples at 500 Hz)."""
+BATCH_SPAN_S = 0.2
+"""A sample's age within a batch is bounded by this (the writer's stamps are not trusted)."""
+ANY_SAMPLE = SampleState.Any | ViewState.Any | InstanceState.Any
 COMMAND = payload_kind("gripper command", GripperMove | GripperHold, 4 * 1024)
 STILL_RAD_S = 0.05
 """A held gripper is confirmed still below this speed (measured over 20 ms)."""
 
 
-class GripperRelay:
+class GripperRelay(LatchedRelay):
     """One Dex1-1 served by the agent (create on the host's start-up thread)."""
 
     def __init__(self, config: GripperConfig, participant: Any, put: Put) -> None:
-        self.device = config.id
+        super().__init__(config.id, "hold", put, ("relayed", "commands", "write_failures"))
         self.config = config
-        self._put = put
         cmd_type, state_type = idl.FAMILIES[config.family]
         state_topic = Topic(participant, config.state_topic, state_type)
         cmd_topic = Topic(participant, config.cmd_topic, cmd_type)
         self._reader = DataReader(participant, state_topic, qos=ddx.STATE_READER_QOS)
         self._writer = DataWriter(participant, cmd_topic, qos=ddx.COMMAND_WRITER_QOS)
-        self.readers = [self._reader]
-        self._decode = READERS[config.family]
+        self.readers: list[Any] = []  # polled at the relay's grid by ``tick``, never waited on
+        self._state_type = state_type
+        self._decode_cdr = CDR_READERS[config.family]
+        self._decode_sample = READERS[config.family]
         self._limits = Limits(
             config.q_min_rad, config.q_max_rad, config.tau_max, config.kp_max, config.kd_max
         )
@@ -66,72 +86,107 @@ class GripperRelay:
             config.release_s,
         )
         self._period_s = 1.0 / config.relay_hz
-        self._lock = threading.Lock()
-        self._write = threading.Lock()
-        self._latch = StopLatch(config.id, "hold")
+        self._poll_s = min(self._period_s, POLL_MAX_S)
         self._latest: tuple[Reading, float] | None = None
         self._fresh = False  # a sample arrived since the last put
         self._next_put_s = 0.0
         self._target: float | None = None
-        self._hold_written_s: float | None = None
-        self._counts = {"dds_samples": 0, "relayed": 0, "bad_samples": 0, "commands": 0}
-        self._counts.update({"rejected": 0, "write_failures": 0})
-        self._rate_window: tuple[float, int] = (time.monotonic(), 0)
-        self._rate_hz = 0.0
 
     # ------------------------------------------------------------------ relay thread
 
     def on_data(self, index: int, now_s: float) -> None:
-        """Every waiting state sample: decode (bounded), grip detection, stop confirmation.
-        Only the newest reading is kept for the relay: nothing queues."""
-        events: list[bytes] = []
-        ack: m.StopAck | None = None
-        for sample in self._reader.take(N=TAKE_BATCH):
-            if not hasattr(sample, "__idl_typename__"):  # InvalidSample: a writer went away
-                continue
+        """Not waited on (``readers`` is empty): the state reader is polled by ``tick``."""
+        self._take(now_s)
+
+    def _take(self, now_s: float) -> None:
+        """Every waiting state sample, in one batch: grip detection on each sample's position
+        at the sample's own time; the newest decoded in full (bounded) for the relay and the
+        stop's confirmation. Only the newest reading is kept: nothing queues."""
+        taken = ddspy_take(self._reader._ref, ANY_SAMPLE, TAKE_BATCH)
+        if isinstance(taken, int):
+            raise DDSException(taken, f"taking the state of gripper {self.device}")
+        # A writer that went away leaves an invalid sample: no data, only a state change.
+        valid = [(data, int(info.source_timestamp)) for data, info in taken if info.valid_data]
+        if not valid:
+            return
+        newest_ns = max(stamp for _data, stamp in valid)
+        family, on_sample = self.config.family, self._grip.on_sample
+        changes: list[GripChange] = []
+        bad, last, at_s = 0, None, 0.0
+        for serialized, stamp in valid:  # reception order
             try:
-                reading = self._decode(sample)
-            except (BadSample, AttributeError, TypeError, IndexError) as exc:
-                with self._lock:
-                    self._counts["bad_samples"] += 1
+                q_rad = self._position(serialized, family)
+            except BadSample as exc:
+                bad += 1
                 log.debug("gripper %s: bad state sample: %s", self.device, exc)
                 continue
-            change = self._grip.on_sample(reading.q_rad, now_s)
-            with self._lock:
-                self._counts["dds_samples"] += 1
-                self._latest, self._fresh = (reading, now_s), True
-                written = self._hold_written_s
-                if written is not None and now_s - written > 0.02:
-                    speed = self._grip.speed()
-                    if speed is not None and abs(speed) < STILL_RAD_S and self._latch.confirm():
-                        ack = self._latch.ack()
+            # The sample's time from the writer's clock relative to the batch's newest (only
+            # differences of one clock are used; bounded and monotonic, so a forged stamp is
+            # harmless).
+            age_s = min(max((newest_ns - stamp) * 1e-9, 0.0), BATCH_SPAN_S)
+            at_s = max(at_s, now_s - age_s)
+            change = on_sample(q_rad, at_s)
             if change is not None:
-                events.append(
-                    m.encode(
-                        GripEvent(
-                            stamp_ns=time.time_ns(),
-                            gripper=self.device,
-                            state=change.state,  # type: ignore[arg-type]
-                            q_rad=round(change.q_rad, 4),
-                            target_rad=round(change.target_rad, 4),
-                            error_rad=round(change.error_rad, 4),
-                            tau_est=reading.tau_est,
-                        )
-                    )
-                )
-        for event in events:
-            self._put(keys.CONTACT, event, True)
-        if ack is not None:
-            self._put(keys.ESTOP_ACK, m.encode(ack), True)
-
-    def tick(self, now_s: float) -> None:
-        """The state at the relay rate (newest wins; a 1 Hz repeat when nothing new, so a
-        stale link is seen), and the stop's hold until confirmed."""
+                changes.append(change)
+            last = serialized
+        reading = None
+        if last is not None:
+            try:
+                reading = self._decode(last)
+            except BadSample as exc:
+                bad += 1
+                log.debug("gripper %s: bad state sample: %s", self.device, exc)
+        ack: m.StopAck | None = None
         with self._lock:
-            start, count = self._rate_window
-            if now_s - start >= 1.0:
-                self._rate_hz = (self._counts["dds_samples"] - count) / (now_s - start)
-                self._rate_window = (now_s, self._counts["dds_samples"])
+            self._counts["bad_samples"] += bad
+            self._counts["dds_samples"] += len(valid) - bad
+            if reading is not None:
+                self._latest, self._fresh = (reading, at_s), True
+            written = self._action_written_s
+            if written is not None and now_s - written > 0.02:
+                speed = self._grip.speed()
+                if speed is not None and abs(speed) < STILL_RAD_S and self._latch.confirm():
+                    ack = self._latch.ack()
+        tau_est = reading.tau_est if reading is not None else 0.0
+        for change in changes:
+            event = GripEvent(
+                stamp_ns=time.time_ns(),
+                gripper=self.device,
+                state=change.state,  # type: ignore[arg-type]
+                q_rad=round(change.q_rad, 4),
+                target_rad=round(change.target_rad, 4),
+                error_rad=round(change.error_rad, 4),
+                tau_est=tau_est,  # the batch's newest: within one poll period of the change
+            )
+            self._put(keys.CONTACT, m.encode(event), True)
+        self._put_ack(ack)
+
+    def _position(self, serialized: bytes, family: str) -> float:
+        try:
+            return position_cdr(serialized, family)
+        except UnsupportedEncoding:
+            return self._decode(serialized).q_rad
+
+    def _decode(self, serialized: bytes) -> Reading:
+        try:
+            return self._decode_cdr(serialized)
+        except UnsupportedEncoding:
+            pass
+        try:  # another encapsulation: the binding's generic deserialiser
+            sample = self._state_type.deserialize(serialized)
+            return self._decode_sample(sample)
+        except BadSample:
+            raise
+        except Exception as exc:  # noqa: BLE001 - the binding raises anything on a hostile one
+            raise BadSample(f"not a {self._state_type.__name__} ({type(exc).__name__})") from None
+
+    def tick(self, now_s: float) -> float:
+        """Poll the state (every sample since the last tick, in one batch), put the newest at
+        the relay rate (a 1 Hz repeat when nothing new, so a stale link is seen), write the
+        stop's hold until confirmed; returns when the next tick is due (the relay's grid)."""
+        self._take(now_s)
+        with self._lock:
+            self._update_rate(now_s)
             due = now_s >= self._next_put_s and (self._fresh or now_s - self._next_put_s >= 1.0)
             state = self._state(now_s) if due else None
             if due:
@@ -140,10 +195,12 @@ class GripperRelay:
                 self._next_put_s = max(self._next_put_s + self._period_s, now_s - self._period_s)
                 self._counts["relayed"] += 1
             hold_due = self._latch.due(now_s)
+            next_s = self._next_put_s if self._next_put_s > now_s else now_s + self._poll_s
         if state is not None:
             self._put(keys.STATE, m.encode(state), False)
         if hold_due:
-            self._write_hold(now_s)
+            self._write_stop_action(now_s)
+        return min(next_s, now_s + self._poll_s)
 
     def _state(self, now_s: float) -> GripperState | None:
         if self._latest is None:
@@ -193,7 +250,9 @@ class GripperRelay:
         c = self.config
         return Target(q_rad=min(max(q_rad, c.q_min_rad), c.q_max_rad), tau=c.tau, kp=c.kp, kd=c.kd)
 
-    def _write_hold(self, now_s: float) -> None:
+    def _write_stop_action(self, now_s: float) -> None:
+        """The hold of the measured position (only a fresh one: else latched, written when
+        one arrives)."""
         ack = None
         with self._write:
             q = self._fresh_q(now_s)
@@ -211,10 +270,9 @@ class GripperRelay:
                     first = self._latch.written_ns is None
                     self._latch.detail = None
                     self._latch.written(now_s)
-                    self._hold_written_s = now_s
+                    self._action_written_s = now_s
                     ack = self._latch.ack() if first else None
-        if ack is not None:
-            self._put(keys.ESTOP_ACK, m.encode(ack), True)
+        self._put_ack(ack)
 
     # ------------------------------------------------------------------ commands
 
@@ -269,35 +327,3 @@ class GripperRelay:
             f"gripper {self.device!r} has no fresh state on {self.config.state_topic} "
             f"(within {self.config.link_stale_s:g} s); is it powered and on this network?"
         )
-
-    def _refuse(self, code: m.ErrorCode, message: str) -> DeviceReply:
-        with self._lock:
-            self._counts["rejected"] += 1
-        return error_reply(self.device, code, message)
-
-    # ------------------------------------------------------------------ safety
-
-    def stop(self, request: m.StopRequest, repeat_ack: bool = True) -> None:
-        """Latch and hold the measured position at once (repeated until seen still)."""
-        with self._lock:
-            new = self._latch.latch(request)
-            if new and self._latch.written_ns is None:
-                self._hold_written_s = None
-        if new:
-            self._write_hold(time.monotonic())
-        elif repeat_ack:
-            with self._lock:
-                ack = self._latch.ack()
-            if ack is not None:
-                self._put(keys.ESTOP_ACK, m.encode(ack), True)
-
-    def reset(self) -> None:
-        """Release the latch; the target stays the held position (nothing moves)."""
-        with self._lock:
-            self._latch.reset()
-            self._hold_written_s = None
-
-    def counters(self) -> dict[str, int]:
-        """Counters since start."""
-        with self._lock:
-            return dict(self._counts)

@@ -25,8 +25,7 @@ from cyclonedds.topic import Topic
 from cyclonedds.util import duration
 
 from fleet.devices.base import DeviceReply
-from fleet.devices.latch import StopLatch
-from fleet.devices.relay import Put, error_reply
+from fleet.devices.relay import LatchedRelay, Put, error_reply
 from fleet.g1 import idl, loco
 from fleet.g1.config import G1Config
 from fleet.g1.messages import OPS, G1Command, G1State, SetVelocity
@@ -48,16 +47,19 @@ RPC_QOS = Qos(
 CONFIRM_SAMPLES = 3
 """The stop is confirmed by this many consecutive sportmodestate samples after its write."""
 MAX_PENDING = 16
+TICK_MAX_S = 0.05
+"""Ticks at least this often: the stop action's repeat and the link's staleness."""
 _ids = itertools.count(time.time_ns())
 
 
-class G1Relay:
+class G1Relay(LatchedRelay):
     """One G1 served by the agent (create on the host's start-up thread)."""
 
     def __init__(self, config: G1Config, participant: Any, put: Put) -> None:
-        self.device = config.id
+        super().__init__(
+            config.id, config.stop_action, put, ("rpc_calls", "rpc_timeouts", "unmatched")
+        )
         self.config = config
-        self._put = put
         state = Topic(participant, loco.STATE_TOPIC, idl.SportModeState_)
         request = Topic(participant, loco.REQUEST_TOPIC, idl.Request_)
         response = Topic(participant, loco.RESPONSE_TOPIC, idl.Response_)
@@ -65,19 +67,11 @@ class G1Relay:
         self._response_reader = DataReader(participant, response, qos=RPC_QOS)
         self._writer = DataWriter(participant, request, qos=RPC_QOS)
         self.readers = [self._state_reader, self._response_reader]
-        self._lock = threading.Lock()
-        self._write = threading.Lock()
-        self._latch = StopLatch(config.id, config.stop_action)
         self._latest: tuple[idl.SportModeState_, float] | None = None
         self._changed = False
         self._next_put_s = 0.0
         self._confirming = 0
-        self._written_s: float | None = None
         self._pending: dict[int, tuple[threading.Event, list[idl.Response_]]] = {}
-        self._counts = dict.fromkeys(
-            ("dds_samples", "bad_samples", "rpc_calls", "rpc_timeouts", "rejected", "unmatched"), 0
-        )
-        self._rate = (time.monotonic(), 0, 0.0)
         self._limits = (config.max_vx, config.max_vy, config.max_omega, config.max_duration_s)
 
     # ------------------------------------------------------------------ relay thread
@@ -99,12 +93,11 @@ class G1Relay:
                 if old is None or (old.fsm_id, old.fsm_mode) != (sample.fsm_id, sample.fsm_mode):
                     self._changed = True
                 self._latest = (sample, now_s)
-                if self._written_s is not None and now_s > self._written_s:
+                if self._action_written_s is not None and now_s > self._action_written_s:
                     self._confirming = self._confirming + 1 if self._stopped(sample) else 0
                     if self._confirming >= CONFIRM_SAMPLES and self._latch.confirm():
                         ack = self._latch.ack()
-        if ack is not None:
-            self._put(keys.ESTOP_ACK, m.encode(ack), True)
+        self._put_ack(ack)
 
     def _stopped(self, sample: idl.SportModeState_) -> bool:
         if self.config.stop_action == "damp":
@@ -123,23 +116,23 @@ class G1Relay:
                 waiter[1].append(response)
             waiter[0].set()
 
-    def tick(self, now_s: float) -> None:
-        """The state on change and at the relay rate; the stop action until confirmed."""
+    def tick(self, now_s: float) -> float:
+        """The state on change and at the relay rate; the stop action until confirmed.
+        Returns when the next tick is due (the host also ticks after each ``on_data``)."""
         with self._lock:
-            start, count, rate = self._rate
-            if now_s - start >= 1.0:
-                samples = self._counts["dds_samples"]
-                self._rate = (now_s, samples, (samples - count) / (now_s - start))
+            self._update_rate(now_s)
             due = self._changed or now_s >= self._next_put_s
             state = self._state(now_s) if due else None
             if due:
                 self._changed = False
                 self._next_put_s = now_s + 1.0 / self.config.relay_hz
             action_due = self._latch.due(now_s)
+            next_s = min(self._next_put_s, now_s + TICK_MAX_S)
         if state is not None:
             self._put(keys.STATE, m.encode(state), False)
         if action_due:
             self._write_stop_action(now_s)
+        return next_s
 
     def _state(self, now_s: float) -> G1State | None:
         if self._latest is None:
@@ -160,7 +153,7 @@ class G1Relay:
             stop_action=self.config.stop_action,
             dds_samples=self._counts["dds_samples"],
             bad_samples=self._counts["bad_samples"],
-            dds_rate_hz=round(self._rate[2], 1),
+            dds_rate_hz=round(self._rate_hz, 1),
         )
 
     # ------------------------------------------------------------------ RPC
@@ -196,10 +189,9 @@ class G1Relay:
             with self._lock:
                 self._latch.written(now_s)
                 if first:
-                    self._written_s, self._confirming = now_s, 0
+                    self._action_written_s, self._confirming = now_s, 0
                 ack = self._latch.ack() if first else None
-        if ack is not None:
-            self._put(keys.ESTOP_ACK, m.encode(ack), True)
+        self._put_ack(ack)
 
     # ------------------------------------------------------------------ commands
 
@@ -271,35 +263,3 @@ class G1Relay:
             value = loco.parse_data(response.data)
             result = None if value is None else str(value)
         return DeviceReply(ok=True, device=self.device, written_ns=written, result=result)
-
-    def _refuse(self, code: m.ErrorCode, message: str) -> DeviceReply:
-        with self._lock:
-            self._counts["rejected"] += 1
-        return error_reply(self.device, code, message)
-
-    # ------------------------------------------------------------------ safety
-
-    def stop(self, request: m.StopRequest, repeat_ack: bool = True) -> None:
-        """Latch and write the stop action at once (repeated until confirmed)."""
-        with self._lock:
-            new = self._latch.latch(request)
-            if new and self._latch.written_ns is None:
-                self._written_s = None
-        if new:
-            self._write_stop_action(time.monotonic())
-        elif repeat_ack:
-            with self._lock:
-                ack = self._latch.ack()
-            if ack is not None:
-                self._put(keys.ESTOP_ACK, m.encode(ack), True)
-
-    def reset(self) -> None:
-        """Release the latch (nothing is sent: the robot stays as the stop left it)."""
-        with self._lock:
-            self._latch.reset()
-            self._written_s = None
-
-    def counters(self) -> dict[str, int]:
-        """Counters since start."""
-        with self._lock:
-            return dict(self._counts)

@@ -38,15 +38,19 @@ from typing import Any, Protocol
 
 import zenoh
 
+from fleet.devices import DeviceKind
 from fleet.record.gaps import SeqGaps
 from fleet.record.layout import LAYOUT_METADATA, FleetLayout, layout_metadata
 from fleet.record.writer import FLUSH_PERIOD_S, DerivedMessage, RecordingWriter
 from fleet.wire import keys, payloads
+from fleet.wire.payloads import PayloadKind
 
 log = logging.getLogger("fleet.record")
 
 RECORDED_CHANNELS: tuple[str, ...] = (keys.JOINTS, keys.STATUS, keys.CONTACT, keys.RAW_COMMAND)
 RECORDED_CHANNELS += (keys.ESTOP, keys.ESTOP_ACK, keys.DIAG)
+DEVICE_CHANNELS: tuple[str, ...] = (keys.STATE, keys.CONTACT, keys.ESTOP_ACK)
+"""A device's keys recorded (issue 14): its state (at its relay rate), grip events, stop acks."""
 QUEUE_DEPTH = 20000
 """Samples waiting for the recorder thread, at most: half a second of a 40,000/s burst."""
 POLL_S = 0.005
@@ -90,10 +94,13 @@ class Recorder:
         flush_period_s: float = FLUSH_PERIOD_S,
         layout: FleetLayout | None = None,
         extras: Extras | None = None,
+        devices: dict[str, DeviceKind] | None = None,
     ) -> None:
         """``layout``: where the arms stand (kept in the file, for ``fleet viewer --replay``);
         ``extras``: channels derived from the recorded ones (the 3D channels: the CLI passes
-        viewer/frames3d.py's, which this package may not import)."""
+        viewer/frames3d.py's, which this package may not import); ``devices``: device id -> its
+        kind, whose ``DEVICE_CHANNELS`` are recorded too (each payload checked by its kind's
+        decoder, stored with its kind's schema)."""
         self.space = space
         self.arms = list(arms)
         self.path = Path(path)
@@ -139,6 +146,16 @@ class Recorder:
             for channel in RECORDED_CHANNELS
         ]
         self._subs.append(session.declare_subscriber(space.estop, self._on_sample))
+        # Devices: their routes are known up front (a bounded set), so _where finds them.
+        self._device_routes: dict[str, PayloadKind[Any]] = {}
+        for device, kind in (devices or {}).items():
+            decoders = {**kind.payloads, keys.ESTOP_ACK: payloads.STOP_ACK}
+            for channel in DEVICE_CHANNELS:
+                if channel not in decoders:  # a kind without it (a G1 reports no grips)
+                    continue
+                key = space.device(kind.key, device, channel)
+                self._device_routes[key] = decoders[channel]
+                self._subs.append(session.declare_subscriber(key, self._on_sample))
         self._thread.start()
 
     @property
@@ -187,6 +204,17 @@ class Recorder:
         self._file.flush()
 
     def _record(self, key: str, payload: bytes, stamp_ns: int) -> None:
+        device = self._device_routes.get(key)
+        if device is not None:
+            try:
+                device.decode(payload)
+            except payloads.PayloadError as exc:
+                self._skip(key, str(exc))
+                return
+            count = self.counts.get(key, 0)
+            self._file.add(key, "device", payload, stamp_ns, count % 2**32, device.struct)
+            self.counts[key] = count + 1
+            return
         where = self._where(key)
         if where is None:
             self._skip(key, "not a key this recorder records")

@@ -96,10 +96,19 @@ class RecordingWriter:
         self._schemas: dict[str, int] = {}
         self._foreign_counts: dict[str, int] = {}
 
-    def add(self, key: str, channel: str, data: bytes, log_time_ns: int, sequence: int) -> None:
-        """One message on ``key`` (an arm ``channel``, or ``estop`` for the fleet's stop)."""
+    def add(
+        self,
+        key: str,
+        channel: str,
+        data: bytes,
+        log_time_ns: int,
+        sequence: int,
+        struct: Any = None,
+    ) -> None:
+        """One message on ``key`` (an arm ``channel``, or ``estop`` for the fleet's stop; a
+        device's channel with its payload's ``struct``, issue 14)."""
         self._writer.add_message(
-            channel_id=self._channel(key, channel),
+            channel_id=self._channel(key, channel, struct),
             log_time=log_time_ns,
             publish_time=log_time_ns,
             data=data,
@@ -156,10 +165,13 @@ class RecordingWriter:
         last whole chunk. Raises OSError if even the buffered bytes cannot be written."""
         self._file.close()
 
-    def _channel(self, key: str, channel: str) -> int:
+    def _channel(self, key: str, channel: str, struct: Any = None) -> int:
         if key in self._channels:
             return self._channels[key]
-        name, schema = channel_schema(channel)
+        if struct is None:
+            name, schema = channel_schema(channel)
+        else:
+            name, schema = struct.__name__, _struct_schema(struct)
         if name not in self._schemas:
             self._schemas[name] = self._writer.register_schema(
                 name=name, encoding="jsonschema", data=json.dumps(schema).encode()

@@ -3,12 +3,13 @@
 Deny by default. Every principal of the inventory is a Zenoh ACL subject (matched by the common
 name of its client certificate, or its user name), with rules that follow from its role:
 
-- ``agent``: publishes only its own arms' state, serves only their ``cmd/*`` and holds only
-  their liveliness tokens; hears stops, resets and heartbeats;
+- ``agent``: publishes only its own arms' and devices' state, serves only their ``cmd/*`` and
+  holds only their liveliness tokens; hears stops, resets and heartbeats (a device agent is
+  an ``agent`` too: ``[grippers.<id>]``/``[g1.<id>]`` ``agent``, default ``agent-<id>``);
 - ``coordinator``: its own heartbeat, the fleet state, stop reports and diag, commands under its
   own name, the multi-arm queryable; hears the agents' state, stops, resets, acks and contacts;
-- ``operator``: commands and heartbeats under its own name, stops, resets, multi-arm requests;
-  reads everything;
+- ``operator``: commands (to arms and devices) and heartbeats under its own name, stops,
+  resets, multi-arm requests; reads everything;
 - ``maintainer``: an operator who may also inject simulator faults;
 - ``observer`` (the viewer by default): reads everything, may stop, may not reset or command;
 - ``simulator``: serves ``sim/fault`` of the simulated arms;
@@ -23,6 +24,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from fleet.devices import kind_of
 from fleet.inventory import Inventory
 from fleet.security.config import Role
 from fleet.wire.payloads import KIB
@@ -81,12 +83,23 @@ class _Grants:
         return out
 
 
+DEVICE_STATE = ("state", "contact", "diag", "estop/ack")
+"""What a device agent publishes for its own devices (issue 14)."""
+
+
+def _device_kinds(inventory: Inventory) -> list[str]:
+    """The key words of the device kinds this inventory has (``gripper``, ``g1``)."""
+    return sorted({kind_of(d).key for d in inventory.devices.values()})
+
+
 def _grants(inventory: Inventory, principal: str, role: Role) -> _Grants:
     f = f"fleet/{inventory.fleet}"
     g = _Grants()
-    stops = [f"{f}/estop", f"{f}/arm/*/estop"]
-    resets = [f"{f}/reset", f"{f}/arm/*/reset"]
-    agents = [f"{f}/arm/*/agent"]
+    kinds = _device_kinds(inventory)
+    stops = [f"{f}/estop", f"{f}/arm/*/estop", *(f"{f}/{k}/*/estop" for k in kinds)]
+    resets = [f"{f}/reset", f"{f}/arm/*/reset", *(f"{f}/{k}/*/reset" for k in kinds)]
+    agents = [f"{f}/arm/*/agent", *(f"{f}/{k}/*/agent" for k in kinds)]
+    commands = [f"{f}/arm/*/cmd/{principal}", *(f"{f}/{k}/*/cmd/{principal}" for k in kinds)]
     if role == "router":
         g.put = g.query = g.queryable = g.token = g.read = g.liveliness = [f"{f}/**"]
     elif role == "agent":
@@ -96,6 +109,12 @@ def _grants(inventory: Inventory, principal: str, role: Role) -> _Grants:
         g.token = [f"{f}/arm/{a}/agent" for a in arms]
         g.read = [f"{f}/estop", f"{f}/reset", f"{f}/heartbeat/*"]
         g.read += [f"{f}/arm/{a}/{channel}" for a in arms for channel in ("estop", "reset")]
+        # Devices (issue 14): the same, for the devices this principal's agent serves.
+        own = [(kind_of(d).key, i) for i, d in inventory.devices.items() if d.agent == principal]
+        g.put += [f"{f}/{k}/{d}/{channel}" for k, d in own for channel in DEVICE_STATE]
+        g.queryable += [f"{f}/{k}/{d}/cmd/*" for k, d in own]
+        g.token += [f"{f}/{k}/{d}/agent" for k, d in own]
+        g.read += [f"{f}/{k}/{d}/{channel}" for k, d in own for channel in ("estop", "reset")]
     elif role == "coordinator":
         g.put = [
             f"{f}/heartbeat/{principal}",
@@ -108,10 +127,11 @@ def _grants(inventory: Inventory, principal: str, role: Role) -> _Grants:
         g.queryable = [f"{f}/coordinator/cmd/*"]
         channels = ("status", "estop", "reset", "estop/ack", "contact")
         g.read = [f"{f}/arm/*/{c}" for c in channels] + [f"{f}/estop", f"{f}/reset"]
+        g.read += [f"{f}/{k}/*/{c}" for k in kinds for c in ("state", "estop/ack")]
         g.liveliness = agents
     elif role in ("operator", "maintainer"):
         g.put = [*stops, *resets, f"{f}/heartbeat/{principal}"]
-        g.query = [f"{f}/arm/*/cmd/{principal}", f"{f}/coordinator/cmd/{principal}"]
+        g.query = [*commands, f"{f}/coordinator/cmd/{principal}"]
         if role == "maintainer":
             g.query.append(f"{f}/arm/*/sim/fault")
         g.read = [f"{f}/**"]
@@ -160,6 +180,11 @@ def payload_limits(inventory: Inventory) -> list[dict[str, Any]]:
         f"{f}/reset",
         f"{f}/arm/*/reset",
     ]
+    # Device keys are NOT added here: with `<kind>/*/cmd/**`, `<kind>/*/estop` and
+    # `<kind>/*/reset` in this filter, zenohd 1.x's router stopped passing anything in the
+    # secure demo (every arm and device offline; tests/test_security.py) -- not investigated.
+    # Device commands, stops and resets are bounded by the "everything" filter below and by
+    # the device agent's own 4 KiB decode limit.
     messages = ["put", "delete", "query", "reply"]
     return [
         {

@@ -354,12 +354,28 @@ class ArmSummary(Struct, frozen=True):
     heard_age_s: float | None = None
 
 
+class DeviceSummary(Struct, frozen=True):
+    """One device beside the arms (issue 14) in the fleet summary: its kind's key word, online
+    as for an arm (its agent's token and its state heard within ``offline_after_s``), its
+    state's link and stop, and its kind's one-line summary (``DeviceKind.summary``)."""
+
+    kind: Name
+    online: bool
+    link: LinkState
+    estopped: bool = False
+    summary: Annotated[str, Meta(max_length=256)] | None = None
+    heard_age_s: float | None = None
+
+
 class FleetState(Struct, frozen=True):
-    """``fleet/<fleet>/state``: the coordinator's summary of every arm of the inventory."""
+    """``fleet/<fleet>/state``: the coordinator's summary of every arm and device of the
+    inventory. ``devices`` is new in issue 14 and defaults to empty: a reader built before it
+    ignores it (the Struct takes unknown fields), and a state without it still decodes."""
 
     stamp_ns: StampNs
     coordinator: Name
     arms: Annotated[dict[Name, ArmSummary], Meta(max_length=MAX_ARMS_REPORTED)]
+    devices: Annotated[dict[Name, DeviceSummary], Meta(max_length=MAX_ARMS_REPORTED)] = {}
 
 
 class CoordinatorDiag(Struct, frozen=True):
