@@ -353,3 +353,45 @@ def test_a_recording_replays_with_a_timeline_and_no_command_control(
     time.sleep(1.0)
     assert abs(position() - paused) < 0.3
     assert process.poll() is None, h.log("replay-viewer")
+
+
+# ---------------------------------------------------------------------- devices
+
+
+def test_the_viewer_shows_a_mounted_gripper_opening_and_the_g1s_fsm(
+    tmp_path: Path, browser: Browser
+) -> None:
+    """Issue 14: a Dex1-1 mounted on a1 opens and closes a1's fingers in the scene, and the
+    G1's FSM shows in the Devices table."""
+    from fleet.dex1.messages import GripperMove
+
+    extra = '[grippers.gl]\nfamily = "go"\nmount = "a1"\n\n[g1.h1]\nstop_action = "stop_move"\n'
+    with FleetHarness(tmp_path, arms=1, extra=extra) as harness:
+        harness.start_router()
+        harness.start_sim()
+        harness.start_agent()
+        harness.start("devices", ["-m", "edge_agent", "--device", "gl", "--device", "h1"])
+        client = harness.client()
+        wait_until(lambda: harness.all_links_ok(client), 30.0)
+        with viewer_of(harness) as viewer:
+            open_page(browser, viewer.url)
+            page = browser.page
+
+            def row(device: str) -> str:
+                found = page.locator(f"#device-table tr[data-device='{device}']")
+                return found.inner_text() if found.count() else ""
+
+            wait_until(lambda: "walk" in row("h1"), 30.0)  # fsm 500, named from seed 004
+            assert "g1" in row("h1") and "a1" in row("gl")
+
+            def fingers() -> float:
+                return float(viewer.scene._drawn_deg[0, 6])
+
+            closed, fully_open = viewer.scene.gripper_deg[0]
+            for pct in (90.0, 10.0):
+                assert client.device_command("gl", GripperMove(open_pct=pct)).ok
+                wait_until(lambda p=pct: f"{p:.0f}" in row("gl"), 10.0)
+                want = closed + pct / 100.0 * (fully_open - closed)
+                wait_until(lambda w=want: abs(fingers() - w) < 2.0, 10.0)
+                browser.canvas(f"18-gripper-{pct:.0f}")
+            browser.save_page("19-devices")

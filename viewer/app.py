@@ -21,6 +21,7 @@ from collections.abc import Sequence
 
 import viser
 
+from fleet.devices import kind_of
 from fleet.guard import ThreadGuard
 from fleet.inventory import Inventory
 from fleet.record.layout import FleetLayout
@@ -96,7 +97,13 @@ class Viewer:
             else:
                 assert inventory is not None
                 self.session = open_session(inventory)
-                self.state = ViewerFleet(tuple(inventory.arms), inventory.fleet, self.session)
+                devices = {
+                    device: (kind_of(config), getattr(config, "mount", ""))
+                    for device, config in inventory.devices.items()
+                }
+                self.state = ViewerFleet(
+                    tuple(inventory.arms), inventory.fleet, self.session, devices=devices
+                )
                 self.commander = Commander(
                     inventory,
                     self.session,
@@ -112,7 +119,13 @@ class Viewer:
         self.read_only = self.commander is None or self.commander.read_only
         self.scene = FleetScene(self.server, placements.arms, model, meshes)
         self.panels = FleetPanels(
-            self.server, arms, self.commander, self.state.events, self.scene.fit, self.timeline
+            self.server,
+            arms,
+            self.commander,
+            self.state.events,
+            self.scene.fit,
+            self.timeline,
+            devices=inventory is not None and bool(inventory.devices),
         )
         self._framed: set[int] = set()
         self.server.on_client_connect(self._on_connect)

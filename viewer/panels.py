@@ -86,6 +86,40 @@ def fleet_row(
     return f"<tr data-arm='{html.escape(arm)}' data-online='{online_attr}'{style}>{tds}</tr>"
 
 
+def devices_html(snapshot: Snapshot) -> str:
+    """The devices beside the arms (grippers, G1s): one ``<tr data-device>`` each, with the
+    kind's own one-line summary (``fleet status``'s)."""
+    rows = []
+    for view in snapshot.devices:
+        state = view.state
+        stopped = state is not None and bool(getattr(state, "estopped", False))
+        link = "-" if state is None else str(getattr(state, "link", "?"))
+        cells = [
+            view.device,
+            view.kind,
+            view.mount or "-",
+            link,
+            "STOPPED" if stopped else "no",
+            view.summary,
+            age_text(view.age_s),
+        ]
+        tds = "".join(
+            f"<td style='padding:0 6px{'' if k == 5 else ';white-space:nowrap'}'>"
+            f"{html.escape(c)}</td>"
+            for k, c in enumerate(cells)  # only the kind's summary (5) may wrap
+        )
+        style = " style='background:#f3d0d0'" if stopped else ""
+        rows.append(f"<tr data-device='{html.escape(view.device)}'{style}>{tds}</tr>")
+    head = "".join(
+        f"<th style='padding:0 6px;text-align:left'>{h}</th>"
+        for h in ("device", "kind", "on", "link", "stop", "state", "age")
+    )
+    return (
+        "<div style='overflow-x:auto'><table id='device-table' style='font-size:0.8em'>"
+        f"<tr>{head}</tr>{''.join(rows)}</table></div>"
+    )
+
+
 class FleetTable:
     """The fleet panel's HTML table; rows are rebuilt only when their inputs changed."""
 
@@ -137,7 +171,8 @@ class FleetTable:
 
 class FleetPanels:
     """Every GUI element of the viewer (shared by all browsers). ``commander`` None: a replay
-    (``timeline`` drives it); ``fit(client)`` frames the fleet in that browser."""
+    (``timeline`` drives it); ``fit(client)`` frames the fleet in that browser; ``devices``:
+    the fleet has devices beside its arms (a "Devices" table)."""
 
     def __init__(
         self,
@@ -147,6 +182,7 @@ class FleetPanels:
         events: EventLog,
         fit: Callable[[viser.ClientHandle], None] | None = None,
         timeline: ReplayTimeline | None = None,
+        devices: bool = False,
     ) -> None:
         self.server = server
         self.commander = commander
@@ -188,6 +224,11 @@ class FleetPanels:
         self._next_readout = 0
         with gui.add_folder("Fleet"):
             self.table = gui.add_html("")
+        self.devices_table = None
+        self.devices_text = ""
+        if devices:
+            with gui.add_folder("Devices"):
+                self.devices_table = gui.add_html("")
         with gui.add_folder("Events"):
             self.event_log = gui.add_html(events.html())
         with gui.add_folder("Legend", expand_by_default=False):
@@ -280,6 +321,11 @@ class FleetPanels:
         if table != self.table_html:
             self.table_html = table
             self.table.content = table
+        if self.devices_table is not None:
+            text = devices_html(snapshot)
+            if text != self.devices_text:
+                self.devices_text = text
+                self.devices_table.content = text
         if self.events.version != self.events_version:
             self.events_version = self.events.version
             self.event_log.content = self.events.html()

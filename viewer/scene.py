@@ -128,6 +128,7 @@ class FleetScene:
         self.server = server
         self.model = model
         self.arms = tuple(placements)
+        self._index = {arm: i for i, arm in enumerate(self.arms)}
         configs = [placements[a] for a in self.arms]
         self.joint_sign = np.array([c.joint_sign for c in configs], dtype=float)
         self.gripper_deg = np.array(
@@ -228,9 +229,29 @@ class FleetScene:
         wxyz = matrix_to_wxyz(world[..., :3, :3]).transpose(1, 0, 2)
         return wxyz, world[..., :3, 3].transpose(1, 0, 2)
 
+    def drawn_angles(self, snapshot: Snapshot) -> npt.NDArray[np.float64]:
+        """(N, 7) the angles to draw: the arms' own, with a mounted gripper's opening (a
+        Dex1-1 on the arm: ``opening_pct``) driving that arm's fingers instead of ``angle6``."""
+        angles = snapshot.angles_deg
+        mounted = [
+            (self._index[v.mount], float(v.state.opening_pct))
+            for v in snapshot.devices
+            if v.mount in self._index and v.state is not None and hasattr(v.state, "opening_pct")
+        ]
+        if not mounted:
+            return angles
+        angles = angles.copy()
+        for i, pct in mounted:
+            closed, fully_open = self.gripper_deg[i]
+            angles[i, GRIPPER_JOINT] = closed + min(max(pct, 0.0), 100.0) / 100.0 * (
+                fully_open - closed
+            )
+        return angles
+
     def render(self, snapshot: Snapshot) -> bool:
         """Draw ``snapshot`` if anything visible changed; True when something was sent."""
-        moved = np.any(np.abs(snapshot.angles_deg - self._drawn_deg) > DEADBAND_DEG, axis=1)
+        angles = self.drawn_angles(snapshot)
+        moved = np.any(np.abs(angles - self._drawn_deg) > DEADBAND_DEG, axis=1)
         code = looks(snapshot)
         error = snapshot.error
         contact = snapshot.contact_rows()
@@ -239,7 +260,7 @@ class FleetScene:
         if not (moved.any() or relabel.any()):
             return False
         # Arms inside the deadband keep their drawn angles, so the jitter never accumulates.
-        self._drawn_deg[moved] = snapshot.angles_deg[moved]
+        self._drawn_deg[moved] = angles[moved]
         with self.server.atomic():
             if moved.any():
                 wxyz, pos = self._poses(self._drawn_deg)

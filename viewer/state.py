@@ -14,14 +14,16 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 import zenoh
 
 from fleet.d1.limits import JOINT_COUNT
+from fleet.devices import DeviceKind
 from fleet.guard import ThreadGuard
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
@@ -37,6 +39,18 @@ REPLAY_ONLINE_S = 2.0
 
 
 @dataclass(frozen=True)
+class DeviceView:
+    """One device beside the arms as the viewer last heard it."""
+
+    device: str
+    kind: str
+    mount: str  # the arm it is mounted on, "" standing alone
+    state: Any  # the kind's state payload (GripperState, G1State), None before the first
+    age_s: float  # seconds since that state arrived (inf: never)
+    summary: str  # the kind's one line (``fleet status``'s)
+
+
+@dataclass(frozen=True)
 class Snapshot:
     """A consistent copy of the fleet's latest state, arms in inventory order."""
 
@@ -47,6 +61,7 @@ class Snapshot:
     online: npt.NDArray[np.bool_]  # (N,), the agent's liveliness token is present
     contact: npt.NDArray[np.bool_] | None = None  # (N, 7), joint in confirmed contact
     diag: tuple[m.Diag | None, ...] = ()  # the agents' newest counters (empty: none yet)
+    devices: tuple[DeviceView, ...] = ()  # grippers, G1s: their newest state, in inventory order
 
     def diag_of(self, i: int) -> m.Diag | None:
         """Arm ``i``'s newest diag, None before the first."""
@@ -90,15 +105,20 @@ class ViewerFleet:
         session: zenoh.Session | None = None,
         clock: Callable[[], float] = time.monotonic,
         online_from_status: bool = False,
+        devices: Mapping[str, tuple[DeviceKind, str]] | None = None,
     ) -> None:
         """``session`` None: fed through ``ingest`` only (a replay); ``online_from_status``:
-        an arm is online while its status is fresh (a recording holds no liveliness)."""
+        an arm is online while its status is fresh (a recording holds no liveliness);
+        ``devices``: device id -> (its kind, the arm it is mounted on or "")."""
         self.keys = keys.KeySpace(fleet)
         self.arms = arms
         self._index = {arm: i for i, arm in enumerate(self.arms)}
         self._clock = clock
         self._session = session
         self._online_from_status = online_from_status
+        self._devices = dict(devices or {})
+        self._device_index = {device: i for i, device in enumerate(self._devices)}
+        self._device_kinds = {kind.key: kind for kind, _mount in self._devices.values()}
         self.events = EventLog()
         self._lock = threading.Lock()
         self._handles: list[zenoh.Subscriber[None]] = []
@@ -118,6 +138,8 @@ class ViewerFleet:
             self._diag: list[m.Diag | None] = [None] * n
             self._online = np.zeros(n, dtype=bool)
             self._contact = np.zeros((n, JOINT_COUNT), dtype=bool)
+            self._device_state: list[Any] = [None] * len(self._devices)
+            self._device_at = np.full(len(self._devices), -math.inf)
 
     def start(self, guard: ThreadGuard | None = None) -> None:
         """Declare the subscribers (liveliness with history: tokens already present count);
@@ -135,6 +157,10 @@ class ViewerFleet:
         self._handles += [
             self._session.declare_subscriber(key, on_sample)
             for key in (self.keys.estop, self.keys.reset)
+        ]
+        self._handles += [
+            self._session.declare_subscriber(self.keys.device(kind, "*", keys.STATE), on_sample)
+            for kind in self._device_kinds
         ]
         self._handles.append(
             self._session.liveliness().declare_subscriber(
@@ -169,6 +195,7 @@ class ViewerFleet:
             try:
                 parsed = self.keys.parse_arm_key(key)
             except keys.KeyError_:
+                self._ingest_device(key, data, at_s)
                 return
             arm, channel = parsed.arm, parsed.channel
         i = None if arm is None else self._index.get(arm)
@@ -195,6 +222,29 @@ class ViewerFleet:
             self._on_contact(i, payload, wall_ns)
         elif isinstance(payload, m.Diag):
             self._on_diag(i, payload, wall_ns)
+
+    def _ingest_device(self, key: str, data: bytes, at_s: float | None) -> None:
+        """A device's state (anything else of a device is not shown)."""
+        kind_key = key[len(self.keys.prefix) + 1 :].partition("/")[0]
+        kind = self._device_kinds.get(kind_key)
+        if kind is None:
+            return
+        try:
+            parsed = self.keys.parse_device_key(key, kind.key)
+        except keys.KeyError_:
+            return
+        i = self._device_index.get(parsed.device)
+        if i is None or parsed.channel != keys.STATE:
+            return
+        try:
+            state = kind.payloads[keys.STATE].decode(data)
+        except payloads.PayloadError as exc:
+            self._bad(f"{kind.key} state", exc)
+            return
+        now = self._clock() if at_s is None else at_s
+        with self._lock:
+            self._device_state[i] = state
+            self._device_at[i] = now
 
     def _on_joints(self, i: int, joints: m.Joints, now: float) -> None:
         row = np.asarray(joints.angles_deg, dtype=float)
@@ -279,6 +329,13 @@ class ViewerFleet:
             if self._online_from_status:
                 online = (now - self._status_at) <= REPLAY_ONLINE_S
             contact = self._contact.copy()
+            device_state = list(self._device_state)
+            device_age = now - self._device_at
+        views = []
+        for k, (device, (kind, mount)) in enumerate(self._devices.items()):
+            state = device_state[k]
+            summary = "no state yet" if state is None else kind.summary(state)
+            views.append(DeviceView(device, kind.key, mount, state, float(device_age[k]), summary))
         return Snapshot(
             arms=self.arms,
             angles_deg=angles,
@@ -287,6 +344,7 @@ class ViewerFleet:
             online=online,
             contact=contact,
             diag=diag,
+            devices=tuple(views),
         )
 
     def close(self) -> None:
