@@ -66,6 +66,23 @@ _OUR_HANDLERS: list[logging.Handler] = []
 """The handler the last setup_logging installed (a list, so a later call can replace it)."""
 
 
+class _StderrHandler(logging.StreamHandler):  # type: ignore[type-arg]
+    """Writes to whatever ``sys.stderr`` is at each record (as logging's own last resort does),
+    not the stream of the moment it was made: a command run in-process (the tests) must not
+    leave a handler on a stream that is closed later ("I/O operation on closed file")."""
+
+    def __init__(self) -> None:
+        super().__init__(sys.stderr)
+
+    @property  # type: ignore[override]
+    def stream(self):  # type: ignore[no-untyped-def]
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, _value: object) -> None:
+        pass
+
+
 def setup_logging(
     level: str = "INFO", log_file: str | None = None, log_format: str = "text", role: str = "fleet"
 ) -> None:
@@ -76,7 +93,7 @@ def setup_logging(
     LogFileError when the file cannot be opened. Calling it again replaces our handler only."""
     handler: logging.Handler
     if log_file is None:
-        handler = logging.StreamHandler(sys.stderr)
+        handler = _StderrHandler()
     else:
         try:
             handler = logging.handlers.WatchedFileHandler(log_file, mode="a", encoding="utf-8")

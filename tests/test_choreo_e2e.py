@@ -189,4 +189,10 @@ def test_recording_replays_the_same_trajectory(
     tail = replayed[len(replayed) // 3 :]
     assert max(gap(p, recorded) for p in tail) < 6.0
     assert max(gap(p, replayed) for p in recorded[len(recorded) // 3 :]) < 6.0
-    assert gap(recorded[-1], [replayed[-1]]) < 1.5
+    # The arm ends where the recording ended, once its servo settled (the last sample may be
+    # taken while it still converges on a loaded host).
+    settled = wait_until(
+        lambda: (now := tuple(_angles(client)["a2"])) and gap(recorded[-1], [now]) < 1.5 and now,
+        3.0,
+    )
+    assert gap(recorded[-1], [settled]) < 1.5

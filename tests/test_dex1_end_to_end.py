@@ -10,6 +10,7 @@ from collections.abc import Iterator
 
 import pytest
 
+from fleet.client import FleetClient
 from fleet.dex1.kind import KIND
 from fleet.dex1.messages import GripEvent, GripperHold, GripperMove, GripperState
 from fleet.wire import keys
@@ -37,6 +38,12 @@ def fleet(request: pytest.FixtureRequest, tmp_path) -> Iterator[FleetHarness]:  
         yield harness
 
 
+def agent_token(client: FleetClient, kind: str, device: str) -> bool:
+    """True once ``device``'s agent announced it serves commands (its liveliness token)."""
+    key = client.keys.device(kind, device, keys.AGENT)
+    return any(r.ok is not None for r in client.session.liveliness().get(key, timeout=1.0))
+
+
 def _key(harness: FleetHarness, device: str, channel: str) -> str:
     return keys.KeySpace(harness.inventory.fleet).device("gripper", device, channel)
 
@@ -53,6 +60,8 @@ def test_gripper_state_commands_grip_and_stop(fleet: FleetHarness) -> None:
     grips = Collector(session, _key(fleet, "gr", keys.CONTACT), CONTACT.decode)
     try:
         wait_until(lambda: (s := states.latest()) is not None and s.link == "ok", 30.0)
+        # State flows before the agent serves commands: its token says it serves them now.
+        wait_until(lambda: agent_token(client, "gripper", "gl"), 30.0)
         first = states.latest()
         assert first is not None and first.mount == "a1"
         family = fleet.inventory.device("gl").family  # type: ignore[attr-defined]

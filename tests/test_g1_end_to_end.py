@@ -13,6 +13,7 @@ from fleet.g1.messages import G1State, GetFsmId, SetVelocity, StandUp, Start, St
 from fleet.wire import keys
 from fleet.wire.messages import ErrorCode
 from tests.harness import FleetHarness, wait_until
+from tests.test_dex1_end_to_end import agent_token
 from tests.test_end_to_end import Collector
 
 STATE = KIND.payloads[keys.STATE]
@@ -35,6 +36,7 @@ def test_g1_state_rpc_refusals_and_stop(fleet: FleetHarness) -> None:
     action = fleet.inventory.device("h1").stop_action  # type: ignore[attr-defined]
     try:
         wait_until(lambda: (s := states.latest()) is not None and s.link == "ok", 30.0)
+        wait_until(lambda: agent_token(client, "g1", "h1"), 30.0)  # it serves commands now
         first = states.latest()
         assert first is not None and (first.fsm_id, first.fsm_name, first.mode) == (
             500,
