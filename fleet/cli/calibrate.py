@@ -171,7 +171,8 @@ def _describe(c: JointCalibration) -> str:
         servo = f", servo {d.servo_hz:.1f} Hz {d.overshoot:.0%}" if d.servo_hz else ""
         return f"{d.rate_deg_s:.0f} deg/s, lag {d.lag_s:.3f} s, dead {d.dead_s:.3f} s{servo}"
 
-    return f"joint {c.joint}: mode 1 {mode(c.mode1)}; mode 0 {mode(c.mode0)}; fit {c.rms_deg} deg"
+    fit = f"fit {c.rms_deg} deg RMS, {c.error_deg()} beyond report timing"
+    return f"joint {c.joint}: mode 1 {mode(c.mode1)}; mode 0 {mode(c.mode0)}; {fit}"
 
 
 def run_calibrate(args: argparse.Namespace) -> int:

@@ -7,7 +7,8 @@ machine FREE -> SUSPECTED -> CONFIRMED -> RELEASED -> FREE:
 
 - FREE/RELEASED -> SUSPECTED: an enabled method fires;
 - SUSPECTED -> CONFIRMED: an enabled method fired continuously for ``confirm_s``
-  (``status`` confirms at once); SUSPECTED -> FREE: nothing fires any more;
+  (``status`` confirms at once; a trusted model on one corroborated sample, see
+  ``CORROBORATE_SHARE``); SUSPECTED -> FREE: nothing fires any more;
 - CONFIRMED -> RELEASED: nothing fires and the tracking error stays below ``release_deg`` for
   ``release_s`` (hysteresis); RELEASED -> FREE after another ``release_s`` of quiet.
 
