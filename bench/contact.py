@@ -26,7 +26,7 @@ from fleet.contact.config import METHODS, ContactConfig
 from fleet.contact.detector import ContactDetector, ContactState
 from fleet.contact.dynamics import SimDynamics
 from fleet.contact.feed import feed_command
-from fleet.contact.fit import feedback_jitter_s, fit
+from fleet.contact.fit import feedback_jitter_s, fit_joint
 from fleet.d1 import protocol as p
 from fleet.d1.limits import JOINT_RANGE_DEG
 from fleet.sim.model import SimArmModel
@@ -275,8 +275,8 @@ def run(
             model.apply(p.encode_command(command, 1))
         model.advance(t)
         ob = model.faults.obstacles.get(ep.contact_joint) if ep.contact_joint is not None else None
-        if onset is None and ob is not None and ob.pushing_s > 0:
-            onset = t - ob.pushing_s
+        if onset is None and ob is not None and ob.met_s is not None:
+            onset = ob.met_s  # the first blocked step (not the last un-hunted one)
         arrive = t + rng.uniform(0.0005, 0.003) + rng.uniform(0.0, jitter)
         if reports % 5 == 0:
             status = model.status_reports()[0]
@@ -341,16 +341,23 @@ def score(outcomes: list[Outcome], method: str) -> dict[str, float]:
     return row
 
 
-def calibrate(dynamics: SimDynamics, seed: int) -> Calibration:
-    """Run the calibration routine on a simulated arm of ``dynamics`` (joint 0; the family's
-    joints are alike, so its fit serves every joint) and fit it, as ``fleet calibrate`` does."""
+def calibrate(
+    dynamics: SimDynamics, seed: int, joints: tuple[int, ...] = tuple(range(7))
+) -> Calibration:
+    """Run the calibration routine on a simulated arm of ``dynamics``, joint by joint from
+    where the arm stands, and fit each joint, as ``fleet calibrate`` does on a real arm (the
+    family's joints are alike, but each joint's fit sees its own steps, feedback and noise)."""
     model = SimArmModel(dynamics=dynamics, rng=random.Random(seed))
-    records = record_steps(model, 0, random.Random(seed))
-    mode0, rms0 = fit([r for r in records if r.mode == 0])
-    mode1, rms1 = fit([r for r in records if r.mode == 1])
-    joints = [JointCalibration(j, mode0, mode1, max(rms0, rms1)) for j in range(7)]
-    jitter = feedback_jitter_s(records)
-    return Calibration("bench", 0, joints, routine="bench", feedback_jitter_s=jitter)
+    rng = random.Random(seed)
+    fitted: list[JointCalibration] = []
+    jitters: list[float] = []
+    timing = ContactConfig().arm.timing_tolerance_s
+    for joint in joints:
+        records = record_steps(model, joint, rng)
+        jitters.append(feedback_jitter_s(records))
+        fitted.append(fit_joint(joint, records, max(timing, jitters[-1])))
+    jitter = max(jitters, default=0.0)
+    return Calibration("bench", 0, fitted, routine="bench", feedback_jitter_s=jitter)
 
 
 def bench_contact(

@@ -34,7 +34,7 @@ from fleet.contact.fit import (
     STALL_SHORT_DEG,
     StepRecord,
     feedback_jitter_s,
-    fit,
+    fit_joint,
     plan,
 )
 from fleet.d1.limits import JOINT_COUNT, JOINT_RANGE_DEG
@@ -133,9 +133,16 @@ def _wait_step(rec: _Recorder, joint: int, target: float, sent_s: float) -> str 
 
 
 def _calibrate_joint(
-    client: FleetClient, rec: _Recorder, arm: str, joint: int, owner: str, jitter: list[float]
+    client: FleetClient,
+    rec: _Recorder,
+    arm: str,
+    joint: int,
+    owner: str,
+    jitter: list[float],
+    timing_s: float,
 ) -> JointCalibration | str:
-    """Run the steps of ``joint`` and fit them; or the reason the routine stopped."""
+    """Run the steps of ``joint`` and fit them; or the reason the routine stopped.
+    ``timing_s``: the arm's contact ``timing_tolerance_s`` (the fit's error beyond it)."""
     pose = rec.latest()
     assert pose is not None
     records: list[StepRecord] = []
@@ -155,10 +162,8 @@ def _calibrate_joint(
             return problem
         samples = [(t, a[joint]) for t, a in rec.since(sent)]
         records.append(StepRecord(mode, sent, now_pose[joint], target, samples))
-    mode0, rms0 = fit([r for r in records if r.mode == 0])
-    mode1, rms1 = fit([r for r in records if r.mode == 1])
     jitter.append(feedback_jitter_s(records))
-    return JointCalibration(joint, mode0, mode1, max(rms0, rms1))
+    return fit_joint(joint, records, max(timing_s, jitter[-1]))
 
 
 def _describe(c: JointCalibration) -> str:
@@ -166,13 +171,14 @@ def _describe(c: JointCalibration) -> str:
         servo = f", servo {d.servo_hz:.1f} Hz {d.overshoot:.0%}" if d.servo_hz else ""
         return f"{d.rate_deg_s:.0f} deg/s, lag {d.lag_s:.3f} s, dead {d.dead_s:.3f} s{servo}"
 
-    return f"joint {c.joint}: mode 1 {mode(c.mode1)}; mode 0 {mode(c.mode0)}; fit {c.rms_deg} deg"
+    fit = f"fit {c.rms_deg} deg RMS, {c.error_deg()} beyond report timing"
+    return f"joint {c.joint}: mode 1 {mode(c.mode1)}; mode 0 {mode(c.mode0)}; {fit}"
 
 
 def run_calibrate(args: argparse.Namespace) -> int:
     """Run the routine on ``args.arm``; exit 1 when it stopped (nothing written)."""
     inventory = inventory_from_args(args)
-    inventory.arm(args.arm)
+    timing_s = inventory.arm(args.arm).contact.arm.timing_tolerance_s
     path = inventory.calibration_path(args.arm)
     joints = [args.joint] if args.joint is not None else list(range(JOINT_COUNT))
     owner = default_source()
@@ -189,7 +195,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
                 return 3
             for joint in joints:
                 print(f"calibrating joint {joint} ...", flush=True)
-                result = _calibrate_joint(client, rec, args.arm, joint, owner, jitters)
+                result = _calibrate_joint(client, rec, args.arm, joint, owner, jitters, timing_s)
                 if isinstance(result, str):
                     client.command(args.arm, m.Hold(owner=owner, takeover=True))
                     print(f"fleet calibrate: STOPPED, the arm holds its pose: {result}")

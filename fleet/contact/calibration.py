@@ -27,6 +27,13 @@ class JointCalibration(Struct, frozen=True, forbid_unknown_fields=True):
     mode0: ModeDynamics
     mode1: ModeDynamics
     rms_deg: float = 0.0
+    timing_rms_deg: float | None = None
+    """The fit's RMS less what late report stamps explain (``fit.timing_rms``); method 5's
+    slack is 3x this (3x ``rms_deg`` in files written before it existed)."""
+
+    def error_deg(self) -> float:
+        """The fit's own error that method 5's tolerance must cover on top of its timing."""
+        return self.rms_deg if self.timing_rms_deg is None else self.timing_rms_deg
 
     def dynamics(self) -> ArmDynamics:
         """Both modes as the predictor takes them."""

@@ -57,7 +57,8 @@ class Thresholds(Struct, frozen=True, forbid_unknown_fields=True):
     oscillation_window_s: float = 1.2
     confirm_s: float = 0.05
     """A method must fire continuously this long (two consecutive feedback samples) to
-    confirm; with 0 (one sample) the benchmark showed 47 false alarms in free motion."""
+    confirm; with 0 (one sample) the benchmark showed 47 false alarms in free motion. A trusted
+    model (method 5) confirms on one *corroborated* sample instead (``detector.py``)."""
     release_deg: float = 1.5
     """A confirmed contact releases when no method fires and the tracking error is below this
     (hysteresis: far below the confirming thresholds) ..."""

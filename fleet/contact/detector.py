@@ -7,7 +7,8 @@ machine FREE -> SUSPECTED -> CONFIRMED -> RELEASED -> FREE:
 
 - FREE/RELEASED -> SUSPECTED: an enabled method fires;
 - SUSPECTED -> CONFIRMED: an enabled method fired continuously for ``confirm_s``
-  (``status`` confirms at once); SUSPECTED -> FREE: nothing fires any more;
+  (``status`` confirms at once; a trusted model on one corroborated sample, see
+  ``CORROBORATE_SHARE``); SUSPECTED -> FREE: nothing fires any more;
 - CONFIRMED -> RELEASED: nothing fires and the tracking error stays below ``release_deg`` for
   ``release_s`` (hysteresis); RELEASED -> FREE after another ``release_s`` of quiet.
 
@@ -34,9 +35,17 @@ from fleet.contact.predictor import DEFAULT_DYNAMICS, SmoothingPredictor
 from fleet.contact.sanity import ModelSanity
 
 GRIPPER = 6
-FAST_CONFIRM_RATIO = 2.0
-"""Method 5 confirms on one sample when the joint is this many tolerances behind the model
-(a trusted model only: the calibrated benchmark's delay p95 needs it at 10 Hz feedback)."""
+CORROBORATE_SHARE = 0.7
+"""Method 5 confirms on a sample whose lag behind the model grew, since the previous sample, by
+at least this share of the model's own progress (the joint made under 30 % of the way the model
+made: it stopped) ..."""
+STILL_RATIO = 2.0
+"""... or it confirms when the joint is this many tolerances behind it on two samples running
+and makes no way (``_held_back``)."""
+CORROBORATE_MIN_DEG = 0.3
+"""... and by at least this much (3x the feedback noise: a held joint pushed away). A model
+that is merely off (a speed a few percent wrong, a report stamped late, a servo ringing
+differently) shifts the lag slowly or by less than the model moved, never like this."""
 
 
 class ContactState(str, enum.Enum):
@@ -94,6 +103,11 @@ class _Joint:
     confirmed_by: str = ""
     model_ratio: float = 0.0
     """How far behind the model the joint is, in multiples of method 5's tolerance."""
+    model_last: tuple[int, float, float, float] | None = None
+    """(prediction epoch, predicted angle, lag, the model's progress before it) at the previous
+    sample."""
+    corroborated: bool = False
+    """The newest sample's lag grew like a contact's (``CORROBORATE_*``)."""
 
 
 class ContactDetector:
@@ -139,8 +153,10 @@ class ContactDetector:
                 self._model.resync(j, joint.samples[-1][1])
         self._calibrated = frozenset(j for j, c in enumerate(fitted) if c is not None)
         # The model's tolerance also covers the calibration's own error (3 x its RMS).
-        self._slack = [0.0 if c is None else 3.0 * c.rms_deg for c in fitted]
+        self._slack = [0.0 if c is None else 3.0 * c.error_deg() for c in fitted]
         self._timing_s = 0.0 if calibration is None else calibration.feedback_jitter_s
+        timing = (self.config.arm.timing_tolerance_s, self.config.gripper.timing_tolerance_s)
+        self._lookback_s = max(*timing, self._timing_s)
         self.sanity = ModelSanity(calibrated=bool(self._calibrated))
 
     def trusted(self, joint: int, method: str) -> bool:
@@ -207,7 +223,7 @@ class ContactDetector:
 
     def on_angles(self, angles_deg: tuple[float, ...], now_s: float) -> Report:
         """One angle report: evaluate every joint; returns the state changes."""
-        self._model.advance(now_s)
+        self._model.advance(now_s, self._lookback_s)
         report = Report()
         errors: dict[int, float] = {}
         predicted = self._model.predicted
@@ -267,9 +283,7 @@ class ContactDetector:
             return
         lag = mth.behind(self._model.residual(j, angle), joint.demand)
         if lag is not None:
-            speed = self._model.velocity_deg_s(j)
-            tolerance = mth.model_tolerance(speed, t, self._timing_s) + self._slack[j]
-            self.sanity.sample(j, max(0.0, lag), tolerance)
+            self.sanity.sample(j, max(0.0, lag), self._tolerance(j))
         speed = mth.velocity_deg_s(joint.samples)
         settled = abs(error) < t.release_deg and (
             speed is None or abs(speed) < t.stall_velocity_deg_s
@@ -320,19 +334,56 @@ class ContactDetector:
                 times.append(now_s)
         return fired
 
+    def _tolerance(self, j: int) -> float:
+        """Method 5's tolerance on ``j`` now: its base, the model's travel over the timing
+        window (a late report), and the calibration's own error."""
+        t = self._joints[j].thresholds
+        speed, travel = self._model.velocity_deg_s(j), self._model.travel_deg[j]
+        return mth.model_tolerance(speed, t, self._timing_s, travel) + self._slack[j]
+
     def _model_fires(self, joint: _Joint, j: int, angle: float) -> bool:
         lag = mth.behind(self._model.residual(j, angle), joint.demand)
-        speed, t = self._model.velocity_deg_s(j), joint.thresholds
-        tolerance = mth.model_tolerance(speed, t, self._timing_s) + self._slack[j]
+        tolerance = self._tolerance(j)
         joint.model_ratio = 0.0 if lag is None else lag / tolerance
-        return mth.model(lag, speed, t, self._slack[j], self._timing_s)
+        predicted = self._model.predicted[j]
+        epoch = self._model.epochs[j]
+        last, joint.corroborated = joint.model_last, False
+        if lag is None or predicted is None:
+            joint.model_last = None
+            return False
+        progress = 0.0
+        if last is not None and last[0] == epoch:
+            progress = (predicted - last[1]) * joint.demand if joint.demand else 0.0
+            growth = lag - last[2]
+            # A move's first interval tells nothing: a report stamped late, or a dead time a
+            # little longer than the fit's, looks like a joint that did not start. So the model
+            # must already have been under way on the interval before (a held joint: no move).
+            under_way = joint.demand == 0 or last[3] > CORROBORATE_MIN_DEG
+            joint.corroborated = under_way and growth >= max(
+                CORROBORATE_MIN_DEG, CORROBORATE_SHARE * max(progress, 0.0)
+            )
+        joint.model_last = (epoch, predicted, lag, progress)
+        return lag > tolerance
 
     def _is_confirmed(self, joint: _Joint, method: str, now_s: float) -> bool:
         since = joint.since.get(method)
         if since is None:
             return False
-        if method == "model" and joint.model_ratio >= FAST_CONFIRM_RATIO:
-            return True  # far behind the model at once: one sample is enough
+        if method == "model":
+            # One sample, corroborated: the joint stopped (or is pushed) while the model says it
+            # moves (or holds); a joint moving to its target is not confirmed by the model
+            # within ``suspect_deg`` of it (a servo ringing otherwise than the fit).
+            # Or, once the model has arrived: far behind it (``STILL_RATIO`` tolerances) on two
+            # samples running while the joint makes no way (a fast move that met the wall as
+            # the model reached its target: the lag no longer grows).
+            error = abs(joint.errors[-1][1]) if joint.errors else 0.0
+            near = joint.demand != 0 and error < joint.thresholds.suspect_deg
+            still = (
+                now_s - since >= joint.thresholds.confirm_s
+                and joint.model_ratio >= STILL_RATIO
+                and self._held_back(joint, joint.errors[-1][1])
+            )
+            return (joint.corroborated or still) and not near
         return method == "status" or now_s - since >= joint.thresholds.confirm_s
 
     def _step(self, report: Report, j: int, error: float, fired: set[Method], now_s: float) -> None:

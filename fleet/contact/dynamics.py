@@ -10,6 +10,7 @@ limit (``rate_deg_s``), then an optional second-order servo that follows the ref
 
 from __future__ import annotations
 
+import functools
 import math
 from collections import deque
 
@@ -67,6 +68,7 @@ class ArmDynamics(Struct, frozen=True, forbid_unknown_fields=True):
         return self.mode0 if mode == 0 else self.mode1
 
 
+@functools.lru_cache(maxsize=256)
 def damping(overshoot: float) -> float:
     """The damping ratio of a second-order step response overshooting by ``overshoot``."""
     if overshoot <= 0.0:

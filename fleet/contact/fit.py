@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from fleet.contact.calibration import JointCalibration
 from fleet.contact.dynamics import JointResponse, ModeDynamics
 
 STEP_SIZES_DEG = (10.0, 40.0, 80.0)
@@ -59,6 +60,8 @@ def simulate(d: ModeDynamics, record: StepRecord) -> list[float]:
     response.command(record.target_deg, record.mode, record.sent_s, d.dead_s)
     now, out = record.sent_s, []
     for stamp, _angle in record.samples:
+        if stamp > now and response.at_rest():
+            now = stamp  # settled on the target: nothing changes (the fit's hot loop)
         if stamp > now:
             steps = min(int((stamp - now) / 0.01) + 1, 1000)
             dt = (stamp - now) / steps
@@ -78,6 +81,28 @@ def rms(d: ModeDynamics, records: list[StepRecord]) -> float:
             total += (predicted - angle) ** 2
             count += 1
     return math.sqrt(total / count) if count else math.inf
+
+
+def timing_rms(d: ModeDynamics, records: list[StepRecord], timing_s: float) -> float:
+    """RMS (deg) of the part of ``d``'s residual that late report stamps do not explain: each
+    sample's |residual| less the model's speed around it times ``timing_s`` (the detector's own
+    timing allowance), at least 0. A fit's plain RMS counts the jitter of the routine's reports
+    at speed as model error, and the detector already allows for that jitter."""
+    total, count = 0.0, 0
+    for record in records:
+        predicted = simulate(d, record)
+        stamps = [record.sent_s] + [t for t, _a in record.samples]
+        angles = [record.start_deg, *predicted]
+        speeds = [
+            abs(angles[k + 1] - angles[k]) / max(stamps[k + 1] - stamps[k], 1e-3)
+            for k in range(len(predicted))
+        ]
+        for k, (_t, angle) in enumerate(record.samples):
+            around = max(speeds[k], speeds[k + 1] if k + 1 < len(speeds) else 0.0)
+            excess = max(0.0, abs(predicted[k] - angle) - around * timing_s)
+            total += excess**2
+            count += 1
+    return round(math.sqrt(total / count), 3) if count else math.inf
 
 
 def _initial(records: list[StepRecord]) -> ModeDynamics:
@@ -174,3 +199,13 @@ def fit(records: list[StepRecord]) -> tuple[ModeDynamics, float]:
     if second_cost < min(0.7 * cost, cost - 0.05):  # a servo only when it explains clearly more
         best, cost = second, second_cost
     return best, round(cost, 3)
+
+
+def fit_joint(joint: int, records: list[StepRecord], timing_s: float) -> JointCalibration:
+    """Fit both modes of ``joint`` from its routine's ``records`` (``fleet calibrate`` and the
+    benchmark); ``timing_s``: the detector's timing allowance on this arm (the larger of its
+    ``timing_tolerance_s`` and the routine's feedback jitter)."""
+    by_mode = {mode: [r for r in records if r.mode == mode] for mode in (0, 1)}
+    (mode0, rms0), (mode1, rms1) = fit(by_mode[0]), fit(by_mode[1])
+    excess = max(timing_rms(mode0, by_mode[0], timing_s), timing_rms(mode1, by_mode[1], timing_s))
+    return JointCalibration(joint, mode0, mode1, max(rms0, rms1), timing_rms_deg=excess)

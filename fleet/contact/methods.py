@@ -63,10 +63,15 @@ def stall(samples: Samples, errors: Samples, demand: int, t: Thresholds) -> bool
     return progress_deg_s < min(t.stall_velocity_deg_s, smallest / t.stall_lag_s)
 
 
-def model_tolerance(velocity_deg_s: float, t: Thresholds, timing_s: float = 0.0) -> float:
+def model_tolerance(
+    velocity_deg_s: float, t: Thresholds, timing_s: float = 0.0, travel_deg: float = 0.0
+) -> float:
     """Method 5's tolerance at a predicted speed (see ``model``); ``timing_s``: the arm's own
-    feedback jitter when it is larger than ``timing_tolerance_s``."""
-    return t.model_error_deg + abs(velocity_deg_s) * max(t.timing_tolerance_s, timing_s)
+    feedback jitter when it is larger than ``timing_tolerance_s``; ``travel_deg``: how far the
+    model moved over that timing window (a report stamped late by it lags the model by up to
+    this, even when the model has just stopped: the end of a fast rate-limited step)."""
+    timing = max(t.timing_tolerance_s, timing_s)
+    return t.model_error_deg + max(abs(velocity_deg_s) * timing, travel_deg)
 
 
 def behind(residual_deg: float | None, demand: int) -> float | None:
@@ -79,13 +84,18 @@ def behind(residual_deg: float | None, demand: int) -> float | None:
 
 
 def model(
-    lag_deg: float | None, velocity_deg_s: float, t: Thresholds, slack_deg: float, timing_s: float
+    lag_deg: float | None,
+    velocity_deg_s: float,
+    t: Thresholds,
+    slack_deg: float,
+    timing_s: float,
+    travel_deg: float = 0.0,
 ) -> bool:
     """Method 5: the joint lags where the model of this arm says it should be (``behind``). The
     tolerance grows with the predicted speed: a sample stamped ``timing_tolerance_s`` late
     (feedback jitter, transport latency) is that much further along the predicted path; and
     with the calibration's own error (``slack_deg``)."""
-    tolerance = model_tolerance(velocity_deg_s, t, timing_s) + slack_deg
+    tolerance = model_tolerance(velocity_deg_s, t, timing_s, travel_deg) + slack_deg
     return lag_deg is not None and lag_deg > tolerance
 
 

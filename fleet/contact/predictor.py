@@ -23,20 +23,35 @@ class SmoothingPredictor:
         self._targets: list[float | None] = [None] * joints
         self.mode = 1
         self.time_s: float | None = None
+        self.epochs: list[int] = [0] * joints
+        """Per joint, how often its prediction was moved onto a measurement (``resync``): a
+        residual before a resync and one after it are not comparable."""
+        self.travel_deg: list[float] = [0.0] * joints
+        """How far each prediction moved over the last ``advance``'s look-back window."""
 
     @property
     def predicted(self) -> list[float | None]:
         """The predicted angle of each joint (None before its first sample)."""
         return [None if r is None else r.angle_deg for r in self._joints]
 
-    def advance(self, now_s: float) -> None:
-        """Integrate every joint with a known state up to ``now_s``."""
+    def advance(self, now_s: float, lookback_s: float = 0.0) -> None:
+        """Integrate every joint with a known state up to ``now_s``; ``travel_deg`` becomes how
+        far each prediction moved in the last ``lookback_s`` (since the previous call, when that
+        was later). A report stamped up to ``lookback_s`` late may lag the model by that much:
+        at the end of a fast, rate-limited move the model's speed *now* understates it."""
+        self.travel_deg = [0.0] * len(self._joints)
         if self.time_s is None or now_s <= self.time_s:
             self.time_s = now_s if self.time_s is None else self.time_s
             return
+        middle = max(self.time_s, now_s - lookback_s)
         for j, response in enumerate(self._joints):
-            if response is not None:
-                response.advance(self.dynamics[j], self.time_s, now_s)
+            if response is None:
+                continue
+            dynamics = self.dynamics[j]
+            response.advance(dynamics, self.time_s, middle)
+            before = response.angle_deg
+            response.advance(dynamics, middle, now_s)
+            self.travel_deg[j] = abs(response.angle_deg - before)
         self.time_s = now_s
 
     def set_target(self, joint: int, target_deg: float) -> None:
@@ -59,6 +74,7 @@ class SmoothingPredictor:
             response.target_deg = angle_deg if target is None else target
             response.mode = self.mode
         response.hold(angle_deg)
+        self.epochs[joint] += 1
 
     def velocity_deg_s(self, joint: int) -> float:
         """The predicted speed of ``joint`` right now (0 without a prediction)."""

@@ -129,6 +129,8 @@ class SimArmModel:
             obstacle = self.faults.obstacles.get(j)
             if obstacle is not None:
                 new = constrain(obstacle, current, new, response.target_deg, dt)
+                if obstacle.met_s is None and obstacle.pushing_s > 0.0:
+                    obstacle.met_s = now_s - dt
             if new != wanted:
                 if dynamics.servo_hz > 0.0:
                     response.angle_deg, response.velocity_deg_s = new, 0.0  # blocked

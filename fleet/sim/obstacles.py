@@ -27,7 +27,11 @@ class Obstacle:
     error_after_s: float | None = None
     side: int = 0
     pushing_s: float = 0.0
-    """Runtime: how long the joint has been pushing against it (seconds)."""
+    """Runtime: how long the joint has been pushing against it without a break (seconds;
+    servo hunting lifts the joint off and starts it again)."""
+    met_s: float | None = None
+    """Runtime: the model time at the start of the first step in which the joint was blocked
+    (the contact's onset, whatever hunting did after it; the benchmark's label)."""
 
     @property
     def raises_error(self) -> bool:
