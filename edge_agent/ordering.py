@@ -16,6 +16,8 @@ from __future__ import annotations
 
 from collections import OrderedDict
 
+from fleet.wire.messages import OVERTAKEN
+
 MAX_OWNERS = 1024
 MAX_RECENT = 1024
 
@@ -36,7 +38,7 @@ class CommandOrder:
         last = None if owner is None else self._last.get(owner)
         if last is not None and stamp_ns <= last:
             return (
-                f"out of order: older than the last command of {owner!r} "
+                f"{OVERTAKEN}: older than the last command of {owner!r} "
                 f"({(last - stamp_ns) / 1e6:.1f} ms): a stale target is never executed"
             )
         return None

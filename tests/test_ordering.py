@@ -76,3 +76,24 @@ def test_duplicates_replays_and_stale_commands_never_run(fleet_harness: FleetHar
         sub.undeclare()
     moves = [text for text in written if '"funcode":1' in text]
     assert len(moves) == 1, f"the arm was sent {len(moves)} moves: {moves}"
+
+
+def test_a_player_counts_an_overtaken_target_instead_of_aborting() -> None:
+    """The player sends a stream's targets from a thread pool, so two of one arm's targets can
+    leave out of order on a loaded host; the agent refuses the older one (the newer was taken).
+    A play aborted on that ("refused a target: [3104] ... out of order"); it now counts it.
+    A duplicate or an expired target still aborts."""
+    from fleet.choreo.player import overtaken
+    from fleet.wire.messages import ErrorCode, ErrorInfo
+
+    order = CommandOrder()
+    order.record("ann", "ann/player", 200)
+    late = order.refusal("ann", "ann/player", 150)
+    again = order.refusal("ann", "ann/player", 200)
+    assert late is not None and again is not None
+    # As edge_agent/serving.py words the refusal.
+    assert overtaken(ErrorInfo(int(ErrorCode.TIMEOUT), f"arm 'a2': {late}"))
+    assert not overtaken(ErrorInfo(int(ErrorCode.TIMEOUT), f"arm 'a2': {again}"))
+    lifetime = "target for arm 'a2' arrived 400 ms after it was sent, past its lifetime"
+    assert not overtaken(ErrorInfo(int(ErrorCode.TIMEOUT), lifetime))
+    assert not overtaken(ErrorInfo(int(ErrorCode.PARAMETER), f"arm 'a2': {late}"))

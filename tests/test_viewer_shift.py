@@ -340,6 +340,9 @@ def test_a_recording_replays_with_a_timeline_and_no_command_control(
     timeline.focus()
     timeline.press("Home")
     wait_until(lambda: position() == 0.0, 10.0)
+    for _ in range(5):  # 0.5 s in: the first joints sample may come after the first status
+        timeline.press("ArrowRight")
+    wait_until(lambda: position() >= 0.45, 10.0)
     readout = page.get_by_text(re.compile(r"^j0: "))
     start_text = wait_until(lambda: readout.count() and readout.first.inner_text(), 10.0)
     time.sleep(1.0)

@@ -56,6 +56,15 @@ class PlayResult:
     keyframe_error_deg: list[float] = field(default_factory=list)
     max_path_error_deg: float = 0.0
     elapsed_s: float = 0.0
+    overtaken: int = 0
+    """Targets the agents refused as overtaken by a newer one of ours (the pool sent them out
+    of order): harmless, the newer target was taken, but counted."""
+
+
+def overtaken(error: m.ErrorInfo) -> bool:
+    """The agent refused a streamed target because a newer one of ours got there first
+    (``arm 'a2': out of order: ...``)."""
+    return error.code == m.ErrorCode.TIMEOUT and f": {m.OVERTAKEN}: " in error.message
 
 
 def path_error_deg(measured: Pose, target: Pose, closing_sign: float = -1.0) -> float:
@@ -213,7 +222,9 @@ class Player:
             queue = self.pending[arm]
             while queue and queue[0].done():
                 reply = queue.popleft().result()
-                if not reply.ok and reply.error is not None:
+                if not reply.ok and reply.error is not None and overtaken(reply.error):
+                    self.result.overtaken += 1  # a newer target of ours was already taken
+                elif not reply.ok and reply.error is not None:
                     raise Abort(
                         f"arm {arm!r} refused a target: [{reply.error.code}] {reply.error.message}"
                     )

@@ -63,6 +63,11 @@ class ErrorCode(enum.IntEnum):
     LEASE_EXISTS = 3207
 
 
+OVERTAKEN = "out of order"
+"""How an agent's refusal of a command overtaken by a newer one of the same owner begins (code
+3104): the newer one was accepted, so a stream of targets loses nothing by it."""
+
+
 class ErrorInfo(Struct, frozen=True):
     """Why a command failed: ``code`` from ErrorCode, ``message`` for humans."""
 
