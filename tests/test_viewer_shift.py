@@ -109,37 +109,33 @@ def arm_points(viewer: Viewer) -> npt.NDArray[np.float64]:
     return viewer.scene.frame_points(viewer.scene._drawn_deg.copy())
 
 
-# ---------------------------------------------------------------------- fit
+# ---------------------------------------------------------------------- fit, share
 
 
-def test_the_camera_frames_the_fleet_at_start_and_on_fit(
-    fleet3_harness: FleetHarness, browser: Browser
-) -> None:
-    """The arms filled about 15 % of the first view (issue 15)."""
-    fleet3_harness.start_fleet()
-    with viewer_of(fleet3_harness) as viewer:
-        open_page(browser, viewer.url)
-        assert browser.page.locator(SHARE_ICON).count() == 0  # no share button (a public tunnel)
-        camera = BrowserCamera(viewer)
-        points = arm_points(viewer)
-        inside, span = wait_until(lambda: (c := camera.span(points))[1] > 0.6 and c, 15.0)
-        assert inside, "an arm is outside the first view"
-        print(f"first view: the arms span {span:.0%} of it")
-        browser.save_page("10-fit-at-start")
+def check_the_fit(browser: Browser, viewer: Viewer) -> None:
+    """The camera frames the fleet at start and on "Fit view" (the arms filled about 15 % of
+    the first view, issue 15); the page has no share button."""
+    assert browser.page.locator(SHARE_ICON).count() == 0  # no share button (a public tunnel)
+    camera = BrowserCamera(viewer)
+    points = arm_points(viewer)
+    inside, span = wait_until(lambda: (c := camera.span(points))[1] > 0.6 and c, 15.0)
+    assert inside, "an arm is outside the first view"
+    print(f"first view: the arms span {span:.0%} of it")
+    browser.save_page("10-fit-at-start")
 
-        # The operator wanders off (zooms out and pans away).
-        camera.client.camera.position = (8.0, -9.0, 6.0)
-        camera.client.camera.look_at = (3.0, 3.0, 0.0)
-        wait_until(lambda: camera.span(points)[1] < 0.3, 10.0)
-        reports = camera.reports
-        browser.page.get_by_role("button", name="Fit view").click()
-        # The server sets the camera at once; the browser's own report of it is the proof.
-        inside, span = wait_until(
-            lambda: camera.reports > reports and (c := camera.span(points))[1] > 0.6 and c, 15.0
-        )
-        assert inside
-        print(f"after Fit view: the arms span {span:.0%} of the view")
-        browser.save_page("11-fit-after-button")
+    # The operator wanders off (zooms out and pans away).
+    camera.client.camera.position = (8.0, -9.0, 6.0)
+    camera.client.camera.look_at = (3.0, 3.0, 0.0)
+    wait_until(lambda: camera.span(points)[1] < 0.3, 10.0)
+    reports = camera.reports
+    browser.page.get_by_role("button", name="Fit view").click()
+    # The server sets the camera at once; the browser's own report of it is the proof.
+    inside, span = wait_until(
+        lambda: camera.reports > reports and (c := camera.span(points))[1] > 0.6 and c, 15.0
+    )
+    assert inside
+    print(f"after Fit view: the arms span {span:.0%} of the view")
+    browser.save_page("11-fit-after-button")
 
 
 def test_the_share_selector_finds_viser_s_share_button_where_it_is_on(browser: Browser) -> None:
@@ -212,12 +208,14 @@ def test_a_jog_from_the_browser_is_one_bounded_step_under_the_viewers_lease(
 # ---------------------------------------------------------------------- stop, reset, events
 
 
-def test_one_arms_stop_and_reset_and_the_event_log(
+def test_the_fit_then_one_arms_stop_and_reset_and_the_event_log(
     fleet3_harness: FleetHarness, browser: Browser
 ) -> None:
+    """One fleet of three for both (a fleet and a page cost 15 s on the browser tests' worker)."""
     client = fleet3_harness.start_fleet()
     with viewer_of(fleet3_harness) as viewer:
         open_page(browser, viewer.url)
+        check_the_fit(browser, viewer)
         expand(browser, "Arm a2")
         browser.page.get_by_role("button", name="Stop a2").click()
         wait_until(lambda: "STOPPED" in table_row(browser, "a2"), 10.0)
