@@ -52,6 +52,7 @@ def run_doctor(args: argparse.Namespace) -> int:
             elapsed_ms = (time.monotonic() - started) * 1000
             report([doctor.Check(f"router {endpoints}", "ok", f"answered in {elapsed_ms:.0f} ms")])
             report(doctor.check_arms(client, inventory.arms))
+            report(doctor.check_devices(client, inventory.devices))
             report(doctor.check_processes(client))
             report([doctor.check_coordinator(client)])
     failed = sum(c.level == "fail" for c in checks)

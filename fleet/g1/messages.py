@@ -6,6 +6,7 @@ from typing import Annotated, Literal
 
 from msgspec import Meta, Struct
 
+from fleet.devices.base import DeviceCommand, Release
 from fleet.wire.messages import Count, StampNs, Text
 
 Speed = Annotated[float, Meta(ge=-10.0, le=10.0)]
@@ -31,7 +32,7 @@ class G1State(Struct, frozen=True):
     dds_rate_hz: float
 
 
-class _G1Command(Struct, tag_field="op", kw_only=True, forbid_unknown_fields=True):
+class _G1Command(DeviceCommand, kw_only=True):
     pass
 
 
@@ -68,7 +69,7 @@ class GetFsmId(_G1Command, tag="get_fsm_id", kw_only=True):
     """GetFsmId: the reply's ``result`` is the id."""
 
 
-G1Command = Damp | Start | StandUp | BalanceStand | StopMove | SetVelocity | GetFsmId
+G1Command = Damp | Start | StandUp | BalanceStand | StopMove | SetVelocity | GetFsmId | Release
 OPS = {
     Damp: "damp",
     Start: "start",
@@ -77,4 +78,5 @@ OPS = {
     StopMove: "stop_move",
     SetVelocity: "set_velocity",
     GetFsmId: "get_fsm_id",
+    Release: "release",
 }
