@@ -11,7 +11,7 @@ import threading
 import time
 import uuid
 from collections.abc import Iterable
-from typing import Any
+from typing import Any, TypeVar
 
 import msgspec
 import zenoh
@@ -67,6 +67,10 @@ def default_source() -> str:
     return f"{os.environ.get('USER', 'user')}@{socket.gethostname()}"
 
 
+S = TypeVar("S", bound=msgspec.Struct)
+"""A command Struct with the envelope (``stamp_ns``, ``lifetime_s``)."""
+
+
 class FleetClient:
     """A Zenoh session on the fleet's key space. A context manager."""
 
@@ -88,7 +92,7 @@ class FleetClient:
 
     # ------------------------------------------------------------------ commands
 
-    def stamp(self, command: m.ArmCommand) -> m.ArmCommand:
+    def stamp(self, command: S) -> S:
         """``command`` with a ``stamp_ns`` (the agent serves each stamp once and, per owner, in
         order) and a lifetime if it has none. A caller's own stamp is kept (a streamed target
         is stamped when it was computed); otherwise this client's clock, strictly increasing."""
@@ -137,7 +141,7 @@ class FleetClient:
         (``<kind>/<device>/cmd/<principal>``) and wait for its reply."""
         kind = kind_of(self.inventory.device(device)).key
         key = self.keys.device_command(kind, device, self.principal)
-        data = command if isinstance(command, bytes) else encode(command)
+        data = command if isinstance(command, bytes) else encode(self.stamp(command))
         for reply in self.session.get(key, payload=data, encoding=JSON, timeout=timeout_s):
             if reply.ok is None:
                 continue
@@ -148,8 +152,8 @@ class FleetClient:
                 return error_reply(device, ErrorCode.UNKNOWN, why)
         why = (
             f"{kind} {device!r}: no reply from its agent within {timeout_s:g} s (no token on "
-            f"{self.keys.device(kind, device, keys.AGENT)}?); is `edge-agent --device "
-            f"{device}` running?"
+            f"{self.keys.device(kind, device, keys.AGENT)}?); is the edge-agent of its card "
+            f"(`edge-agent --interface {self.inventory.device(device).interface}`) running?"
         )
         return error_reply(device, ErrorCode.NOT_REGISTERED, why)
 
@@ -209,7 +213,12 @@ class FleetClient:
             devices = {f"{kind_of(self.inventory.device(arm)).key}/{arm}": arm}
         else:
             arms = [self.inventory.arm(arm).id] if arm is not None else list(self.inventory.arms)
-            devices = {} if arm is not None else self.device_labels()
+            mounted = {
+                label: d
+                for label, d in self.device_labels().items()
+                if getattr(self.inventory.device(d), "mount", "") == arm
+            }
+            devices = mounted if arm is not None else self.device_labels()
         if request is None:
             request = self.stop_request(reason, source)
         acks: dict[str, m.StopAck | None] = dict.fromkeys([*arms, *devices])
@@ -250,13 +259,7 @@ class FleetClient:
                 with lock:
                     unacked = any(a is None for a in acks.values())
                 if unacked:
-                    if arm is not None and devices:
-                        label = next(iter(devices))
-                        kind = label.partition("/")[0]
-                        key = self.keys.device(kind, arm, keys.ESTOP)
-                        self.session.put(key, encode(request), encoding=JSON, **STOP_QOS)
-                    else:
-                        self.put_stop(request, arm)
+                    self.put_stop(request, arm)
                 if complete() or time.monotonic() >= deadline:
                     break
                 time.sleep(0.1)
@@ -315,16 +318,22 @@ class FleetClient:
             reason=reason,
         )
 
+    def unit_key(self, unit: str, channel: str) -> str:
+        """``channel`` of arm or device ``unit`` (InventoryError for neither)."""
+        if unit in self.inventory.devices:
+            kind = kind_of(self.inventory.device(unit)).key
+            return self.keys.device(kind, unit, channel)
+        return self.keys.arm(self.inventory.arm(unit).id, channel)
+
     def put_stop(self, request: m.StopRequest, arm: str | None = None) -> None:
-        """Put ``request`` once on the fleet's (or one arm's) stop key."""
-        key = self.keys.estop if arm is None else self.keys.arm(arm, keys.ESTOP)
+        """Put ``request`` once on the fleet's (or one arm's or device's) stop key."""
+        key = self.keys.estop if arm is None else self.unit_key(arm, keys.ESTOP)
         self.session.put(key, encode(request), encoding=JSON, **STOP_QOS)
 
     def reset(self, arm: str | None = None, source: str | None = None) -> None:
-        """Release the stop latch of one arm (or every arm). Never moves an arm."""
-        if arm is not None:
-            self.inventory.arm(arm)
-        key = self.keys.reset if arm is None else self.keys.arm(arm, keys.RESET)
+        """Release the stop latch of one arm or device (or of every one; an arm's reset
+        releases the devices mounted on it too). Never moves anything."""
+        key = self.keys.reset if arm is None else self.unit_key(arm, keys.RESET)
         request = m.ResetRequest(stamp_ns=time.time_ns(), source=source or default_source())
         self.session.put(key, encode(request), encoding=JSON, **STOP_QOS)
 

@@ -14,9 +14,11 @@ from concurrent.futures import ThreadPoolExecutor
 import msgspec
 
 from fleet.client import FleetClient, default_source
+from fleet.devices import kind_of
+from fleet.inventory import Inventory
 from fleet.runtime import inventory_from_args
+from fleet.wire import keys, payloads
 from fleet.wire import messages as m
-from fleet.wire import payloads
 from fleet.wire.messages import ErrorCode
 
 
@@ -83,7 +85,11 @@ def register(
     power.add_argument("state", choices=("on", "off"))
     power.set_defaults(run=lambda a: _send(a, m.Power(on=a.state == "on", **_opts(a))))
 
-    raw = arm_parser("cmd", 'send a key-space command given as JSON, e.g. \'{"op":"zero"}\'')
+    raw = arm_parser(
+        "cmd",
+        "send a key-space command given as JSON to an arm, group or device, e.g. "
+        '\'{"op":"zero"}\', or to gripper gl \'{"op": "move", "open_pct": 40}\'',
+    )
     raw.add_argument("json_command")
     raw.set_defaults(run=run_raw)
 
@@ -122,7 +128,11 @@ def run_move(args: argparse.Namespace) -> int:
 
 
 def run_raw(args: argparse.Namespace) -> int:
-    """``fleet cmd``."""
+    """``fleet cmd``: to an arm or group (an arm command), or to a device (its kind's)."""
+    inventory = inventory_from_args(args)
+    device = device_id(inventory, args.target)
+    if device is not None:
+        return _send_device(args, inventory, device)
     try:
         command = payloads.COMMAND.decode(args.json_command)
     except payloads.PayloadError as exc:
@@ -162,3 +172,31 @@ def _send(args: argparse.Namespace, command: m.ArmCommand) -> int:
         r.ok or (r.error is not None and r.error.code == ErrorCode.NOT_REGISTERED) for r in replies
     )
     return 3 if unreachable else 1
+
+
+def device_id(inventory: Inventory, target: str) -> str | None:
+    """The device ``target`` names (``gl`` or ``gripper/gl``), or None when it names none."""
+    name = target.rpartition("/")[2]
+    return name if name in inventory.devices else None
+
+
+def _send_device(args: argparse.Namespace, inventory: Inventory, device: str) -> int:
+    kind = kind_of(inventory.device(device))
+    try:
+        command = kind.payloads[keys.CMD].decode(args.json_command)
+    except payloads.PayloadError as exc:
+        print(f"fleet cmd: {exc}", file=sys.stderr)
+        return 2
+    if args.takeover:
+        command = msgspec.structs.replace(command, owner=default_source(), takeover=True)
+    with FleetClient(inventory, connect_timeout_s=args.connect_timeout) as client:
+        reply = client.device_command(device, command)
+    if args.json:
+        print(msgspec.json.encode(reply).decode())
+    elif reply.ok:
+        result = f": {reply.result}" if reply.result is not None else ""
+        print(f"{kind.key}/{device}: ok{result}")
+    else:
+        error = reply.error or m.ErrorInfo(int(ErrorCode.UNKNOWN), "no error given")
+        print(f"{kind.key}/{device}: FAILED {error.code} {error.message}")
+    return 0 if reply.ok else 1

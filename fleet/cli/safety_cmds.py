@@ -7,6 +7,7 @@ import sys
 import time
 from collections.abc import Callable
 
+from fleet.cli.arm_commands import device_id
 from fleet.client import FleetClient
 from fleet.runtime import inventory_from_args
 
@@ -15,14 +16,21 @@ def register(
     sub: argparse._SubParsersAction, add_common: Callable[[argparse.ArgumentParser], None]
 ) -> None:  # type: ignore[type-arg]
     """Add ``estop`` and ``reset``."""
-    estop = sub.add_parser("estop", help="protective stop of every arm, or of one arm")
+    estop = sub.add_parser(
+        "estop",
+        help="protective stop of every arm and device, or of one (an arm's stop also stops "
+        "the devices mounted on it)",
+    )
     add_common(estop)
     estop.add_argument("arm", nargs="?", default=None)
     estop.add_argument("--reason", default="")
     estop.add_argument("--timeout", type=float, default=3.0, help="seconds to wait for standstill")
     estop.set_defaults(run=run_estop)
 
-    reset = sub.add_parser("reset", help="release a latched stop (never moves an arm)")
+    reset = sub.add_parser(
+        "reset",
+        help="release a latched stop of every robot, or of one arm or device (moves nothing)",
+    )
     add_common(reset)
     reset.add_argument("arm", nargs="?", default=None)
     reset.set_defaults(run=run_reset)
@@ -83,7 +91,10 @@ def run_estop(args: argparse.Namespace) -> int:
 def run_reset(args: argparse.Namespace) -> int:
     """Put a reset; the agents make each arm's measured pose its target."""
     inventory = inventory_from_args(args)
+    target = args.arm
+    if target is not None:
+        target = device_id(inventory, target) or inventory.arm(target).id
     with FleetClient(inventory, connect_timeout_s=args.connect_timeout) as client:
-        client.reset(args.arm)
-    print(f"reset sent to {args.arm or 'every arm'} (arms stay where they are)")
+        client.reset(target)
+    print(f"reset sent to {target or 'every arm and device'} (nothing moves: each stays put)")
     return 0

@@ -210,29 +210,35 @@ def diag_lines(arms: list[str], diags: dict[str, m.Diag]) -> list[str]:
     return lines
 
 
-def _collect_diag(client: FleetClient, arms: list[str], wait_s: float) -> dict[str, m.Diag]:
+def _collect_diag(client: FleetClient, units: list[str], wait_s: float) -> dict[str, m.Diag]:
+    """The newest diag of each arm and device of ``units`` (the same payload for every kind)."""
     inbox = _Inbox()
-    subscriber = client.session.declare_subscriber(client.keys.all_arms(keys.DIAG), inbox)
+    diag_keys = {client.unit_key(u, keys.DIAG): u for u in units}
+    subscribers = [client.session.declare_subscriber(key, inbox) for key in diag_keys]
     got: dict[str, m.Diag] = {}
     deadline = time.monotonic() + wait_s
     try:
-        while not all(a in got for a in arms) and time.monotonic() < deadline:
+        while not all(u in got for u in units) and time.monotonic() < deadline:
             try:
                 key, data, _stamp, _now = inbox.queue.get(timeout=0.1)
-                arm = client.keys.parse_arm_key(key).arm
-                got[arm] = payloads.DIAG.decode(data)
-            except (queue.Empty, keys.KeyError_, payloads.PayloadError):
+                got[diag_keys[key]] = payloads.DIAG.decode(data)
+            except (queue.Empty, KeyError, payloads.PayloadError):
                 continue
     finally:
-        subscriber.undeclare()
+        for subscriber in subscribers:
+            subscriber.undeclare()
     return got
 
 
 def run_diag(args: argparse.Namespace) -> int:
-    """The diag counters (published at 1 Hz) of every arm, or of ARM; exit 3 when one is
-    missing (its agent down)."""
+    """The diag counters (published at 1 Hz) of every arm and device, or of one; exit 3 when
+    one is missing (its agent down)."""
     inventory = inventory_from_args(args)
-    arms = [inventory.arm(args.arm).id] if args.arm else list(inventory.arms)
+    if args.arm:
+        device = args.arm.rpartition("/")[2]
+        arms = [device] if device in inventory.devices else [inventory.arm(args.arm).id]
+    else:
+        arms = [*inventory.arms, *inventory.devices]
     stop = shutdown_event()
     complete = False
     with FleetClient(inventory, connect_timeout_s=args.connect_timeout) as client:
