@@ -94,7 +94,7 @@ def device_lines(inventory: Inventory, states: dict[str, Any]) -> list[str]:
     lines = [f"{'device':<16} {'link':<6} {'stop':<5} state"]
     for label, state in states.items():
         if state is None:
-            lines.append(f"{label:<16} {'-':<6} {'-':<5} no state (is the edge-agent of its card up?)")
+            lines.append(f"{label:<16} {'-':<6} {'-':<5} no state (is its card's agent up?)")
             continue
         kind = kinds()[label.partition("/")[0]]
         stop = "YES" if state.estopped else "no"
