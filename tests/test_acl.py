@@ -141,3 +141,7 @@ def test_device_agents_publish_their_devices_and_only_commanders_command(tmp_pat
     assert not any("/gripper/" in k for k in _allowed(acl, "agent-a1", "put", "ingress"))
     coordinator = _allowed(acl, "coordinator", "declare_subscriber", "ingress")
     assert {"fleet/lab/gripper/*/state", "fleet/lab/g1/*/estop/ack"} <= coordinator
+    # The router's 4 KiB limit covers the devices' commands, stops and resets (issue 21).
+    small = next(f for f in payload_limits(inventory) if f["id"] == "commands")["key_exprs"]
+    for kind in ("gripper", "g1"):
+        assert {f"fleet/lab/{kind}/*/{k}" for k in ("cmd/**", "estop", "reset")} <= set(small)
