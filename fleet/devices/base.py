@@ -7,11 +7,11 @@ domain_id, simulated, agent), never the arm-only ones.
 
 from __future__ import annotations
 
-from typing import Annotated
+from msgspec import Struct
 
-from msgspec import Meta, Struct
+from fleet.wire.messages import DeviceReply
 
-from fleet.wire.messages import ErrorInfo
+__all__ = ["NETWORK_FIELDS", "DeviceBase", "DeviceReply"]
 
 NETWORK_FIELDS = ("interface", "peers", "multicast", "domain_id", "simulated")
 """Fields of ``[defaults]`` that devices inherit too (the rest of it is the arms')."""
@@ -30,16 +30,3 @@ class DeviceBase(Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
     simulated: bool = False
     link_stale_s: float = 0.35
     """No state sample for this long: the link is ``stale`` (commands are refused)."""
-
-
-class DeviceReply(Struct, frozen=True):
-    """The reply to a device command (``<kind>/<device>/cmd/<principal>``): ``ok``, the device,
-    what was written (``written``: a short text of the DDS message) and the error, if any, with
-    the arm's error codes (``fleet.wire.messages.ErrorCode``)."""
-
-    ok: bool
-    device: Annotated[str, Meta(max_length=128)]
-    error: ErrorInfo | None = None
-    written_ns: Annotated[int, Meta(ge=0, le=2**63 - 1)] | None = None
-    result: Annotated[str, Meta(max_length=1024)] | None = None
-    """A query's answer (``get_fsm_id``: the id), as text."""

@@ -247,6 +247,19 @@ class CommandReply(Struct, frozen=True):
     written_ns: StampNs | None = None
 
 
+class DeviceReply(Struct, frozen=True):
+    """The reply to a device command (``<kind>/<device>/cmd/<principal>``): ``ok``, the device,
+    what was written (``written``: a short text of the DDS message) and the error, if any, with
+    the arm's error codes (``fleet.wire.messages.ErrorCode``)."""
+
+    ok: bool
+    device: Annotated[str, Meta(max_length=128)]
+    error: ErrorInfo | None = None
+    written_ns: Annotated[int, Meta(ge=0, le=2**63 - 1)] | None = None
+    result: Annotated[str, Meta(max_length=1024)] | None = None
+    """A query's answer (``get_fsm_id``: the id), as text."""
+
+
 # ----------------------------------------------------------------------------- protective stop
 
 
