@@ -215,3 +215,10 @@ def test_the_device_kinds_of_the_key_space_are_the_registered_ones() -> None:
     from fleet.devices import kinds
 
     assert sorted(kinds()) == sorted(keys.DEVICE_KINDS)
+
+
+def test_a_key_of_any_fleet_parses_without_its_keyspace() -> None:
+    assert keys.parse_key("fleet/other/g1/h1/state") == keys.Key("other", "g1", "h1", keys.STATE)
+    for bad in ("fleet", "fleet//state", "robot/lab/state", "fleet/a b/state"):
+        with pytest.raises(KeyError_):
+            keys.parse_key(bad)

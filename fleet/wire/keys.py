@@ -282,3 +282,13 @@ class KeySpace:
             if head == CMD and _NAME.match(principal):
                 return Key(self.fleet, kind, unit, CMD, principal)
         raise KeyError_(f"{key!r} is no key of fleet {self.fleet!r}'s key space")
+
+
+def parse_key(key: str) -> Key:
+    """``KeySpace.parse_key`` for a key of any fleet (a recording's keys name the fleet they
+    were recorded in); KeyError_ for anything that is not a key of the key space."""
+    head, _, rest = key.partition("/")
+    name = rest.partition("/")[0]
+    if head != "fleet" or not _NAME.match(name):
+        raise KeyError_(f"{key!r} is not a key of the key space (fleet/<fleet>/...)")
+    return KeySpace(name).parse_key(key)
