@@ -1,6 +1,7 @@
 """``fleet record`` records the devices beside the arms (issue 14): a gripper's state and a
 G1's state are in the file with their own schemas; ``fleet replay`` read-only re-publishes every
-kind's state (issue 21), and ``fleet viewer --replay`` (arms only) still works on it. Real processes: a router, ``fleet sim`` (one arm, a gripper, a G1), the arm's agent,
+kind's state (issue 21), and ``fleet viewer --replay`` (arms only) still works on it. Real
+processes: a router, ``fleet sim`` (one arm, a gripper, a G1), the arm's agent,
 one devices agent, ``fleet record``."""
 
 from __future__ import annotations
