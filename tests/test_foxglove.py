@@ -9,10 +9,12 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import numpy as np
 from foxglove.messages import FrameTransforms
 from mcap.reader import make_reader
 
+from fleet.dex1.messages import GripperState
 from fleet.record.layout import layout_of
 from fleet.record.reader import read_recording
 from fleet.record.replay import recorded_joints
@@ -80,6 +82,29 @@ def test_transforms_pure() -> None:
     assert '<link name=\\"a1/' in urdf and 'link=\\"a1/' in urdf
 
 
+GRIP_STATE = GripperState(
+    stamp_ns=1,
+    q_rad=1.0,
+    opening_pct=15.9,
+    dq_rad_s=0.0,
+    tau_est=0.1,
+    temperature_c=30.0,
+    error=0,
+    lost=0,
+    link="ok",
+    target_rad=None,
+    gripping=False,
+    estopped=False,
+    stop_reason=None,
+    dds_samples=3,
+    relayed=2,
+    bad_samples=0,
+    dds_rate_hz=500.0,
+    family="go",
+    mount="",
+)
+
+
 def test_live_bridge_speaks_foxglove(tmp_path: Path) -> None:
     with FleetHarness(tmp_path, arms=2) as harness:
         client = harness.start_fleet()
@@ -101,6 +126,12 @@ def test_live_bridge_speaks_foxglove(tmp_path: Path) -> None:
             assert tf["schemaName"] == "foxglove.FrameTransforms" and tf["encoding"] == "protobuf"
             assert topics[joints_key]["encoding"] == "json"
             assert topics[joints_key]["schemaEncoding"] == "jsonschema"
+            # Device keys are bridged with their kind's schema (issue 21).
+            grip_key = "fleet/test/gripper/gx/state"
+            for _ in range(3):
+                client.session.put(grip_key, msgspec.json.encode(GRIP_STATE))
+            grip = fox.wait_for_topics({grip_key}, 10.0)[grip_key]
+            assert grip["encoding"] == "json" and "GripperState" in grip["schema"]
             fox.subscribe(transforms_topic("a2"), joints_key, urdf_topic("a2"))
             joints: dict[int, list[float]] = {}
             checked, urdf = 0, None
