@@ -14,13 +14,13 @@ import numpy as np
 from foxglove.messages import FrameTransforms
 from mcap.reader import make_reader
 
-from fleet.dex1.messages import GripperState
 from fleet.record.layout import layout_of
 from fleet.record.reader import read_recording
 from fleet.record.replay import recorded_joints
 from fleet.wire import messages as m
 from tests.foxglove_client import FoxgloveClient, protobuf_class
 from tests.harness import FleetHarness, free_port, wait_until
+from tests.test_channels import STATE as GRIP_STATE
 from viewer.frames3d import ArmFrames, transforms_topic, urdf_topic
 from viewer.kinematics import matrix_to_wxyz
 from viewer.replay import replay_source
@@ -80,29 +80,6 @@ def test_transforms_pure() -> None:
     assert matrix_to_wxyz(np.eye(3)).tolist() == [1.0, 0.0, 0.0, 0.0]
     urdf = frames.urdf_message("a1").decode()
     assert '<link name=\\"a1/' in urdf and 'link=\\"a1/' in urdf
-
-
-GRIP_STATE = GripperState(
-    stamp_ns=1,
-    q_rad=1.0,
-    opening_pct=15.9,
-    dq_rad_s=0.0,
-    tau_est=0.1,
-    temperature_c=30.0,
-    error=0,
-    lost=0,
-    link="ok",
-    target_rad=None,
-    gripping=False,
-    estopped=False,
-    stop_reason=None,
-    dds_samples=3,
-    relayed=2,
-    bad_samples=0,
-    dds_rate_hz=500.0,
-    family="go",
-    mount="",
-)
 
 
 def test_live_bridge_speaks_foxglove(tmp_path: Path) -> None:
