@@ -26,7 +26,7 @@ from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, ErrorInfo, encode
 
 JSON = zenoh.Encoding.APPLICATION_JSON
-DEVICE_REPLY = payloads.payload_kind("device reply", DeviceReply, 8 * payloads.KIB)
+DEVICE_REPLY = payloads.DEVICE_REPLY
 REPLY_MARGIN_S = 2.0
 """A command's query waits this much longer than the command's own timeout."""
 COMMAND_LIFETIME_S = 5.0

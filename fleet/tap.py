@@ -20,32 +20,21 @@ RAW_TEXT_LIMIT = 4096
 
 
 def kind_of(keyspace: keys.KeySpace, key: str) -> str | None:
-    """The channel kind of a concrete key of this fleet (a ``payloads.CHANNELS`` kind, or
-    ``raw/feedback`` / ``agent``), or None for a key outside the key space."""
-    prefix = keyspace.prefix + "/"
-    if not key.startswith(prefix):
+    """The channel kind of a concrete key of this fleet (a ``payloads.CHANNELS`` kind such as
+    ``joints`` or ``gripper/state``; a payload-less channel's word, ``agent``, ``raw/feedback``
+    or ``g1/agent``), or None for a key outside the key space."""
+    try:
+        parsed = keyspace.parse_key(key)
+    except keys.KeyError_:
         return None
-    rest = key[len(prefix) :]
-    if rest.startswith("arm/"):
-        head, _, last = key.rpartition("/")
-        try:
-            return keyspace.parse_arm_key(key).channel
-        except keys.KeyError_:
-            pass
-        try:  # arm/<arm>/cmd/<principal>
-            if keyspace.parse_arm_key(head).channel == keys.CMD and keys.is_name(last):
-                return keys.CMD
-        except keys.KeyError_:
-            return None
-        return None
-    for kind in (keys.STATE, keys.ESTOP, keys.RESET, keys.STOP_REPORT, keys.COORDINATOR_DIAG):
-        if rest == kind:
-            return kind
-    for kind, depth in ((keys.HEARTBEAT, 1), (keys.COORDINATOR_CMD, 1), (keys.INFO, 2)):
-        parts = rest[len(kind) + 1 :].split("/") if rest.startswith(kind + "/") else []
-        if len(parts) == depth and all(keys.is_name(p) for p in parts):
-            return kind
-    return None
+    row = payloads.channel_of(parsed)
+    if row is not None:
+        return row.kind
+    return (
+        parsed.channel
+        if parsed.kind in (keys.ARM, keys.FLEET_LEVEL)
+        else (f"{parsed.kind}/{parsed.channel}")
+    )
 
 
 def key_expr(keyspace: keys.KeySpace, expr: str) -> str:

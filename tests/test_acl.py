@@ -124,12 +124,12 @@ def test_device_agents_publish_their_devices_and_only_commanders_command(tmp_pat
     """Issue 14: device keys are covered like the arms' (deny by default)."""
     inventory = parse_inventory(INVENTORY + DEVICES, str(tmp_path / "inventory.toml"))
     acl = access_control(inventory)
-    puts = _allowed(acl, "agent-gl", "put", "ingress")
+    # A gripper mounted on a1 is served by a1's agent (one process, one identity, by default).
+    puts = _allowed(acl, "agent-a1", "put", "ingress")
     assert "fleet/lab/gripper/gl/state" in puts and "fleet/lab/gripper/gl/estop/ack" in puts
-    assert not any("/gr/" in key or "/h1/" in key or "/arm/" in key for key in puts)
-    assert _allowed(acl, "agent-gl", "declare_queryable", "ingress") == {
-        "fleet/lab/gripper/gl/cmd/*"
-    }
+    assert "fleet/lab/arm/a1/joints" in puts
+    assert not any("/gr/" in key or "/h1/" in key or "/a2/" in key for key in puts)
+    assert "fleet/lab/gripper/gl/cmd/*" in _allowed(acl, "agent-a1", "declare_queryable", "ingress")
     cell2 = _allowed(acl, "agent-cell2", "put", "ingress")
     assert "fleet/lab/gripper/gr/state" in cell2 and "fleet/lab/arm/a2/joints" in cell2
     assert "fleet/lab/g1/h1/state" in _allowed(acl, "agent-h1", "put", "ingress")
@@ -138,6 +138,10 @@ def test_device_agents_publish_their_devices_and_only_commanders_command(tmp_pat
     assert "fleet/lab/gripper/*/cmd/kiosk" not in _allowed(acl, "kiosk", "query", "ingress")
     assert "fleet/lab/g1/*/estop" in _allowed(acl, "kiosk", "put", "ingress")
     assert "fleet/lab/g1/*/reset" not in _allowed(acl, "kiosk", "put", "ingress")
-    assert not any("/gripper/" in k for k in _allowed(acl, "agent-a1", "put", "ingress"))
+    assert not any("/gripper/" in k for k in _allowed(acl, "agent-h1", "put", "ingress"))
     coordinator = _allowed(acl, "coordinator", "declare_subscriber", "ingress")
     assert {"fleet/lab/gripper/*/state", "fleet/lab/g1/*/estop/ack"} <= coordinator
+    # The router's 4 KiB limit covers the devices' commands, stops and resets (issue 21).
+    small = next(f for f in payload_limits(inventory) if f["id"] == "commands")["key_exprs"]
+    for kind in ("gripper", "g1"):
+        assert {f"fleet/lab/{kind}/*/{k}" for k in ("cmd/**", "estop", "reset")} <= set(small)

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import numpy as np
 from foxglove.messages import FrameTransforms
 from mcap.reader import make_reader
@@ -19,6 +20,7 @@ from fleet.record.replay import recorded_joints
 from fleet.wire import messages as m
 from tests.foxglove_client import FoxgloveClient, protobuf_class
 from tests.harness import FleetHarness, free_port, wait_until
+from tests.test_channels import STATE as GRIP_STATE
 from viewer.frames3d import ArmFrames, transforms_topic, urdf_topic
 from viewer.kinematics import matrix_to_wxyz
 from viewer.replay import replay_source
@@ -101,6 +103,12 @@ def test_live_bridge_speaks_foxglove(tmp_path: Path) -> None:
             assert tf["schemaName"] == "foxglove.FrameTransforms" and tf["encoding"] == "protobuf"
             assert topics[joints_key]["encoding"] == "json"
             assert topics[joints_key]["schemaEncoding"] == "jsonschema"
+            # Device keys are bridged with their kind's schema (issue 21).
+            grip_key = "fleet/test/gripper/gx/state"
+            for _ in range(3):
+                client.session.put(grip_key, msgspec.json.encode(GRIP_STATE))
+            grip = fox.wait_for_topics({grip_key}, 10.0)[grip_key]
+            assert grip["encoding"] == "json" and "GripperState" in grip["schema"]
             fox.subscribe(transforms_topic("a2"), joints_key, urdf_topic("a2"))
             joints: dict[int, list[float]] = {}
             checked, urdf = 0, None

@@ -112,3 +112,113 @@ def test_parser_refuses_foreign_keys(key: str) -> None:
 def test_key_error_is_a_value_error_not_the_builtin() -> None:
     assert issubclass(KeyError_, ValueError)
     assert not issubclass(KeyError_, KeyError)
+
+
+# ----------------------------------------------------------------------------- parse_key
+
+
+def _all_builders(ks: KeySpace) -> list[tuple[str, keys.Key]]:
+    """Every key the builders spell, with the parse the one parser must give."""
+    f = ks.fleet
+    out = [(ks.arm("a1", c), keys.Key(f, keys.ARM, "a1", c)) for c in keys.ARM_CHANNELS]
+    out += [
+        (ks.device(k, "d-1", c), keys.Key(f, k, "d-1", c))
+        for k in keys.DEVICE_KINDS
+        for c in keys.DEVICE_CHANNELS
+    ]
+    out += [
+        (ks.command("a1", "ann"), keys.Key(f, keys.ARM, "a1", keys.CMD, "ann")),
+        (ks.device_command("g1", "h1", "ann"), keys.Key(f, "g1", "h1", keys.CMD, "ann")),
+        (ks.state, keys.Key(f, "", "", keys.STATE)),
+        (ks.estop, keys.Key(f, "", "", keys.ESTOP)),
+        (ks.reset, keys.Key(f, "", "", keys.RESET)),
+        (ks.stop_report, keys.Key(f, "", "", keys.STOP_REPORT)),
+        (ks.coordinator_diag, keys.Key(f, "", "", keys.COORDINATOR_DIAG)),
+        (ks.heartbeat_of("bob"), keys.Key(f, "", "", keys.HEARTBEAT, "bob")),
+        (ks.coordinator_command("bob"), keys.Key(f, "", "", keys.COORDINATOR_CMD, "bob")),
+        (ks.info("agent", "host-1"), keys.Key(f, "", "agent/host-1", keys.INFO)),
+    ]
+    return out
+
+
+def test_one_parser_reads_every_key_the_builders_spell() -> None:
+    ks = KeySpace("lab")
+    for key, parsed in _all_builders(ks):
+        assert ks.parse_key(key) == parsed, key
+
+
+@given(
+    fleet=NAMES,
+    unit=NAMES,
+    principal=NAMES,
+    kind=st.sampled_from(keys.DEVICE_KINDS),
+    channel=st.sampled_from(keys.DEVICE_CHANNELS),
+)
+def test_device_keys_round_trip(
+    fleet: str, unit: str, principal: str, kind: str, channel: str
+) -> None:
+    ks = KeySpace(fleet)
+    assert ks.parse_key(ks.device(kind, unit, channel)) == keys.Key(fleet, kind, unit, channel)
+    assert ks.parse_device_key(ks.device(kind, unit, channel), kind).device == unit
+    command = ks.device_command(kind, unit, principal)
+    assert ks.parse_key(command) == keys.Key(fleet, kind, unit, keys.CMD, principal)
+    assert ks.principal_of(command) == principal
+
+
+@pytest.mark.parametrize(
+    "key",
+    [
+        "fleet/lab",
+        "fleet/lab/",
+        "fleet/other/state",
+        "fleet/lab/arm/*/joints",
+        "fleet/lab/arm/a1",
+        "fleet/lab/arm/a1/",
+        "fleet/lab/arm/a1/state",  # a device channel under an arm
+        "fleet/lab/gripper/gl/joints",  # an arm channel under a device
+        "fleet/lab/gripper/gl/sim/fault",
+        "fleet/lab/robot/r1/state",  # no such kind
+        "fleet/lab/gripper/gl/cmd/",
+        "fleet/lab/gripper/gl/cmd/a/b",
+        "fleet/lab/gripper/gl/cmd/*",
+        "fleet/lab/heartbeat/",
+        "fleet/lab/heartbeat/a/b",
+        "fleet/lab/info/agent",
+        "fleet/lab/state/x",
+        "fleet/lab/estop/ack",
+        "fleet/lab/coordinator/cmd",
+        "fleet/lab/gripper/g l/state",
+    ],
+)
+def test_parse_key_refuses_what_is_no_key(key: str) -> None:
+    with pytest.raises(KeyError_):
+        KeySpace("lab").parse_key(key)
+
+
+def test_the_narrow_parsers_keep_to_their_kind() -> None:
+    ks = KeySpace("lab")
+    with pytest.raises(KeyError_):
+        ks.parse_arm_key(ks.device("gripper", "gl", keys.STATE))
+    with pytest.raises(KeyError_):
+        ks.parse_arm_key(ks.command("a1", "ann"))
+    with pytest.raises(KeyError_):
+        ks.parse_device_key(ks.device("gripper", "gl", keys.STATE), "g1")
+    with pytest.raises(KeyError_):
+        ks.parse_device_key(ks.arm("a1", keys.CMD), "arm")
+    with pytest.raises(KeyError_):
+        ks.principal_of(ks.arm("a1", keys.CMD))
+    with pytest.raises(KeyError_, match="unknown device kind"):
+        ks.device("robot", "r1", keys.STATE)
+
+
+def test_the_device_kinds_of_the_key_space_are_the_registered_ones() -> None:
+    from fleet.devices import kinds
+
+    assert sorted(kinds()) == sorted(keys.DEVICE_KINDS)
+
+
+def test_a_key_of_any_fleet_parses_without_its_keyspace() -> None:
+    assert keys.parse_key("fleet/other/g1/h1/state") == keys.Key("other", "g1", "h1", keys.STATE)
+    for bad in ("fleet", "fleet//state", "robot/lab/state", "fleet/a b/state"):
+        with pytest.raises(KeyError_):
+            keys.parse_key(bad)

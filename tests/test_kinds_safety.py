@@ -9,6 +9,7 @@ undecodable stop still stops, and a flood on the command key does not delay a st
 from __future__ import annotations
 
 import random
+import signal
 import threading
 import time
 import uuid
@@ -226,8 +227,9 @@ def test_latch_survives_an_agent_restart(fleet: FleetHarness, kind: Kind) -> Non
     watch = _ready(client, kind)
     acks = client.estop(kind.unit, reason="before restart", wait_still=False)
     assert all(a is not None for a in acks.values()), acks
-    import signal
-
+    # The latch is on disk once its file is (written just after the stop's DDS write).
+    latch_file = fleet.tmp_path / "state" / fleet.inventory.fleet / f"{kind.unit}.stop.json"
+    wait_until(latch_file.exists, 5.0)
     fleet.stop("agent", signal.SIGKILL)
     fleet.start("agent", ["-m", "edge_agent", "--interface", "lo"])
     # Back: still stopped, motion refused until an operator resets.

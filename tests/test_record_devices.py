@@ -1,7 +1,7 @@
 """``fleet record`` records the devices beside the arms (issue 14): a gripper's state and a
-G1's state are in the file with their own schemas, and what reads recordings and knows only
-arm keys (``fleet replay`` read-only, ``fleet viewer --replay``) still works on it, ignoring
-them. Real processes: a router, ``fleet sim`` (one arm, a gripper, a G1), the arm's agent,
+G1's state are in the file with their own schemas; ``fleet replay`` read-only re-publishes every
+kind's state (issue 21), and ``fleet viewer --replay`` (arms only) still works on it. Real
+processes: a router, ``fleet sim`` (one arm, a gripper, a G1), the arm's agent,
 one devices agent, ``fleet record``."""
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from tests.test_record_e2e import FLEET_CLI, _exited
 EXTRA = '[grippers.gl]\nmount = "a1"\n\n[g1.h1]\n'
 
 
-def test_devices_recorded_and_replay_ignores_them(tmp_path: Path) -> None:
+def test_devices_recorded_and_replayed(tmp_path: Path) -> None:
     path = tmp_path / "mixed.mcap"
     with FleetHarness(tmp_path, arms=1, extra=EXTRA) as fleet:
         fleet.start_router()
@@ -71,8 +71,11 @@ def test_devices_recorded_and_replay_ignores_them(tmp_path: Path) -> None:
         finally:
             sub.undeclare()
         assert published > 0
-        with lock:
-            assert heard and all("/arm/a1/" in key for key in heard), heard[:5]
+        with lock:  # every kind's state is replayed (issue 21), never a command or a stop
+            replayed = set(heard)
+        assert {"fleet/replayed/gripper/gl/state", "fleet/replayed/g1/h1/state"} <= replayed
+        assert "fleet/replayed/arm/a1/joints" in replayed
+        assert not any(k.endswith(("/estop", "/reset")) or "/cmd/" in k for k in replayed)
     from viewer.replay import replay_source
 
     source = replay_source(recording)  # what `fleet viewer --replay` shows

@@ -52,6 +52,14 @@ BRIDGED = frozenset(
         keys.STOP_REPORT,
         keys.STATE,
         keys.COORDINATOR_DIAG,
+        # Every device kind's state, contacts, stops, acks and diag (issue 21): rows of the
+        # channel table (resets and commands stay off, as for arms' commands).
+        *(
+            f"{kind}/{channel}"
+            for kind in keys.DEVICE_KINDS
+            for channel in (keys.STATE, keys.CONTACT, keys.DIAG, keys.ESTOP, keys.ESTOP_ACK)
+            if f"{kind}/{channel}" in payloads.CHANNELS
+        ),
     }
 )
 

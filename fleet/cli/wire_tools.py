@@ -19,6 +19,8 @@ import zenoh
 
 from fleet import tap
 from fleet.client import FleetClient
+from fleet.devices import kind_of
+from fleet.inventory import Inventory
 from fleet.runtime import inventory_from_args, shutdown_event
 from fleet.sim import faults
 from fleet.wire import keys, payloads
@@ -46,9 +48,9 @@ def register(
     _add_bounds(hz)
     hz.set_defaults(run=run_hz)
 
-    diag = sub.add_parser("diag", help="the agents' diag counters as a table")
+    diag = sub.add_parser("diag", help="the agents' diag counters as a table (arms and devices)")
     add_common(diag)
-    diag.add_argument("arm", nargs="?", help="one arm (default: every arm)")
+    diag.add_argument("arm", nargs="?", help="one arm or device (default: every arm and device)")
     diag.add_argument("--watch", action="store_true", help="refresh every second until Ctrl-C")
     diag.add_argument("--json", action="store_true", help="machine-readable output")
     diag.set_defaults(run=run_diag)
@@ -189,40 +191,73 @@ DIAG_COLUMNS = (
 )
 
 
-def diag_lines(arms: list[str], diags: dict[str, m.Diag]) -> list[str]:
-    """A header and one line per arm (``-`` for an arm whose agent published no diag), and the
-    last error under an arm that has one."""
-    header = f"{'arm':<8} " + " ".join(f"{title:>{w}}" for _f, title, w in DIAG_COLUMNS)
+def diag_lines(units: list[str], diags: dict[str, m.Diag]) -> list[str]:
+    """A header and one line per arm or device (``-`` for one whose agent published no diag),
+    and the last error under one that has one. Devices are named ``<kind>/<id>``."""
+    width = max([8, *(len(u) + 1 for u in units)])
+    header = f"{'unit':<{width}} " + " ".join(f"{title:>{w}}" for _f, title, w in DIAG_COLUMNS)
     lines = [header]
-    for arm in arms:
-        diag = diags.get(arm)
+    for unit in units:
+        diag = diags.get(unit)
         if diag is None:
-            lines.append(f"{arm:<8} " + " ".join(f"{'-':>{w}}" for _f, _t, w in DIAG_COLUMNS))
+            cells = " ".join(f"{'-':>{w}}" for _f, _t, w in DIAG_COLUMNS)
+            lines.append(f"{unit:<{width}} {cells}")
             continue
-        cells = []
-        for field, _title, width in DIAG_COLUMNS:
+        texts = []
+        for field, _title, w in DIAG_COLUMNS:
             value = getattr(diag, field)
             text = "-" if value is None else f"{value:.1f}" if isinstance(value, float) else value
-            cells.append(f"{text!s:>{width}}")
-        lines.append(f"{arm:<8} " + " ".join(cells))
+            texts.append(f"{text!s:>{w}}")
+        lines.append(f"{unit:<{width}} " + " ".join(texts))
         if diag.last_error:
-            lines.append(f"{'':<8} last error: {diag.last_error[:100]}")
+            lines.append(f"{'':<{width}} last error: {diag.last_error[:100]}")
     return lines
 
 
+def diag_units(inventory: Inventory, which: str | None) -> list[str]:
+    """Every arm id and device ``<kind>/<id>`` of the inventory, or the one ``which`` names
+    (an arm id, a device id or ``<kind>/<id>``); InventoryError for an unknown one."""
+    devices = {f"{kind_of(d).key}/{d.id}": d.id for d in inventory.devices.values()}
+    if which is None:
+        return [*inventory.arms, *devices]
+    if which in inventory.arms:
+        return [which]
+    for label, device in devices.items():
+        if which in (label, device):
+            return [label]
+    inventory.arm(which)  # raises, naming the known arms
+    return []
+
+
+def _diag_key_label(space: keys.KeySpace, key: str) -> str | None:
+    """``a1`` for an arm's diag key, ``gripper/gl`` for a device's; None for anything else."""
+    try:
+        parsed = space.parse_key(key)
+    except keys.KeyError_:
+        return None
+    if parsed.channel != keys.DIAG or parsed.kind == keys.FLEET_LEVEL:
+        return None
+    return parsed.unit if parsed.kind == keys.ARM else f"{parsed.kind}/{parsed.unit}"
+
+
 def _collect_diag(client: FleetClient, units: list[str], wait_s: float) -> dict[str, m.Diag]:
-    """The newest diag of each arm and device of ``units`` (the same payload for every kind)."""
     inbox = _Inbox()
-    diag_keys = {client.unit_key(u, keys.DIAG): u for u in units}
-    subscribers = [client.session.declare_subscriber(key, inbox) for key in diag_keys]
+    wanted = [client.keys.all_arms(keys.DIAG)]
+    wanted += [client.keys.device(k, "*", keys.DIAG) for k in keys.DEVICE_KINDS]
+    subscribers = [client.session.declare_subscriber(key, inbox) for key in wanted]
     got: dict[str, m.Diag] = {}
     deadline = time.monotonic() + wait_s
     try:
         while not all(u in got for u in units) and time.monotonic() < deadline:
             try:
                 key, data, _stamp, _now = inbox.queue.get(timeout=0.1)
-                got[diag_keys[key]] = payloads.DIAG.decode(data)
-            except (queue.Empty, KeyError, payloads.PayloadError):
+            except queue.Empty:
+                continue
+            label = _diag_key_label(client.keys, key)
+            try:
+                if label is not None:
+                    got[label] = payloads.DIAG.decode(data)
+            except payloads.PayloadError:
                 continue
     finally:
         for subscriber in subscribers:
@@ -232,25 +267,21 @@ def _collect_diag(client: FleetClient, units: list[str], wait_s: float) -> dict[
 
 def run_diag(args: argparse.Namespace) -> int:
     """The diag counters (published at 1 Hz) of every arm and device, or of one; exit 3 when
-    one is missing (its agent down)."""
+    one is missing (its agent down, or a device agent that publishes none)."""
     inventory = inventory_from_args(args)
-    if args.arm:
-        device = args.arm.rpartition("/")[2]
-        arms = [device] if device in inventory.devices else [inventory.arm(args.arm).id]
-    else:
-        arms = [*inventory.arms, *inventory.devices]
+    units = diag_units(inventory, args.arm)
     stop = shutdown_event()
     complete = False
     with FleetClient(inventory, connect_timeout_s=args.connect_timeout) as client:
         printed = 0
         while True:
-            diags = _collect_diag(client, arms, wait_s=1.6)
-            complete = all(a in diags for a in arms)
+            diags = _collect_diag(client, units, wait_s=1.6)
+            complete = all(u in diags for u in units)
             if args.json:
-                out = {a: msgspec.to_builtins(diags[a]) if a in diags else None for a in arms}
+                out = {u: msgspec.to_builtins(diags[u]) if u in diags else None for u in units}
                 print(json.dumps(out), flush=True)
             else:
-                lines = diag_lines(arms, diags)
+                lines = diag_lines(units, diags)
                 if printed and sys.stdout.isatty():
                     print(f"\033[{printed}F\033[J", end="")
                 print("\n".join(lines), flush=True)

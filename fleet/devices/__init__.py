@@ -24,7 +24,8 @@ _KIND_MODULES = ("fleet.dex1.kind", "fleet.g1.kind")
 class DeviceKind:
     """One kind of device. ``key``: its word in the key space (``fleet/<fleet>/<key>/<id>/``);
     ``section``: its inventory table; ``config``: the Struct of one device (a ``DeviceBase``);
-    ``check``: what is wrong with a config (None: fine); ``payloads``: channel -> payload kind;
+    ``check``: what is wrong with a config (None: fine); ``payloads``: channel -> payload kind
+    (the kind's rows of ``fleet.wire.payloads.CHANNELS``: ``device_payloads(key)``);
     ``summary``: one line of ``fleet status`` from a decoded state; ``agent`` / ``sim``:
     ``module:function`` building the agent relay / the simulated device."""
 

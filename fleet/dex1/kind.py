@@ -5,9 +5,9 @@ from __future__ import annotations
 
 from fleet.devices import DeviceKind
 from fleet.dex1.config import GripperConfig, check_gripper
-from fleet.dex1.messages import GripEvent, GripperCommand, GripperState
+from fleet.dex1.messages import GripperState
 from fleet.wire import keys
-from fleet.wire.payloads import KIB, payload_kind
+from fleet.wire.payloads import device_payloads
 
 
 def summary(state: GripperState) -> str:
@@ -22,15 +22,11 @@ def summary(state: GripperState) -> str:
 
 
 KIND = DeviceKind(
-    key="gripper",
+    key=keys.GRIPPER,
     section="grippers",
     config=GripperConfig,
     check=check_gripper,
-    payloads={
-        keys.STATE: payload_kind("gripper state", GripperState, 4 * KIB),
-        keys.CMD: payload_kind("gripper command", GripperCommand, 4 * KIB),
-        keys.CONTACT: payload_kind("gripper contact", GripEvent, 4 * KIB),
-    },
+    payloads=device_payloads(keys.GRIPPER),
     summary=summary,
     agent="fleet.dex1.relay:GripperDriver",
     sim="fleet.dex1.sim:SimGripper",

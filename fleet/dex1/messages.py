@@ -9,8 +9,8 @@ from typing import Annotated, Literal
 
 from msgspec import Meta, Struct
 
-from fleet.devices.base import DeviceCommand, Release
-from fleet.wire.messages import Count, Name, StampNs, Text
+from fleet.wire.messages import Count, DeviceCommand, Name, StampNs, Text
+from fleet.wire.messages import DeviceRelease as Release
 
 Radians = Annotated[float, Meta(ge=-100.0, le=100.0)]
 Gain = Annotated[float, Meta(ge=0.0, le=10000.0)]

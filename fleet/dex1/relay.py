@@ -40,10 +40,10 @@ from fleet.dex1.codec import (
 )
 from fleet.dex1.config import GripperConfig
 from fleet.dex1.grip import GripChange, GripDetector
-from fleet.dex1.messages import GripEvent, GripperCommand, GripperHold, GripperMove, GripperState
+from fleet.dex1.messages import GripEvent, GripperHold, GripperMove, GripperState
 from fleet.wire import keys
 from fleet.wire import messages as m
-from fleet.wire.payloads import payload_kind
+from fleet.wire.payloads import GRIPPER_COMMAND
 
 log = logging.getLogger("edge_agent.gripper")
 
@@ -55,7 +55,7 @@ the stop's confirmation see every sample within this; a batch is 10 samples at 5
 BATCH_SPAN_S = 0.2
 """A sample's age within a batch is bounded by this (the writer's stamps are not trusted)."""
 ANY_SAMPLE = SampleState.Any | ViewState.Any | InstanceState.Any
-COMMAND = payload_kind("gripper command", GripperCommand, 4 * 1024)
+COMMAND = GRIPPER_COMMAND
 STILL_RAD_S = 0.05
 """A held gripper is confirmed still below this speed (measured over 20 ms)."""
 

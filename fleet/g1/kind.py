@@ -5,9 +5,9 @@ from __future__ import annotations
 
 from fleet.devices import DeviceKind
 from fleet.g1.config import G1Config, check_g1
-from fleet.g1.messages import G1Command, G1State
+from fleet.g1.messages import G1State
 from fleet.wire import keys
-from fleet.wire.payloads import KIB, payload_kind
+from fleet.wire.payloads import device_payloads
 
 
 def summary(state: G1State) -> str:
@@ -17,14 +17,11 @@ def summary(state: G1State) -> str:
 
 
 KIND = DeviceKind(
-    key="g1",
+    key=keys.G1,
     section="g1",
     config=G1Config,
     check=check_g1,
-    payloads={
-        keys.STATE: payload_kind("g1 state", G1State, 4 * KIB),
-        keys.CMD: payload_kind("g1 command", G1Command, 4 * KIB),
-    },
+    payloads=device_payloads(keys.G1),
     summary=summary,
     agent="fleet.g1.relay:G1Driver",
     sim="fleet.g1.sim:SimG1",

@@ -6,8 +6,8 @@ from typing import Annotated, Literal
 
 from msgspec import Meta, Struct
 
-from fleet.devices.base import DeviceCommand, Release
-from fleet.wire.messages import Count, StampNs, Text
+from fleet.wire.messages import Count, DeviceCommand, StampNs, Text
+from fleet.wire.messages import DeviceRelease as Release
 
 Speed = Annotated[float, Meta(ge=-10.0, le=10.0)]
 

@@ -28,14 +28,14 @@ from fleet.devices.base import DeviceReply, Release
 from fleet.devices.driver import Done, DriverBase, LatchView, Put, error_reply
 from fleet.g1 import idl, loco
 from fleet.g1.config import G1Config
-from fleet.g1.messages import OPS, Damp, G1Command, G1State, GetFsmId, SetVelocity, StopMove
+from fleet.g1.messages import OPS, Damp, G1State, GetFsmId, SetVelocity, StopMove
 from fleet.wire import keys
 from fleet.wire import messages as m
-from fleet.wire.payloads import KIB, payload_kind
+from fleet.wire.payloads import G1_COMMAND
 
 log = logging.getLogger("edge_agent.g1")
 
-COMMAND = payload_kind("g1 command", G1Command, 4 * KIB)
+COMMAND = G1_COMMAND
 STATE_READER_QOS = Qos(
     Policy.Reliability.BestEffort, Policy.History.KeepLast(64), Policy.Durability.Volatile
 )

@@ -49,7 +49,7 @@ log = logging.getLogger("fleet.record")
 
 RECORDED_CHANNELS: tuple[str, ...] = (keys.JOINTS, keys.STATUS, keys.CONTACT, keys.RAW_COMMAND)
 RECORDED_CHANNELS += (keys.ESTOP, keys.ESTOP_ACK, keys.DIAG)
-DEVICE_CHANNELS: tuple[str, ...] = (keys.STATE, keys.CONTACT, keys.ESTOP_ACK)
+DEVICE_CHANNELS: tuple[str, ...] = (keys.STATE, keys.CONTACT, keys.ESTOP, keys.ESTOP_ACK, keys.DIAG)
 """A device's keys recorded (issue 14): its state (at its relay rate), grip events, stop acks."""
 QUEUE_DEPTH = 20000
 """Samples waiting for the recorder thread, at most: half a second of a 40,000/s burst."""
@@ -149,7 +149,7 @@ class Recorder:
         # Devices: their routes are known up front (a bounded set), so _where finds them.
         self._device_routes: dict[str, PayloadKind[Any]] = {}
         for device, kind in (devices or {}).items():
-            decoders = {**kind.payloads, keys.ESTOP_ACK: payloads.STOP_ACK}
+            decoders = kind.payloads  # the kind's rows of the channel table
             for channel in DEVICE_CHANNELS:
                 if channel not in decoders:  # a kind without it (a G1 reports no grips)
                     continue

@@ -25,6 +25,9 @@ from fleet.wire import keys, payloads
 from fleet.wire import messages as m
 
 REPLAYED_CHANNELS = (keys.JOINTS, keys.STATUS, keys.CONTACT)
+"""An arm's state channels that a read-only replay re-publishes."""
+REPLAYED_DEVICE_CHANNELS = (keys.STATE, keys.CONTACT)
+"""A device's (every kind's) state channels that a read-only replay re-publishes."""
 APPROACH_SPEED_DEG_S = 30.0
 TEACH_MAX_SPEED_DEG_S = 120.0
 """A recorded motion faster than this (a hand can fling an unloaded arm) is refused on replay;
@@ -36,11 +39,29 @@ off (a stray put, a clock step) would otherwise make the resampling loop run for
 
 def _split(key: str) -> tuple[str, str, str] | None:
     """(fleet, arm, channel) of a recorded arm key; None for anything else."""
-    parts = key.split("/", 4)
-    if len(parts) != 5 or parts[0] != "fleet" or parts[2] != "arm":
+    parsed = _parsed(key)
+    if parsed is None or parsed.kind != keys.ARM or parsed.principal:
         return None
-    fleet, arm, channel = parts[1], *parts[3:5]
-    return (fleet, arm, channel) if channel in keys.ARM_CHANNELS else None
+    return parsed.fleet, parsed.unit, parsed.channel
+
+
+def _parsed(key: str) -> keys.Key | None:
+    try:
+        return keys.parse_key(key)
+    except keys.KeyError_:
+        return None
+
+
+def _replayed(key: str) -> keys.Key | None:
+    """The parsed key if a read-only replay re-publishes it: state, never a command or stop."""
+    parsed = _parsed(key)
+    if parsed is None or parsed.principal:
+        return None
+    if parsed.kind == keys.ARM and parsed.channel in REPLAYED_CHANNELS:
+        return parsed
+    if parsed.kind in keys.DEVICE_KINDS and parsed.channel in REPLAYED_DEVICE_CHANNELS:
+        return parsed
+    return None
 
 
 def recorded_joints(
@@ -129,25 +150,23 @@ def replay_read_only(
     stop: threading.Event,
     speed: float = 1.0,
 ) -> int:
-    """Re-publish the state keys under ``fleet/<fleet>/...`` at the recorded pace; returns the
-    number of samples published. Never publishes a command, stop or reset key."""
+    """Re-publish the state keys of every kind (arms' joints, status and contacts, devices'
+    state and contacts) under ``fleet/<fleet>/...`` at the recorded pace; returns the number of
+    samples published. Never publishes a command, stop or reset key."""
     space = keys.KeySpace(fleet)
-    state = [r for r in messages if (s := _split(r.key)) is not None and s[2] in REPLAYED_CHANNELS]
+    state = [(r, p) for r in messages if (p := _replayed(r.key)) is not None]
     if not state:
         return 0
-    start_log, start = state[0].log_time_ns, time.monotonic()
+    start_log, start = state[0][0].log_time_ns, time.monotonic()
     published = 0
-    for record in state:
-        split = _split(record.key)
-        assert split is not None
+    for record, parsed in state:
         due = start + (record.log_time_ns - start_log) / 1e9 / speed
         if stop.wait(max(0.0, due - time.monotonic())):
             break
-        try:
-            session.put(
-                space.arm(split[1], split[2]), record.data, encoding=zenoh.Encoding.APPLICATION_JSON
-            )
-        except keys.KeyError_:
-            continue
+        if parsed.kind == keys.ARM:
+            key = space.arm(parsed.unit, parsed.channel)
+        else:
+            key = space.device(parsed.kind, parsed.unit, parsed.channel)
+        session.put(key, record.data, encoding=zenoh.Encoding.APPLICATION_JSON)
         published += 1
     return published

@@ -180,11 +180,13 @@ def payload_limits(inventory: Inventory) -> list[dict[str, Any]]:
         f"{f}/reset",
         f"{f}/arm/*/reset",
     ]
-    # Device keys are NOT added here: with `<kind>/*/cmd/**`, `<kind>/*/estop` and
-    # `<kind>/*/reset` in this filter, zenohd 1.x's router stopped passing anything in the
-    # secure demo (every arm and device offline; tests/test_security.py) -- not investigated.
-    # Device commands, stops and resets are bounded by the "everything" filter below and by
-    # the device agent's own 4 KiB decode limit.
+    for kind in _device_kinds(inventory):
+        small += [f"{f}/{kind}/*/cmd/**", f"{f}/{kind}/*/estop", f"{f}/{kind}/*/reset"]
+    # Every kind's command, stop and reset keys (issue 21). zenoh 1.10's low-pass filter
+    # (zenoh/src/net/routing/interceptor/low_pass.rs) takes, per message, the smallest
+    # size_limit among the filter keys that include the message's key: it only ever drops
+    # messages over a limit, so these keys cannot stop small traffic (tests/test_router_limits.py
+    # and the secure demo pass with them; the break reported with 4319b77 did not reproduce).
     messages = ["put", "delete", "query", "reply"]
     return [
         {

@@ -1,8 +1,10 @@
 """The Zenoh key space: the only place a key expression is spelled.
 
 Every key lives under ``fleet/<fleet>``; see the README's key-space table for payloads and
-publishers. Builders return strings; ``parse_arm_key`` turns a concrete key back into
-(arm, channel) so subscribers on wildcards can route samples.
+publishers. Builders return strings; ``KeySpace.parse_key`` is the one parser: it turns any
+concrete key of the fleet back into (kind, unit, channel, principal), for arms, device kinds
+and the fleet-level keys alike, so subscribers on wildcards can route samples
+(``parse_arm_key`` / ``parse_device_key`` are its narrow forms).
 """
 
 from __future__ import annotations
@@ -51,6 +53,21 @@ ARM_CHANNELS = (
 )
 
 
+# Unit kinds: the word after fleet/<fleet>/ of a per-unit key
+ARM = "arm"
+GRIPPER = "gripper"
+G1 = "g1"
+DEVICE_KINDS = (GRIPPER, G1)
+"""Key words of the device kinds beside the D1 arm (``fleet/devices`` registers one kind per
+word; tests/test_keys.py keeps the two lists equal)."""
+FLEET_LEVEL = ""
+"""The ``kind`` of a parsed key directly under ``fleet/<fleet>/`` (state, estop, heartbeat...)."""
+FLEET_CHANNELS = (STATE, ESTOP, RESET, STOP_REPORT, COORDINATOR_DIAG)
+"""Keys directly under ``fleet/<fleet>/`` with nothing after them."""
+_NAMED_CHANNELS = ((HEARTBEAT, 1), (COORDINATOR_CMD, 1), (INFO, 2))
+"""Fleet-level channels followed by names: ``heartbeat/<principal>``,
+``coordinator/cmd/<principal>``, ``info/<role>/<instance>``."""
+
 DEVICE_CHANNELS = (STATE, CMD, CONTACT, AGENT, DIAG, ESTOP, ESTOP_ACK, RESET)
 """Channels under ``fleet/<fleet>/<kind>/<device>/`` for the device kinds beside the D1 arm
 (``fleet/devices``: ``gripper``, ``g1``): the same words as the arm's, one meaning each."""
@@ -83,6 +100,23 @@ class ArmKey(Struct, frozen=True):
     channel: str
 
 
+class Key(Struct, frozen=True):
+    """Any concrete key of a fleet, parsed (``KeySpace.parse_key``).
+
+    ``kind``: ``arm``, a device kind's word (``gripper``, ``g1``) or ``FLEET_LEVEL`` ("") for
+    a key directly under the fleet; ``unit``: the arm's or device's id ("" at fleet level,
+    ``<role>/<instance>`` for ``info``); ``channel``: an ``ARM_CHANNELS`` / ``DEVICE_CHANNELS``
+    word, or a fleet-level one (``state``, ``estop``, ``heartbeat``, ``coordinator/cmd``...);
+    ``principal``: the name a ``cmd/<principal>``, ``heartbeat/<principal>`` or
+    ``coordinator/cmd/<principal>`` key ends with ("" for every other key)."""
+
+    fleet: str
+    kind: str
+    unit: str
+    channel: str
+    principal: str = ""
+
+
 class DeviceKey(Struct, frozen=True):
     """A concrete per-device key, parsed (``kind`` is a device kind's key word)."""
 
@@ -110,9 +144,10 @@ class KeySpace:
     def device(self, kind: str, device: str, channel: str) -> str:
         """``fleet/<fleet>/<kind>/<device>/<channel>`` (``device`` may be ``*``); ``kind`` is
         a device kind's key word (``gripper``, ``g1``), never ``arm``."""
-        check_name("device kind", kind)
-        if kind == "arm":
+        if kind == ARM:
             raise KeyError_("arms have their own keys: use KeySpace.arm")
+        if kind not in DEVICE_KINDS:
+            raise KeyError_(f"unknown device kind {kind!r} (known: {', '.join(DEVICE_KINDS)})")
         if device != "*":
             check_name("device", device)
         if channel not in DEVICE_CHANNELS:
@@ -124,12 +159,15 @@ class KeySpace:
         return f"{self.device(kind, device, CMD)}/{check_name('principal', principal)}"
 
     def parse_device_key(self, key: str, kind: str) -> DeviceKey:
-        """Split ``fleet/<fleet>/<kind>/<device>/<channel>``; KeyError_ for anything else."""
-        head = f"{self.prefix}/{kind}/"
-        device, _, channel = key[len(head) :].partition("/")
-        if not key.startswith(head) or channel not in DEVICE_CHANNELS or not _NAME.match(device):
+        """Split ``fleet/<fleet>/<kind>/<device>/<channel>``; KeyError_ for anything else
+        (``cmd/<principal>`` included: ``parse_key`` gives its principal)."""
+        try:
+            parsed = self.parse_key(key)
+        except KeyError_:
+            parsed = None
+        if parsed is None or parsed.kind != kind or kind == ARM or parsed.principal:
             raise KeyError_(f"{key!r} is not a {kind} key of fleet {self.fleet!r}")
-        return DeviceKey(self.fleet, kind, device, channel)
+        return DeviceKey(self.fleet, kind, parsed.unit, parsed.channel)
 
     def all_arms(self, channel: str) -> str:
         """A wildcard over every arm for one channel."""
@@ -203,24 +241,54 @@ class KeySpace:
 
     def principal_of(self, key: str) -> str:
         """The principal a heartbeat or command key ends with; raises KeyError_ otherwise."""
-        principal = key.rpartition("/")[2]
-        for base in (f"/{HEARTBEAT}/", f"/{COORDINATOR_CMD}/"):
-            if key == f"{self.prefix}{base}{principal}" and _NAME.match(principal):
-                return principal
-        try:
-            arm_key = self.parse_arm_key(key.rpartition("/")[0])
-        except KeyError_:
-            arm_key = None
-        if arm_key is None or arm_key.channel != CMD or not _NAME.match(principal):
+        principal = self.parse_key(key).principal
+        if not principal:
             raise KeyError_(f"{key!r} names no principal of fleet {self.fleet!r}")
         return principal
 
     def parse_arm_key(self, key: str) -> ArmKey:
-        """Split ``fleet/<fleet>/arm/<arm>/<channel>``; raises KeyError_ for anything else."""
-        head = f"{self.prefix}/arm/"
+        """Split ``fleet/<fleet>/arm/<arm>/<channel>``; raises KeyError_ for anything else
+        (``cmd/<principal>`` included: ``parse_key`` gives its principal)."""
+        try:
+            parsed = self.parse_key(key)
+        except KeyError_:
+            parsed = None
+        if parsed is None or parsed.kind != ARM or parsed.principal:
+            raise KeyError_(f"{key!r} is not an arm key of fleet {self.fleet!r}")
+        return ArmKey(self.fleet, parsed.unit, parsed.channel)
+
+    def parse_key(self, key: str) -> Key:
+        """THE key parser: any concrete key of this fleet as a ``Key``; KeyError_ for a key
+        of another fleet, a wildcard, a name that is not usable, or a channel nobody uses."""
+        head = self.prefix + "/"
         if not key.startswith(head):
-            raise KeyError_(f"{key!r} is not an arm key of fleet {self.fleet!r}")
-        arm, _, channel = key[len(head) :].partition("/")
-        if channel not in ARM_CHANNELS or not _NAME.match(arm):
-            raise KeyError_(f"{key!r} is not an arm key of fleet {self.fleet!r}")
-        return ArmKey(self.fleet, arm, channel)
+            raise KeyError_(f"{key!r} is not a key of fleet {self.fleet!r}")
+        rest = key[len(head) :]
+        if rest in FLEET_CHANNELS:
+            return Key(self.fleet, FLEET_LEVEL, "", rest)
+        for channel, depth in _NAMED_CHANNELS:
+            names = rest[len(channel) + 1 :].split("/") if rest.startswith(channel + "/") else []
+            if len(names) == depth and all(_NAME.match(n) for n in names):
+                if channel == INFO:
+                    return Key(self.fleet, FLEET_LEVEL, "/".join(names), channel)
+                return Key(self.fleet, FLEET_LEVEL, "", channel, names[0])
+        kind, _, rest = rest.partition("/")
+        unit, _, channel = rest.partition("/")
+        channels = ARM_CHANNELS if kind == ARM else DEVICE_CHANNELS if kind in DEVICE_KINDS else ()
+        if channels and _NAME.match(unit):
+            if channel in channels:
+                return Key(self.fleet, kind, unit, channel)
+            head, _, principal = channel.rpartition("/")
+            if head == CMD and _NAME.match(principal):
+                return Key(self.fleet, kind, unit, CMD, principal)
+        raise KeyError_(f"{key!r} is no key of fleet {self.fleet!r}'s key space")
+
+
+def parse_key(key: str) -> Key:
+    """``KeySpace.parse_key`` for a key of any fleet (a recording's keys name the fleet they
+    were recorded in); KeyError_ for anything that is not a key of the key space."""
+    head, _, rest = key.partition("/")
+    name = rest.partition("/")[0]
+    if head != "fleet" or not _NAME.match(name):
+        raise KeyError_(f"{key!r} is not a key of the key space (fleet/<fleet>/...)")
+    return KeySpace(name).parse_key(key)

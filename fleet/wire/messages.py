@@ -247,6 +247,35 @@ class CommandReply(Struct, frozen=True):
     written_ns: StampNs | None = None
 
 
+class DeviceCommand(Struct, tag_field="op", kw_only=True, forbid_unknown_fields=True):
+    """The envelope every device command carries, as the arm's do: ``owner`` (a lease: others
+    are refused 3207 until it expires) and ``takeover``; ``stamp_ns`` (the sender's clock,
+    increasing per client: duplicates and out-of-order commands are refused) and
+    ``lifetime_s`` (a command arriving later than that is refused, never executed)."""
+
+    owner: Name | None = None
+    takeover: bool = False
+    stamp_ns: StampNs | None = None
+    lifetime_s: Lifetime | None = None
+
+
+class DeviceRelease(DeviceCommand, tag="release", kw_only=True):
+    """Give the device up (ends ``owner``'s lease and its watchdog watch); nothing is written."""
+
+
+class DeviceReply(Struct, frozen=True):
+    """The reply to a device command (``<kind>/<device>/cmd/<principal>``): ``ok``, the device,
+    what was written (``written``: a short text of the DDS message) and the error, if any, with
+    the arm's error codes (``fleet.wire.messages.ErrorCode``)."""
+
+    ok: bool
+    device: Annotated[str, Meta(max_length=128)]
+    error: ErrorInfo | None = None
+    written_ns: Annotated[int, Meta(ge=0, le=2**63 - 1)] | None = None
+    result: Annotated[str, Meta(max_length=1024)] | None = None
+    """A query's answer (``get_fsm_id``: the id), as text."""
+
+
 # ----------------------------------------------------------------------------- protective stop
 
 
