@@ -6,6 +6,7 @@ STAMP := $(VENV)/.installed
 FUZZ_SECONDS ?= 60
 FUZZ_TIMEOUT ?= 10
 DURATION ?= 30m
+UNITREE_SDK := unitree-sdk2py-dimos==1.0.3
 
 .PHONY: demo test lint bench fuzz soak clean
 
@@ -15,6 +16,9 @@ $(BIN)/python:
 
 $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e '.[test]'
+	# Unitree's Python SDK with its G1 clients, the far side of the G1 tests (issue 22). --no-deps:
+	# its metadata pins dependencies we do not want (it runs on our cyclonedds 11).
+	$(BIN)/python -m pip install --quiet --no-deps $(UNITREE_SDK)
 	touch $(STAMP)
 
 # atheris (fuzz) and matplotlib (soak plot) are optional extras: never needed by `make test`.
