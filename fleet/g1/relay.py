@@ -2,6 +2,12 @@
 calls over DDS RPC (checked first: bounds, seed 004's dynamic-state rule, the stop latch),
 and the stop action confirmed from sportmodestate.
 
+Issue 22 (firmware truth), kept in marked blocks so it ports to the G1 driver: the service
+name per device (``fleet/g1/probe.py``: ``sport``, ``loco`` or ``auto``; one request writer and
+response reader per candidate name); damp never refused for missing state, and a stop written
+without state reported ``unconfirmed: no state`` and repeated until state confirms it; the stop
+action's calls from ``loco.stop_calls`` (``stop_move`` also ends continuous gait).
+
 Threads as for every device (``fleet/devices/relay.py``). RPC: one long-lived request writer
 and response reader; each call gets a fresh request id, its answer is matched by that id on
 the relay thread and handed to the waiting command thread (bounded wait: 3104 on timeout).
@@ -28,7 +34,8 @@ from fleet.devices.base import DeviceReply
 from fleet.devices.relay import LatchedRelay, Put, error_reply
 from fleet.g1 import idl, loco
 from fleet.g1.config import G1Config
-from fleet.g1.messages import OPS, G1Command, G1State, SetVelocity
+from fleet.g1.messages import OPS, ContinuousGait, G1Command, G1State, SetVelocity
+from fleet.g1.probe import ServiceProbe
 from fleet.wire import keys
 from fleet.wire import messages as m
 from fleet.wire.payloads import KIB, PayloadError, payload_kind
@@ -47,6 +54,8 @@ RPC_QOS = Qos(
 CONFIRM_SAMPLES = 3
 """The stop is confirmed by this many consecutive sportmodestate samples after its write."""
 MAX_PENDING = 16
+NO_STATE = "unconfirmed: no state"
+"""A stop written while no fresh rt/sportmodestate is heard (absent before firmware 1.5.1)."""
 TICK_MAX_S = 0.05
 """Ticks at least this often: the stop action's repeat and the link's staleness."""
 _ids = itertools.count(time.time_ns())
@@ -61,12 +70,18 @@ class G1Relay(LatchedRelay):
         )
         self.config = config
         state = Topic(participant, loco.STATE_TOPIC, idl.SportModeState_)
-        request = Topic(participant, loco.REQUEST_TOPIC, idl.Request_)
-        response = Topic(participant, loco.RESPONSE_TOPIC, idl.Response_)
         self._state_reader = DataReader(participant, state, qos=STATE_READER_QOS)
-        self._response_reader = DataReader(participant, response, qos=RPC_QOS)
-        self._writer = DataWriter(participant, request, qos=RPC_QOS)
-        self.readers = [self._state_reader, self._response_reader]
+        self.readers = [self._state_reader]
+        # issue 22: one request writer and response reader per candidate service name.
+        self._probe = ServiceProbe(config.service)
+        self._services = self._probe.candidates
+        self._writers: dict[str, DataWriter] = {}
+        for service in self._services:
+            request = Topic(participant, loco.request_topic(service), idl.Request_)
+            response = Topic(participant, loco.response_topic(service), idl.Response_)
+            self.readers.append(DataReader(participant, response, qos=RPC_QOS))
+            self._writers[service] = DataWriter(participant, request, qos=RPC_QOS)
+        self._probe_ids: dict[int, str] = {}
         self._latest: tuple[idl.SportModeState_, float] | None = None
         self._changed = False
         self._next_put_s = 0.0
@@ -78,8 +93,8 @@ class G1Relay(LatchedRelay):
 
     def on_data(self, index: int, now_s: float) -> None:
         """State samples (newest kept; stop confirmation) or RPC responses (matched by id)."""
-        if index == 1:
-            self._on_responses()
+        if index >= 1:
+            self._on_responses(index)
             return
         ack = None
         for sample in self._state_reader.take(N=64):
@@ -96,6 +111,7 @@ class G1Relay(LatchedRelay):
                 if self._action_written_s is not None and now_s > self._action_written_s:
                     self._confirming = self._confirming + 1 if self._stopped(sample) else 0
                     if self._confirming >= CONFIRM_SAMPLES and self._latch.confirm():
+                        self._latch.detail = None
                         ack = self._latch.ack()
         self._put_ack(ack)
 
@@ -104,11 +120,18 @@ class G1Relay(LatchedRelay):
             return sample.fsm_id == loco.DAMP_FSM
         return sample.fsm_mode == loco.STATIC
 
-    def _on_responses(self) -> None:
-        for response in self._response_reader.take(N=64):
+    def _on_responses(self, index: int) -> None:
+        service = self._services[index - 1]
+        for response in self.readers[index].take(N=64):
             if not isinstance(response, idl.Response_):
                 continue
             with self._lock:
+                if self._probe_ids.pop(response.header.identity.id, None) is not None:
+                    # The topic it came on names the service that answered.
+                    if self._probe.answer(service):
+                        log.info("%s: the LocoClient service is %r", self.device, service)
+                    self._changed = True
+                    continue
                 waiter = self._pending.get(response.header.identity.id)
                 if waiter is None:
                     self._counts["unmatched"] += 1  # another client's, or a late answer
@@ -128,11 +151,25 @@ class G1Relay(LatchedRelay):
                 self._next_put_s = now_s + 1.0 / self.config.relay_hz
             action_due = self._latch.due(now_s)
             next_s = min(self._next_put_s, now_s + TICK_MAX_S)
+            ask = self._probe.due(now_s)
         if state is not None:
             self._put(keys.STATE, m.encode(state), False)
         if action_due:
             self._write_stop_action(now_s)
+        if ask:
+            self._ask_service(ask)
         return next_s
+
+    def _ask_service(self, services: tuple[str, ...]) -> None:
+        """issue 22: GetFsmId on each candidate name; the answer names the service."""
+        call = loco.call_for("get_fsm_id")
+        with self._write:
+            for service in services:
+                request_id = self._send(call, waiter=False, service=service)
+                with self._lock:
+                    self._probe_ids[request_id] = service
+                    while len(self._probe_ids) > MAX_PENDING:  # unanswered asks: the oldest go
+                        self._probe_ids.pop(next(iter(self._probe_ids)))
 
     def _state(self, now_s: float) -> G1State | None:
         if self._latest is None:
@@ -154,12 +191,16 @@ class G1Relay(LatchedRelay):
             dds_samples=self._counts["dds_samples"],
             bad_samples=self._counts["bad_samples"],
             dds_rate_hz=round(self._rate_hz, 1),
+            service=self._probe.service,
+            service_setting=self.config.service,
+            service_answered=self._probe.service in self._probe.answered,
+            stop_detail=self._latch.detail,
         )
 
     # ------------------------------------------------------------------ RPC
 
-    def _send(self, call: loco.Call, waiter: bool) -> int:
-        """Write one request (caller holds ``_write``); its id."""
+    def _send(self, call: loco.Call, waiter: bool, service: str) -> int:
+        """Write one request to ``service`` (caller holds ``_write``); its id."""
         request_id = next(_ids)
         if waiter:
             with self._lock:
@@ -167,7 +208,7 @@ class G1Relay(LatchedRelay):
                     raise OverflowError("too many calls awaiting the robot's answer")
                 self._pending[request_id] = (threading.Event(), [])
         header = idl.RequestHeader_(identity=idl.RequestIdentity_(request_id, call.api_id))
-        self._writer.write(idl.Request_(header=header, parameter=call.parameter))
+        self._writers[service].write(idl.Request_(header=header, parameter=call.parameter))
         return request_id
 
     def _await(self, request_id: int) -> idl.Response_ | None:
@@ -179,18 +220,29 @@ class G1Relay(LatchedRelay):
             return box[0] if box else None
 
     def _write_stop_action(self, now_s: float) -> None:
-        op = self.config.stop_action
+        """The stop action's calls (``loco.stop_calls``) to the service, or to every candidate
+        name while ``auto`` has not found it; written with or without state (issue 22: damping
+        "can always be activated"), reported ``unconfirmed: no state`` while none is fresh."""
+        calls = loco.stop_calls(self.config.stop_action)
         with self._write:
             with self._lock:
                 if not self._latch.latched:
                     return
                 first = self._latch.written_ns is None
-            self._send(loco.call_for(op), waiter=False)
+                targets = self._probe.targets
+                latest = self._latest
+            for service in targets:
+                for call in calls:
+                    self._send(call, waiter=False, service=service)
             with self._lock:
                 self._latch.written(now_s)
                 if first:
                     self._action_written_s, self._confirming = now_s, 0
-                ack = self._latch.ack() if first else None
+                fresh = latest is not None and now_s - latest[1] <= self.config.link_stale_s
+                detail = None if fresh else NO_STATE
+                report = first or detail != self._latch.detail
+                self._latch.detail = detail
+                ack = self._latch.ack() if report and self._latch.confirmed_ns is None else None
         self._put_ack(ack)
 
     # ------------------------------------------------------------------ commands
@@ -206,7 +258,9 @@ class G1Relay(LatchedRelay):
             code = m.ErrorCode.NOT_IMPLEMENTED if unknown else m.ErrorCode.PARAMETER
             return self._refuse(code, str(exc))
         op = OPS[type(cmd)]
-        if isinstance(cmd, SetVelocity):
+        if isinstance(cmd, ContinuousGait):
+            call = loco.call_for(op, on=cmd.on)
+        elif isinstance(cmd, SetVelocity):
             problem = loco.velocity_problem(cmd.vx, cmd.vy, cmd.omega, cmd.duration_s, self._limits)
             if problem is not None:
                 return self._refuse(m.ErrorCode.PARAMETER, f"g1 {self.device!r}: {problem}")
@@ -218,7 +272,16 @@ class G1Relay(LatchedRelay):
             with self._lock:
                 latest = self._latest
                 reason = self._latch.reason
-            if latest is None or now_s - latest[1] > self.config.link_stale_s:
+                service = self._probe.service
+            if service is None:
+                return self._refuse(
+                    m.ErrorCode.REJECTED,
+                    f"g1 {self.device!r}: {self._probe.describe()}; is its high-level service "
+                    "running? (`service` in the inventory names it: sport, loco or auto)",
+                )
+            stale = latest is None or now_s - latest[1] > self.config.link_stale_s
+            # issue 22: damping "can always be activated" (seed 004), state or none.
+            if stale and op not in ("damp", "get_fsm_id"):
                 return self._refuse(
                     m.ErrorCode.REJECTED,
                     f"g1 {self.device!r}: no fresh {loco.STATE_TOPIC} (within "
@@ -229,11 +292,15 @@ class G1Relay(LatchedRelay):
                     m.ErrorCode.REJECTED,
                     f"g1 {self.device!r} is stopped ({reason}); `fleet reset` releases it",
                 )
-            why = loco.refusal(op, call, latest[0].fsm_id, latest[0].fsm_mode)
+            why = (
+                None
+                if latest is None
+                else loco.refusal(op, call, latest[0].fsm_id, latest[0].fsm_mode)
+            )
             if why is not None:
                 return self._refuse(m.ErrorCode.REJECTED, f"g1 {self.device!r}: {why}")
             try:
-                request_id = self._send(call, waiter=True)
+                request_id = self._send(call, waiter=True, service=service)
             except OverflowError as exc:
                 return self._refuse(m.ErrorCode.REJECTED, f"busy: {exc}")
             written = time.time_ns()
