@@ -7,7 +7,10 @@ import json
 
 import pytest
 
+from fleet.doctor import check_g1_services
 from fleet.g1 import loco
+from fleet.g1.kind import summary
+from fleet.g1.messages import G1State
 from fleet.g1.probe import REPEAT_S, ServiceProbe
 from fleet.g1.sim import G1Model
 from fleet.wire.messages import ErrorCode
@@ -153,3 +156,47 @@ def test_model_damp_always_and_errors() -> None:
     assert model.call(7999, "", 0.7)[0] == ErrorCode.NOT_IMPLEMENTED
     assert model.call(loco.SET_FSM_ID, "{", 0.7)[0] == ErrorCode.PARAMETER
     assert _call(model, loco.SET_FSM_ID, 0.7, data=12345) == ErrorCode.PARAMETER
+
+
+def _state(service: str | None, setting: str, answered: bool) -> G1State:
+    return G1State(
+        stamp_ns=1,
+        fsm_id=500,
+        fsm_name="walk",
+        fsm_mode=0,
+        mode="static",
+        task_id=0,
+        task_time=0.0,
+        link="ok",
+        estopped=False,
+        stop_reason=None,
+        stop_action="stop_move",
+        dds_samples=1,
+        bad_samples=0,
+        dds_rate_hz=100.0,
+        service=service,
+        service_setting=setting,
+        service_answered=answered,
+    )
+
+
+def test_doctor_and_status_name_the_service() -> None:
+    checks = check_g1_services(
+        {
+            "g1/a": _state("sport", "sport", True),
+            "g1/b": _state("sport", "sport", False),
+            "g1/c": _state(None, "auto", False),
+            "g1/d": None,
+            "gripper/x": None,
+        }
+    )
+    assert [(c.what.rpartition(" ")[2], c.level) for c in checks] == [
+        ("g1/a", "ok"),
+        ("g1/b", "fail"),
+        ("g1/c", "fail"),
+        ("g1/d", "warn"),
+    ]
+    assert 'set service = "loco" (or "auto") under [g1.b]' in checks[1].fix
+    assert summary(_state("loco", "auto", True)).endswith("service loco (auto)")
+    assert "service sport (no answer to GetFsmId)" in summary(_state("sport", "sport", False))
+    assert "service auto: asking sport, loco" in summary(_state(None, "auto", False))
