@@ -133,15 +133,11 @@ def test_fleet_estop_stops_a_fake_g1_on_unitrees_server(
         confirmed_s = float(match.group(1)) / 1000
         print(f"fleet estop of a walking G1 (continuous gait), service {setting!r}: {line}")
         assert confirmed_s <= CONFIRM_GOAL_S, line
-        # What reached the robot: StopMove and ContinuousGait(false), Unitree's calls.
-        calls = _calls(harness, "fake-g1")[before:]
-        assert {"api_id": 7105, "code": 0} in [
-            {"api_id": c["api_id"], "code": c["code"]}
-            for c in calls
-            if json.loads(c["parameter"])["velocity" if c["api_id"] == 7105 else "data"]
-            in ([0.0, 0.0, 0.0], 0)
-        ], calls
-        assert any(c["api_id"] == 7102 and c["parameter"] == '{"data": 0}' for c in calls)
+        # What reached the robot, each write in order: StopMove, then ContinuousGait(false)
+        # (both delivered through the SDK server's request reader, depth 1 by its defaults).
+        calls = [(c["api_id"], c["parameter"], c["code"]) for c in _calls(harness, "fake-g1")]
+        stop_move = (7105, '{"velocity": [0.0, 0.0, 0.0], "duration": 1.0}', 0)
+        assert calls[before : before + 2] == [stop_move, (7102, '{"data": 0}', 0)], calls
         latest = states.latest()
         assert latest is not None and latest.mode == "static" and latest.fsm_id == 500
     finally:
