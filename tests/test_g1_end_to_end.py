@@ -13,6 +13,7 @@ import pytest
 
 from fleet.g1.kind import KIND
 from fleet.g1.messages import (
+    BalanceStand,
     ContinuousGait,
     G1State,
     GetFsmId,
@@ -103,6 +104,12 @@ def test_g1_state_rpc_refusals_and_stop(fleet: FleetHarness) -> None:
             assert stop_move.error is not None and "robot answered 3205" in stop_move.error.message
         else:
             assert stop_move.ok, stop_move
+        # balance_stand (continuous gait's way out) passes the latch too.
+        balance = client.device_command("h1", BalanceStand())
+        if action == "damp":
+            assert balance.error is not None and "robot answered 3205" in balance.error.message
+        else:
+            assert balance.ok, balance
         client.reset()
         wait_until(lambda: (s := states.latest()) is not None and not s.estopped, 3.0)
         assert client.device_command("h1", Start()).ok

@@ -54,6 +54,8 @@ RPC_QOS = Qos(
 CONFIRM_SAMPLES = 3
 """The stop is confirmed by this many consecutive sportmodestate samples after its write."""
 MAX_PENDING = 16
+LATCH_PASSES = frozenset({"damp", "stop_move", "balance_stand", "get_fsm_id"})
+"""What a latched stop lets through: stops, continuous gait's way out, and a read."""
 NO_STATE = "unconfirmed: no state"
 """A stop written while no fresh rt/sportmodestate is heard (absent before firmware 1.5.1)."""
 TICK_MAX_S = 0.05
@@ -287,7 +289,7 @@ class G1Relay(LatchedRelay):
                     f"g1 {self.device!r}: no fresh {loco.STATE_TOPIC} (within "
                     f"{self.config.link_stale_s:g} s); is its high-level service running?",
                 )
-            if reason is not None and op not in ("damp", "stop_move", "get_fsm_id"):
+            if reason is not None and op not in LATCH_PASSES:
                 return self._refuse(
                     m.ErrorCode.REJECTED,
                     f"g1 {self.device!r} is stopped ({reason}); `fleet reset` releases it",
