@@ -14,10 +14,11 @@ $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 
-$(STAMP): pyproject.toml | $(BIN)/python
+# Unitree's Python SDK with its G1 clients is the far side of the G1 tests (issue 22), installed
+# --no-deps: it declares opencv-python, which none of its code the tests use imports, and it
+# runs on our cyclonedds 11. The stamp depends on this Makefile too, so an older venv gets it.
+$(STAMP): pyproject.toml Makefile | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e '.[test]'
-	# Unitree's Python SDK with its G1 clients, the far side of the G1 tests (issue 22). --no-deps:
-	# its metadata pins dependencies we do not want (it runs on our cyclonedds 11).
 	$(BIN)/python -m pip install --quiet --no-deps $(UNITREE_SDK)
 	touch $(STAMP)
 

@@ -19,6 +19,7 @@ import time
 from collections.abc import Iterator
 
 import pytest
+import unitree_sdk2py  # noqa: F401 - `make` installs it (--no-deps): a missing SDK fails, never skips
 
 from fleet.g1.kind import KIND
 from fleet.g1.messages import ContinuousGait, Damp, G1State, SetVelocity
@@ -27,7 +28,6 @@ from tests.harness import FleetHarness, wait_until
 from tests.test_dex1_end_to_end import agent_token
 from tests.test_end_to_end import Collector
 
-pytest.importorskip("unitree_sdk2py")
 STATE = KIND.payloads[keys.STATE]
 CONFIRM_GOAL_S = 1.0
 """Issue 22: a stop of a walking G1 confirmed within 1 s, on both service names."""
