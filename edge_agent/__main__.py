@@ -1,11 +1,11 @@
-"""``edge-agent``: relay the arms of one network interface into the fleet's key space."""
+"""``edge-agent``: relay the robots of one network interface (arms and the devices beside them)
+into the fleet's key space."""
 
 from __future__ import annotations
 
 import argparse
 import logging
 import sys
-import threading
 from pathlib import Path
 
 from edge_agent.agent import EdgeAgent
@@ -28,13 +28,14 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="edge-agent", description=__doc__)
     add_inventory_options(parser)
     add_observe_options(parser)
-    which = parser.add_mutually_exclusive_group(required=True)
-    which.add_argument("--arm", action="append", help="arm id to serve (repeatable)")
-    which.add_argument("--interface", help="serve every arm of the inventory on this interface")
-    which.add_argument(
-        "--device",
-        action="append",
-        help="serve this device (gripper, G1; repeatable) in a devices-only agent process",
+    parser.add_argument(
+        "--interface",
+        help="serve every arm and device of the inventory on this network interface (one "
+        "process per card); --arm / --device narrow it down",
+    )
+    parser.add_argument("--arm", action="append", help="arm id to serve (repeatable)")
+    parser.add_argument(
+        "--device", action="append", help="device id to serve (gripper, G1; repeatable)"
     )
     parser.add_argument(
         "--state-dir",
@@ -43,16 +44,39 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         help="where latched stops are kept across restarts (default $D1_FLEET_STATE_DIR, "
         "else ~/.local/state/d1-fleet)",
     )
-    return parser.parse_args(argv)
+    args = parser.parse_args(argv)
+    if not (args.interface or args.arm or args.device):
+        parser.error("give --interface CARD, or --arm / --device ids")
+    return args
 
 
-def agent_principal(inventory: Inventory, arms: list[str]) -> str:
-    """The principal of an agent serving ``arms``: their ``agent`` (one certificate per
-    process, so with security on every arm it serves must name the same agent)."""
-    names = sorted({inventory.arm(a).agent for a in arms})
+def units_to_serve(inventory: Inventory, args: argparse.Namespace) -> tuple[list[str], list[str]]:
+    """The arms and devices this process serves: those on ``--interface`` (every one, or only
+    the ``--arm`` / ``--device`` named), else exactly the ones named."""
+    for arm in args.arm or []:
+        inventory.arm(arm)
+    for device in args.device or []:
+        inventory.device(device)
+    if args.interface is None:
+        return list(args.arm or []), list(args.device or [])
+    arms, devices = inventory.units_on(args.interface)
+    if args.arm or args.device:
+        arms = [a for a in arms if a in (args.arm or [])]
+        devices = [d for d in devices if d in (args.device or [])]
+    if not arms and not devices:
+        raise InventoryError(
+            f"{inventory.path}: no arm or device (of those named) uses interface {args.interface!r}"
+        )
+    return arms, devices
+
+
+def agent_principal(inventory: Inventory, units: list[str]) -> str:
+    """The principal of an agent serving ``units``: their ``agent`` (one certificate per
+    process, so with security on every robot it serves must name the same agent)."""
+    names = sorted({inventory.agent_of(u) for u in units})
     if len(names) > 1 and inventory.security.enabled:
         raise InventoryError(
-            f"{inventory.path}: arms {', '.join(arms)} name different agents ({', '.join(names)}); "
+            f"{inventory.path}: {', '.join(units)} name different agents ({', '.join(names)}); "
             "one agent process has one identity: give them the same `agent`"
         )
     return names[0]
@@ -67,58 +91,32 @@ def main(argv: list[str] | None = None) -> int:
         print(f"edge-agent: {exc}", file=sys.stderr)
         return 2
     stop = shutdown_event()
-    if args.device:
-        return run_devices(args, stop)
     try:
         inventory = inventory_from_args(args)
-        arms = args.arm or [a.id for a in inventory.arms.values() if a.interface == args.interface]
-        if not arms:
-            raise InventoryError(f"{inventory.path}: no arm uses interface {args.interface!r}")
-        inventory = inventory.with_principal(args.principal or agent_principal(inventory, arms))
-        agent = EdgeAgent(inventory, arms, args.state_dir)
+        arms, devices = units_to_serve(inventory, args)
+        principal = args.principal or agent_principal(inventory, [*arms, *devices])
+        inventory = inventory.with_principal(principal)
+        agent = EdgeAgent(inventory, arms, args.state_dir, devices)
     except (InventoryError, RouterUnreachable, ValueError) as exc:
         print(f"edge-agent: {exc}", file=sys.stderr)
         return 2
     from edge_agent.metrics import agent_collectors
 
+    units = [*arms, *devices]
     with agent:
         agent.start()
-        log.info("serving arms %s of fleet %r", ", ".join(arms), inventory.fleet)
+        log.info("serving %s of fleet %r", ", ".join(units), inventory.fleet)
         collectors = lambda: agent_collectors(agent)  # noqa: E731
-        with Observed(agent.relay.session, inventory, "agent", args.metrics_port, arms, collectors):
+        with Observed(
+            agent.relay.session, inventory, "agent", args.metrics_port, units, collectors
+        ):
             while not stop.wait(0.1) and not agent.failed.is_set():
                 pass
     if agent.failed.is_set():
         log.error(
-            "%s; every arm was stopped and latched before shutting down: restart the agent",
+            "%s; every robot was stopped and latched before shutting down: restart the agent",
             agent.guard.failure,
         )
-        return EXIT_THREAD_FAILED
-    log.info("stopped")
-    return 0
-
-
-def run_devices(args: argparse.Namespace, stop: threading.Event) -> int:
-    """``edge-agent --device ID ...``: the devices' host (``edge_agent/devices.py``)."""
-    from edge_agent.devices import DeviceHost
-
-    try:
-        inventory = inventory_from_args(args)
-        for device in args.device:
-            inventory.device(device)
-        principal = args.principal or inventory.device(args.device[0]).agent
-        host = DeviceHost(inventory.with_principal(principal), args.device)
-    except (InventoryError, RouterUnreachable, ValueError) as exc:
-        print(f"edge-agent: {exc}", file=sys.stderr)
-        return 2
-    with host:
-        host.start()
-        log.info("serving devices %s of fleet %r", ", ".join(args.device), inventory.fleet)
-        # A failed thread has latched every device already (DeviceHost._on_failure).
-        while not stop.wait(0.5) and not host.failed.is_set():
-            pass
-    if host.failed.is_set():
-        log.error("%s; every device was stopped before shutting down", host.guard.failure)
         return EXIT_THREAD_FAILED
     log.info("stopped")
     return 0

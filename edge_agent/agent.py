@@ -1,4 +1,9 @@
-"""The edge agent: relays one network's D1 arms into the key space and serves their commands.
+"""The edge agent: relays one network's robots into the key space and serves their commands.
+
+One core for every kind: D1 arms (``ArmSlot``: tracker, seqs, acks) and the devices of other
+kinds (``DeviceSlot``: a kind's driver, ``fleet/devices/driver.py``) share one participant, one
+Zenoh session, one safety inbox and loop, one latch store, one command thread and its envelope
+checks, the write locks and the thread guard. A stop of an arm stops the devices mounted on it.
 
 Threads (all ours, all named, all under one ``ThreadGuard``):
 - ``relay`` (DdsLink): takes feedback from DDS, decodes it, updates the trackers, publishes
@@ -30,19 +35,23 @@ import zenoh
 from edge_agent.commands import InFlight
 from edge_agent.contact_edge import ContactEdge
 from edge_agent.holds import hold_command
-from edge_agent.inbox import CommandInbox, InboxCounters, SafetyInbox
+from edge_agent.inbox import CommandInbox, InboxCounters, IncomingQuery, SafetyInbox
 from edge_agent.latches import LatchStore, default_state_dir
 from edge_agent.link import DdsLink
 from edge_agent.relay import JSON, ZenohRelay, principal_of
+from edge_agent.safety import ArmSafety
 from edge_agent.scheduler import StartScheduler
 from edge_agent.serving import CommandService
-from edge_agent.slots import ArmSlot, Outbox
+from edge_agent.slots import ArmSlot, DeviceSlot, Outbox, Unit
 from edge_agent.stops import SafetyLoop
 from edge_agent.tracker import ArmTracker
 from edge_agent.writer import ArmWriter, transient_seq
 from fleet.d1 import protocol as p
+from fleet.devices import kind_of
+from fleet.devices.base import DeviceReply
 from fleet.guard import ThreadGuard
 from fleet.inventory import Inventory
+from fleet.wire import keys
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, encode
 
@@ -56,16 +65,30 @@ DIAG_PERIOD_S = 1.0
 
 
 class EdgeAgent:
-    """Serves the arms ``arm_ids`` of ``inventory``. A context manager."""
+    """Serves the arms ``arm_ids`` and devices ``device_ids`` of ``inventory``. A context
+    manager."""
 
     def __init__(
-        self, inventory: Inventory, arm_ids: list[str], state_dir: Path | None = None
+        self,
+        inventory: Inventory,
+        arm_ids: list[str],
+        state_dir: Path | None = None,
+        device_ids: list[str] | None = None,
     ) -> None:
-        network = inventory.network_of(arm_ids)
+        device_ids = list(device_ids or [])
+        network = inventory.network_of(arm_ids, device_ids)
         self.inventory = inventory
         self.lock = threading.Lock()
         self.arm_ids = list(arm_ids)
+        self.device_ids = device_ids
         self.slots = {a: self._slot(inventory, a) for a in arm_ids}
+        self.devices: dict[str, DeviceSlot] = {}
+        device_kinds = {d: kind_of(inventory.device(d)).key for d in device_ids}
+        mounted: dict[str, list[str]] = {}
+        for device in device_ids:
+            mount = getattr(inventory.device(device), "mount", "")
+            if mount:
+                mounted.setdefault(mount, []).append(device)
         self.stopping = threading.Event()
         self.guard = ThreadGuard("edge-agent", self._on_thread_failure)
         self.failed = self.guard.failed
@@ -89,16 +112,26 @@ class EdgeAgent:
         )
         try:
             self.relay = ZenohRelay(
-                inventory, arm_ids, (self.safety_inbox, self.command_inbox), self.guard
+                inventory,
+                arm_ids,
+                (self.safety_inbox, self.command_inbox),
+                self.guard,
+                device_kinds,
+                [arm for arm in mounted if arm not in self.slots],
             )
         except BaseException:
             self.link.close()
             raise
+        for device in device_ids:
+            self.devices[device] = self._device_slot(inventory, device, device_kinds[device])
+        self.link.add_drivers({d: s.driver for d, s in self.devices.items()}, self._on_device)
+        self.units: dict[str, Unit] = {**self.slots, **self.devices}
         self.writer = ArmWriter(self.lock, self.slots, self.link, self.relay.mirror_command)
+        self.writer.add_units(device_ids)
         self.latches = LatchStore(state_dir or default_state_dir(), inventory.fleet, self.guard)
         self.safety_loop = SafetyLoop(
             self.lock,
-            self.slots,
+            self.units,
             self.relay,
             self.writer,
             self.safety_inbox,
@@ -106,9 +139,10 @@ class EdgeAgent:
             self.stopping,
             self.guard,
             self.latches,
+            mounted,
         )
         # Stops latched before a restart, before any command can be served.
-        for arm in arm_ids:
+        for arm in self.units:
             request = self.latches.load(arm)
             if request is not None:
                 self.safety_loop.restore(arm, request)
@@ -119,6 +153,8 @@ class EdgeAgent:
         self.commands = CommandService(
             self.lock,
             self.slots,
+            self.devices,
+            self._reply_device,
             self.writer,
             self.command_inbox,
             self.scheduler,
@@ -145,6 +181,51 @@ class EdgeAgent:
     def _slot(inventory: Inventory, arm: str) -> ArmSlot:
         config = inventory.arm(arm)
         return ArmSlot(ArmTracker(config))
+
+    def _device_slot(self, inventory: Inventory, device: str, kind: str) -> DeviceSlot:
+        """A device's slot: its kind's driver on this agent's participant, publishing through
+        this agent's session, reading the latch the core holds for it."""
+        config = inventory.device(device)
+        safety = ArmSafety(config.lease_s, config.watchdog_s)
+
+        def latch() -> tuple[bool, str | None]:
+            stop = safety.stop  # one reference read: no lock needed for a state payload
+            return stop is not None, safety.last_reason if stop is not None else None
+
+        factory = kind_of(config).load("agent")
+        driver = factory(config, self.link.participant, self.relay.device_put(device), latch)
+        return DeviceSlot(kind, driver, safety, getattr(config, "mount", ""))
+
+    def _on_device(self, device: str, now: float) -> None:
+        """After a driver took data or ticked (relay thread): confirm its stop when its state
+        shows the action done, and end a finished watch."""
+        slot = self.devices[device]
+        driver = slot.driver
+        with self.lock:
+            stop = slot.safety.stop
+            confirming = stop is not None and stop.dds_written_ns is not None and not stop.done
+        still = driver.still()
+        out = Outbox()
+        if confirming and driver.stop_confirmed(now):
+            with self.lock:
+                if slot.safety.stop is stop and slot.safety.confirm(time.time_ns()):
+                    self.safety_loop.on_still(device, slot, out)
+        if still is not None:
+            with self.lock:
+                slot.safety.on_still_report(still, now)
+        self.flush(out)
+
+    def _reply_device(self, item: IncomingQuery, reply: DeviceReply, started: float) -> None:
+        """Answer a device command on the device's own key (any thread, no lock held)."""
+        self.reply_latencies_s.append(time.monotonic() - started)
+        slot = self.devices[item.arm]
+        principal = item.principal or "unknown"
+        key = f"{self.relay.keys.device(slot.kind, item.arm, keys.CMD)}/{principal}"
+        if reply.error is not None:
+            with self.lock:
+                slot.last_error = reply.error.message
+        item.query.reply(key, encode(reply), encoding=JSON)
+        item.query.drop()
 
     def _on_thread_failure(self, what: str) -> None:
         """The guard's failure path (on the failing thread): latch and stop every arm now;
@@ -229,6 +310,10 @@ class EdgeAgent:
                 for flight, _query in list(slot.in_flight.values()):
                     flight.on_time(now, tracker.angles_deg)
                 self.collect_finished(slot, now, out)
+        if diag:
+            for device in self.devices:
+                payload = encode(self.device_diag(device, now, stamp_ns))
+                out.puts.append((self.relay.device_publishers[device][keys.DIAG], payload))
         self.flush(out)
 
     def _diag(self, tracker: ArmTracker, now: float, stamp_ns: int) -> m.Diag:
@@ -236,6 +321,34 @@ class EdgeAgent:
         counters = self.counters
         return msgspec.structs.replace(
             tracker.diag(now, stamp_ns),
+            bad_payloads=counters.bad_payloads,
+            undecodable_stops=counters.undecodable_stops,
+            busy=counters.busy,
+            dropped_events=counters.dropped_events,
+            write_failures=self.link.write_failures,
+        )
+
+    def device_diag(self, device: str, now: float, stamp_ns: int) -> m.Diag:
+        """A device's diag: its driver's link and counters, the core's refusals and the
+        agent's own counters (the same fields as an arm's)."""
+        slot = self.devices[device]
+        health = slot.driver.health(now)
+        counters = self.counters
+        with self.lock:
+            rejected, last_error = slot.rejected, slot.last_error
+        return m.Diag(
+            stamp_ns=stamp_ns,
+            link=health.link,  # type: ignore[arg-type]
+            relayed=health.relayed,
+            malformed=health.bad_samples,
+            unknown_messages=0,
+            unknown_fields=0,
+            rejected=rejected + health.rejected,
+            commands=health.commands,
+            ack_timeouts=health.timeouts,
+            feedback_rate_hz=health.rate_hz,
+            last_feedback_age_s=health.age_s,
+            last_error=(last_error or health.last_error),
             bad_payloads=counters.bad_payloads,
             undecodable_stops=counters.undecodable_stops,
             busy=counters.busy,

@@ -1,5 +1,6 @@
 """The agent's DDS side and its relay thread: one participant for its (domain, interface), one
-long-lived command writer and one feedback reader per arm, and the ``relay`` thread.
+long-lived command writer and one feedback reader per arm, the device drivers' readers and
+writers (``fleet/devices/driver.py``, created on this participant), and the ``relay`` thread.
 
 The relay thread waits on a DDS WaitSet over one ReadCondition per reader. The wait is done in
 CycloneDDS's C core and names the readers that have data, so a sample costs no Python on DDS's
@@ -7,10 +8,12 @@ own receive thread, no queue and no second thread: this thread takes every ready
 ready reader in one wake-up and hands each to ``on_feedback``, which decodes it and puts it on
 Zenoh. (The Python listener it replaces cost about 100 us of CPU per sample at 100 arms: a
 crossing into Python on the receive thread, then a hand-off.) Between samples the same thread
-runs the agent's periodic jobs (``on_tick`` every ``tick_s``). A flood from a rogue participant
-costs no memory: each reader keeps at most its history depth. Entities are never created or
-deleted after start-up. Writers are created once: Unitree's SDK waits for discovery when a
-writer is created, which a stop cannot afford.
+runs the agent's periodic jobs (``on_tick`` every ``tick_s``) and each device driver's ``tick``
+when the time it asked for comes (a gripper polls its 500 Hz state there, at its relay rate);
+after a driver's data or tick the agent checks its stop (``on_device``). A flood from a rogue
+participant costs no memory: each reader keeps at most its history depth. Entities are never
+created or deleted after start-up. Writers are created once: Unitree's SDK waits for discovery
+when a writer is created, which a stop cannot afford.
 """
 
 from __future__ import annotations
@@ -36,6 +39,7 @@ from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 
 from fleet.d1 import dds
+from fleet.devices.driver import DeviceDriver
 from fleet.guard import ThreadGuard
 from fleet.inventory import DdsNetwork
 
@@ -50,6 +54,10 @@ BadSampleHandler = Callable[[str, str], None]
 """(arm id, why the sample is not an ArmString_)."""
 TickHandler = Callable[[float], None]
 """(monotonic now): the periodic jobs."""
+DeviceHandler = Callable[[str, float], None]
+"""(device id, monotonic now): after its driver took data or ticked."""
+DEVICE_TICK_MAX_S = 0.1
+"""Every driver ticks at least this often (it asks for more)."""
 
 
 class ReadySet:
@@ -121,12 +129,27 @@ class DdsLink:
             self._readers.append((arm, reader))
             writer = DataWriter(participant, cmd, qos=dds.COMMAND_WRITER_QOS)
             self._writers[arm] = (writer, bool(getattr(writer, "_use_version_2", False)))
-        self._ready = ReadySet(participant, [reader for _arm, reader in self._readers])
+        self.participant = participant
+        self._drivers: dict[str, DeviceDriver] = {}
+        self._on_device: DeviceHandler = lambda _device, _now: None
+        self._ready: ReadySet | None = None
         self._stop = threading.Event()
         self._thread = guard.thread(self._run, "relay")
 
+    def add_drivers(self, drivers: dict[str, DeviceDriver], on_device: DeviceHandler) -> None:
+        """Serve ``drivers`` on the relay thread too (before ``start``)."""
+        self._drivers = dict(drivers)
+        self._on_device = on_device
+
     def start(self) -> None:
         """Start relaying feedback and running the periodic jobs."""
+        readers = [reader for _arm, reader in self._readers]
+        self._device_readers: list[tuple[str, DeviceDriver, int]] = []
+        for device, driver in self._drivers.items():
+            for index, reader in enumerate(driver.readers):
+                readers.append(reader)
+                self._device_readers.append((device, driver, index))
+        self._ready = ReadySet(self.participant, readers)
         self._thread.start()
 
     def write(self, arm: str, text: str) -> bool:
@@ -140,11 +163,25 @@ class DdsLink:
         return True
 
     def _run(self) -> None:
+        assert self._ready is not None
+        arms = len(self._readers)
         next_tick = time.monotonic()
+        due = dict.fromkeys(self._drivers, next_tick)
         while not self._stop.is_set():
-            for index in self._ready.wait(next_tick - time.monotonic()):
-                self._take(*self._readers[index])
+            wake = min(next_tick, *due.values()) if due else next_tick
+            ticked: set[str] = set()
+            for index in self._ready.wait(wake - time.monotonic()):
+                if index < arms:
+                    self._take(*self._readers[index])
+                    continue
+                device, driver, local = self._device_readers[index - arms]
+                driver.on_data(local, time.monotonic())
+                ticked.add(device)
             now = time.monotonic()
+            for device, driver in self._drivers.items():
+                if device in ticked or now >= due[device]:
+                    due[device] = min(driver.tick(now), now + DEVICE_TICK_MAX_S)
+                    self._on_device(device, now)
             if now >= next_tick:
                 next_tick = max(next_tick + self._tick_s, now)
                 self._on_tick(now)
@@ -167,7 +204,8 @@ class DdsLink:
     def close(self) -> None:
         """Stop the thread, then delete the participant (idempotent)."""
         self._stop.set()
-        self._ready.wake()
+        if self._ready is not None:
+            self._ready.wake()
         if self._thread.is_alive() and self._thread is not threading.current_thread():
             self._thread.join(timeout=2.0)
         self._channel.close()

@@ -77,7 +77,10 @@ def principal_of(key: object) -> str | None:
 
 
 class ZenohRelay:
-    """Declares everything an agent needs on the key space, for the arms it serves."""
+    """Declares everything an agent needs on the key space, for the arms and devices it serves.
+
+    ``devices``: device id -> its kind's key word; ``mounts``: arms this agent does not serve
+    that devices it serves are mounted on (their stops and resets reach those devices too)."""
 
     def __init__(
         self,
@@ -85,7 +88,10 @@ class ZenohRelay:
         arm_ids: list[str],
         inboxes: tuple[SafetyInbox, CommandInbox],
         guard: ThreadGuard,
+        devices: dict[str, str] | None = None,
+        mounts: list[str] | None = None,
     ) -> None:
+        devices = devices or {}
         self.keys = keys.KeySpace(inventory.fleet)
         self.session = open_session(inventory)
         safety, commands = inboxes
@@ -118,9 +124,13 @@ class ZenohRelay:
                 ),
             ),
         ]
-        for arm in arm_ids:
+        for arm in [*arm_ids, *(mounts or [])]:
             self._subscribers.append(sub(self.keys.arm(arm, keys.ESTOP), on_stop(arm)))
             self._subscribers.append(sub(self.keys.arm(arm, keys.RESET), on_reset(arm)))
+        for device, kind in devices.items():
+            estop, reset = (self.keys.device(kind, device, c) for c in (keys.ESTOP, keys.RESET))
+            self._subscribers.append(sub(estop, on_stop(device)))
+            self._subscribers.append(sub(reset, on_reset(device)))
         self.publishers: dict[str, ArmPublishers] = {}
         self._matching: list[zenoh.MatchingListener[None]] = []
         self._tokens: list[zenoh.LivelinessToken] = []
@@ -132,11 +142,48 @@ class ZenohRelay:
             self._queryables.append(
                 self.session.declare_queryable(self.keys.commands(arm), on_query(arm))
             )
-        # Tokens last: an agent is announced only once it can serve its arms.
-        for arm in arm_ids:
-            self._tokens.append(
-                self.session.liveliness().declare_token(self.keys.arm(arm, keys.AGENT))
+        self.device_publishers: dict[str, dict[str, zenoh.Publisher]] = {}
+        for device, kind in devices.items():
+            self.device_publishers[device] = self._declare_device_publishers(kind, device)
+            commands_key = f"{self.keys.device(kind, device, keys.CMD)}/*"
+            self._queryables.append(self.session.declare_queryable(commands_key, on_query(device)))
+        # Tokens last: an agent is announced only once it can serve its robots.
+        tokens = [self.keys.arm(arm, keys.AGENT) for arm in arm_ids]
+        tokens += [self.keys.device(kind, d, keys.AGENT) for d, kind in devices.items()]
+        for token in tokens:
+            self._tokens.append(self.session.liveliness().declare_token(token))
+
+    def _declare_device_publishers(self, kind: str, device: str) -> dict[str, zenoh.Publisher]:
+        """state and diag: DROP (they repeat); contact and estop/ack: BLOCK (events)."""
+        drop, block = zenoh.CongestionControl.DROP, zenoh.CongestionControl.BLOCK
+        return {
+            channel: self.session.declare_publisher(
+                self.keys.device(kind, device, channel),
+                encoding=JSON,
+                congestion_control=congestion,
+                priority=priority,
             )
+            for channel, congestion, priority in (
+                (keys.STATE, drop, zenoh.Priority.DATA_HIGH),
+                (keys.CONTACT, block, zenoh.Priority.DATA_HIGH),
+                (keys.ESTOP_ACK, block, zenoh.Priority.REAL_TIME),
+                (keys.DIAG, drop, zenoh.Priority.DATA),
+            )
+        }
+
+    def stop_ack(self, unit: str) -> zenoh.Publisher:
+        """The ``estop/ack`` publisher of arm or device ``unit``."""
+        pubs = self.publishers.get(unit)
+        return pubs.stop_ack if pubs is not None else self.device_publishers[unit][keys.ESTOP_ACK]
+
+    def device_put(self, device: str) -> Callable[[str, bytes, bool], None]:
+        """A driver's ``Put`` onto its device's publishers."""
+        publishers = self.device_publishers[device]
+
+        def put(channel: str, payload: bytes, _reliable: bool) -> None:
+            publishers[channel].put(payload)
+
+        return put
 
     def _declare_publishers(self, arm: str) -> ArmPublishers:
         def pub(
@@ -189,4 +236,8 @@ class ZenohRelay:
             for publisher in pubs.all():
                 publisher.undeclare()
         self.publishers.clear()
+        for device_pubs in self.device_publishers.values():
+            for publisher in device_pubs.values():
+                publisher.undeclare()
+        self.device_publishers.clear()
         self.session.close()

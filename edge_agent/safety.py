@@ -165,6 +165,22 @@ class ArmSafety:
             return True
         return False
 
+    def on_still_report(self, still: bool, now_s: float) -> None:
+        """A device's own standstill report: a still device whose owner went quiet ends the
+        watch (its command is over), as ``on_angles`` does for an arm."""
+        if self.watched_by is not None and still and self._owner_quiet(now_s):
+            self.watched_by = None
+
+    def confirm(self, now_ns: int) -> bool:
+        """A device's state shows the stop action done: the stop is confirmed (still and
+        acted on); True the first time."""
+        stop = self.stop
+        if stop is None or stop.done or stop.dds_written_ns is None:
+            return False
+        stop.still_ns = stop.still_ns or now_ns
+        stop.confirmed_ns = now_ns
+        return True
+
     def reset(self) -> ActiveStop | None:
         """Release the latch (operator action); returns the stop that was released."""
         stop, self.stop = self.stop, None

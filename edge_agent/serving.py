@@ -1,10 +1,15 @@
-"""The agent's ``commands`` thread: key-space commands in, checked D1 commands out.
+"""The agent's ``commands`` thread: key-space commands in, checked robot commands out.
 
-Takes queries off the command inbox, decodes and checks them (limits, link, power, stop latch,
-lease, lifetime, in-flight limit), assigns seqs, registers them in flight (under the agent's
-lock, before any write, so no ack can arrive unmatched) and writes them through the arm's
-writer, now or at a synchronized start. Replies are sent by whichever thread completes the
-command (see ``EdgeAgent``). Queries the inbox could not queue are answered 3205 "busy" (``busy``).
+Takes queries off the command inbox, decodes and checks them. Every kind gets the same envelope
+checks, in one place: the principal and its role, duplicates / out-of-order / lifetime
+(``ordering.py``), the lease (``<principal>/<owner>``, takeover, release), the watchdog's watch
+of a coordinator's motion, and the stop latch at the moment of writing (under the robot's write
+lock). A device's own checks and its write are its driver's (``DeviceDriver.execute``); an arm's
+(limits, link, power, in-flight limit) are here: it assigns seqs, registers them in flight
+(under the agent's lock, before any write, so no ack can arrive unmatched) and writes them
+through the arm's writer, now or at a synchronized start. Replies are sent by whichever thread
+completes the command (see ``EdgeAgent``). Queries the inbox could not queue are answered 3205
+"busy" (``busy``).
 """
 
 from __future__ import annotations
@@ -17,17 +22,23 @@ from collections.abc import Callable
 from edge_agent.commands import InFlight, Plan, Refused, plan
 from edge_agent.holds import NO_FRESH_POSE, allowed_while_latched, hold_command
 from edge_agent.inbox import CommandInbox, IncomingQuery, owner_of
-from edge_agent.safety import LeaseRefused
+from edge_agent.ordering import CommandOrder
+from edge_agent.safety import ArmSafety, LeaseRefused
 from edge_agent.scheduler import SchedulerFull, StartScheduler
-from edge_agent.slots import ArmSlot, Outbox
+from edge_agent.slots import ArmSlot, DeviceSlot, Outbox
 from edge_agent.writer import ArmWriter
 from fleet.d1 import protocol as p
 from fleet.d1.seq import SeqExhausted
+from fleet.devices.base import DeviceCommand, DeviceReply, Release
+from fleet.devices.driver import Refusal, error_reply
 from fleet.inventory import Inventory
 from fleet.security.config import COMMANDERS
 from fleet.wire import messages as m
 from fleet.wire import payloads
 from fleet.wire.messages import ErrorCode, ErrorInfo
+
+Envelope = m.ArmCommand | DeviceCommand
+"""A command with the envelope every kind shares (owner, takeover, stamp_ns, lifetime_s)."""
 
 log = logging.getLogger("edge_agent.commands")
 
@@ -42,12 +53,14 @@ Flush = Callable[[Outbox], None]
 
 
 class CommandService:
-    """Serves ``arm/<arm>/cmd`` for every arm of the agent."""
+    """Serves ``arm/<arm>/cmd`` and ``<kind>/<device>/cmd`` for every robot of the agent."""
 
     def __init__(
         self,
         lock: threading.Lock,
         slots: dict[str, ArmSlot],
+        devices: dict[str, DeviceSlot],
+        reply_device: Callable[[IncomingQuery, DeviceReply, float], None],
         writer: ArmWriter,
         inbox: CommandInbox,
         scheduler: StartScheduler,
@@ -58,6 +71,8 @@ class CommandService:
     ) -> None:
         self._lock = lock
         self._slots = slots
+        self._devices = devices
+        self._reply_device = reply_device
         self._writer = writer
         self._inbox = inbox
         self._scheduler = scheduler
@@ -77,6 +92,9 @@ class CommandService:
 
     def _handle(self, item: IncomingQuery) -> None:
         now = time.monotonic()
+        if item.arm in self._devices:
+            self._handle_device(item, self._devices[item.arm], now)
+            return
         slot = self._slots[item.arm]
         try:
             command = payloads.COMMAND.decode(item.payload)
@@ -129,28 +147,14 @@ class CommandService:
         # The lease owner is the authenticated principal (from the key), then the commander
         # the payload names: nobody can act as another principal's owner.
         owner = None if command.owner is None else owner_of(principal, command.owner)
+        label = f"arm {item.arm!r}"
         if isinstance(command, m.Release):
-            if owner is None or not safety.release(owner):
-                holder = safety.lease.owner if safety.lease else "nobody"
-                raise Refused(ErrorCode.LEASE_INVALID, f"arm {item.arm!r} is held by {holder}")
+            _release(label, slot.safety, owner)
             return Plan((), {}), None, 0.0
-        refusal = slot.order.refusal(principal, owner, command.stamp_ns)
-        if refusal is not None:
-            raise Refused(ErrorCode.TIMEOUT, f"arm {item.arm!r}: {refusal}")
-        if command.lifetime_s is not None and command.stamp_ns is not None:
-            age_s = (time.time_ns() - command.stamp_ns) / 1e9
-            if age_s > command.lifetime_s:
-                raise Refused(
-                    ErrorCode.TIMEOUT,
-                    f"target for arm {item.arm!r} arrived {age_s * 1000:.0f} ms after it was sent, "
-                    f"past its lifetime of {command.lifetime_s * 1000:.0f} ms: not executed",
-                )
+        _check_order(label, slot.order, principal, owner, command)
         planned = plan(command, slot.tracker, now)
         if not (isinstance(command, m.Hold) and safety.latched):  # a stop ended every lease
-            try:
-                safety.check_owner(owner, command.takeover, now)
-            except LeaseRefused as exc:
-                raise Refused(ErrorCode.LEASE_EXISTS, f"arm {item.arm!r} is {exc}") from None
+            _check_lease(label, safety, owner, command.takeover, now)
         delay_s = 0.0
         if command.start_at_ns is not None:
             delay_s = (command.start_at_ns - time.time_ns()) / 1e9
@@ -198,6 +202,66 @@ class CommandService:
         """Motion by this owner is watched: it publishes heartbeats (a player, a mirror), or it
         is a coordinator (watched even before this agent heard its first beat)."""
         return owner in self._heartbeats or self._inventory.role_of(principal) == "coordinator"
+
+    def _handle_device(self, item: IncomingQuery, slot: DeviceSlot, now: float) -> None:
+        """One device command: the envelope checked here as for an arm, then, under the
+        device's write lock, the latch and the driver's own checks and write."""
+        driver, label = slot.driver, f"{slot.kind} {item.arm!r}"
+        try:
+            command = driver.commands.decode(item.payload)
+        except payloads.PayloadError as exc:
+            op = payloads.unknown_op(item.payload, payloads.ops_of(driver.commands))
+            code, why = (
+                (ErrorCode.NOT_IMPLEMENTED, f"unknown op {op!r} for {label}")
+                if op is not None
+                else (ErrorCode.PARAMETER, str(exc))
+            )
+            self._refuse_device(item, slot, code, why, now)
+            return
+        try:
+            with self._lock:
+                principal = self._check_principal(item)
+                owner = None if command.owner is None else owner_of(principal, command.owner)
+                released = isinstance(command, Release)
+                if released:
+                    _release(label, slot.safety, owner)
+            if released:
+                self._reply_device(item, DeviceReply(ok=True, device=item.arm), now)
+                return
+            with self._lock:
+                _check_order(label, slot.order, principal, owner, command)
+                exempt = driver.allowed_while_latched(command) and slot.safety.latched
+                if not exempt:
+                    _check_lease(label, slot.safety, owner, command.takeover, now)
+                if driver.moves(command) and owner is not None and self._watched(principal, owner):
+                    slot.safety.watch(owner, now)
+                slot.order.record(principal, owner, command.stamp_ns)
+            with self._writer.unit_lock(item.arm):
+                with self._lock:
+                    latched = slot.safety.latched or self._stopping.is_set()
+                    reason = slot.safety.last_reason
+                if latched and not driver.allowed_while_latched(command):
+                    raise Refused(
+                        ErrorCode.REJECTED,
+                        f"{label} is stopped ({reason}); `fleet reset {item.arm}` releases it",
+                    )
+                try:
+                    reply = driver.execute(command, now, lambda r: self._reply_device(item, r, now))
+                except Refusal as exc:
+                    raise Refused(exc.code, str(exc)) from None
+        except Refused as exc:
+            self._refuse_device(item, slot, exc.code, str(exc), now)
+            return
+        if reply is not None:
+            self._reply_device(item, reply, now)
+
+    def _refuse_device(
+        self, item: IncomingQuery, slot: DeviceSlot, code: ErrorCode, why: str, now: float
+    ) -> None:
+        with self._lock:
+            slot.rejected += 1
+            slot.last_error = why[:1000]
+        self._reply_device(item, error_reply(item.arm, code, why), now)
 
     def _check_principal(self, item: IncomingQuery) -> str:
         """The principal of a command; raises Refused when it names none or, with security on,
@@ -283,8 +347,46 @@ class CommandService:
 
     def busy(self, item: IncomingQuery) -> None:
         """Answer a query the inbox could not queue (called on the Zenoh thread)."""
-        why = f"arm {item.arm!r}: the agent is busy (its command queue is full); retry later"
+        why = f"{item.arm!r}: the agent is busy (its command queue is full); retry later"
+        if item.arm in self._devices:
+            reply = error_reply(item.arm, ErrorCode.REJECTED, why)
+            self._reply_device(item, reply, time.monotonic())
+            return
         self._refuse(item, ErrorCode.REJECTED, why, time.monotonic())
 
     def _refuse(self, item: IncomingQuery, code: ErrorCode, message: str, started: float) -> None:
         self._reply_now(item, started, ErrorInfo(int(code), message[:1000]))
+
+
+def _release(label: str, safety: ArmSafety, owner: str | None) -> None:
+    """``owner`` gives the robot up; raises Refused when it did not hold it."""
+    if owner is None or not safety.release(owner):
+        holder = safety.lease.owner if safety.lease else "nobody"
+        raise Refused(ErrorCode.LEASE_INVALID, f"{label} is held by {holder}")
+
+
+def _check_order(
+    label: str, order: CommandOrder, principal: str, owner: str | None, command: Envelope
+) -> None:
+    """Duplicates, out-of-order commands and commands past their lifetime: Refused."""
+    refusal = order.refusal(principal, owner, command.stamp_ns)
+    if refusal is not None:
+        raise Refused(ErrorCode.TIMEOUT, f"{label}: {refusal}")
+    if command.lifetime_s is not None and command.stamp_ns is not None:
+        age_s = (time.time_ns() - command.stamp_ns) / 1e9
+        if age_s > command.lifetime_s:
+            raise Refused(
+                ErrorCode.TIMEOUT,
+                f"target for {label} arrived {age_s * 1000:.0f} ms after it was sent, "
+                f"past its lifetime of {command.lifetime_s * 1000:.0f} ms: not executed",
+            )
+
+
+def _check_lease(
+    label: str, safety: ArmSafety, owner: str | None, takeover: bool, now: float
+) -> None:
+    """Refused (3207) unless ``owner`` may move the robot now; renews or takes the lease."""
+    try:
+        safety.check_owner(owner, takeover, now)
+    except LeaseRefused as exc:
+        raise Refused(ErrorCode.LEASE_EXISTS, f"{label} is {exc}") from None

@@ -1,7 +1,10 @@
-"""Per-arm state of the agent and the I/O batch its threads collect under the lock.
+"""Per-robot state of the agent and the I/O batch its threads collect under the lock.
 
-``ArmSlot`` groups what the agent knows and promises about one arm; ``Outbox`` holds the Zenoh
-puts and query replies computed under the agent's lock, performed after it is released.
+Every robot the agent serves is a *unit* with the same safety state (``ArmSafety``: latch,
+lease, watchdog) and ordering: ``ArmSlot`` for a D1 arm (its tracker, seqs, acks and commands
+in flight), ``DeviceSlot`` for a device of another kind (its driver, ``fleet/devices/driver``).
+``Outbox`` holds the Zenoh puts and query replies computed under the agent's lock, performed
+after it is released.
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ from edge_agent.ordering import CommandOrder
 from edge_agent.safety import ArmSafety
 from edge_agent.tracker import ArmTracker
 from fleet.d1.seq import SeqAllocator
+from fleet.devices.driver import DeviceDriver
 from fleet.wire import messages as m
 
 
@@ -39,6 +43,32 @@ class ArmSlot:
     def safety(self) -> ArmSafety:
         """The arm's stop latch, lease and watchdog (owned by its tracker's status)."""
         return self.tracker.safety
+
+    @property
+    def stop_action(self) -> str:
+        """What a stop writes (the inventory's ``stop_action``)."""
+        return self.tracker.config.stop_action
+
+
+@dataclass
+class DeviceSlot:
+    """One device: its kind's key word, its driver, and the core's safety state for it."""
+
+    kind: str
+    driver: DeviceDriver
+    safety: ArmSafety
+    mount: str = ""
+    order: CommandOrder = field(default_factory=CommandOrder)
+    rejected: int = 0
+    last_error: str | None = None
+
+    @property
+    def stop_action(self) -> str:
+        """What a stop writes (the kind's action, or the inventory's choice)."""
+        return self.driver.stop_action
+
+
+Unit = ArmSlot | DeviceSlot
 
 
 @dataclass

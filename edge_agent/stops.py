@@ -1,4 +1,5 @@
-"""The agent's protective stop, reset, heartbeat watchdog: the ``safety`` thread.
+"""The agent's protective stop, reset, heartbeat watchdog: the ``safety`` thread, for every
+robot it serves (arms and devices alike: one set of rules; only the action written differs).
 
 A stop is acted on locally first, whatever the coordinator does: the agent latches the arm,
 writes the arm's stop action to DDS (``hold``: the fresh measured angles become the target;
@@ -7,6 +8,11 @@ writes the arm's stop action to DDS (``hold``: the fresh measured angles become 
 still, and acknowledges again with the time it was seen still. Nothing here waits for the arm's
 own acks: a stop is confirmed by feedback (``power=0`` has been reported acknowledged and
 ignored).
+
+A device's stop is the same latch with its kind's action (``DeviceDriver.write_stop``: a
+gripper's hold, a G1's stop_move or damp), repeated until the device's own state confirms it
+(``stop_confirmed``, checked on the relay thread). A stop or reset of an arm also applies to the
+devices mounted on it (``mounted``).
 
 Each tick the thread first acts on every stop and reset that arrived (in arrival order), then on
 the newest heartbeat of each source, then on the watchdog and the stop repeats. A stop payload
@@ -26,7 +32,7 @@ from edge_agent.holds import NO_FRESH_POSE, hold_command, stop_command
 from edge_agent.inbox import ResetEvent, SafetyInbox, StopEvent
 from edge_agent.latches import LatchStore
 from edge_agent.relay import ZenohRelay
-from edge_agent.slots import ArmSlot, Outbox
+from edge_agent.slots import ArmSlot, DeviceSlot, Outbox, Unit
 from edge_agent.writer import ArmWriter, transient_seq
 from fleet.d1 import protocol as p
 from fleet.guard import ThreadGuard
@@ -51,7 +57,7 @@ class SafetyLoop:
     def __init__(
         self,
         lock: threading.Lock,
-        slots: dict[str, ArmSlot],
+        slots: dict[str, Unit],
         relay: ZenohRelay,
         writer: ArmWriter,
         inbox: SafetyInbox,
@@ -59,9 +65,13 @@ class SafetyLoop:
         stopping: threading.Event,
         guard: ThreadGuard,
         latches: LatchStore,
+        mounted: dict[str, list[str]] | None = None,
     ) -> None:
         self._lock = lock
         self._slots = slots
+        self._mounted = mounted or {}
+        """Arm id -> the devices mounted on it that this agent serves (a stop of the arm
+        stops them too; the arm may be served by another agent)."""
         self._relay = relay
         self._writer = writer
         self._inbox = inbox
@@ -88,8 +98,11 @@ class SafetyLoop:
 
     # ------------------------------------------------------------------ events
 
-    def _targets(self, arm: str | None) -> list[str]:
-        return list(self._slots) if arm is None else [arm]
+    def _targets(self, unit: str | None) -> list[str]:
+        """Every unit for None; else ``unit`` (when served here) and the devices mounted on it."""
+        if unit is None:
+            return list(self._slots)
+        return ([unit] if unit in self._slots else []) + self._mounted.get(unit, [])
 
     def _on_stop(self, event: StopEvent) -> None:
         if event.request is not None:
@@ -118,12 +131,9 @@ class SafetyLoop:
         with self._lock:
             self.last_heartbeat_s[source] = arrived_s
         for target, request in beat.stops.items():
-            if target == "*":
-                arms = list(self._slots)
-            elif target in self._slots:
-                arms = [target]
-            else:
-                continue  # another agent's arm
+            arms = self._targets(None if target == "*" else target)
+            if not arms:
+                continue  # another agent's robot
             # Heartbeats repeat stops 10 times a second: no fresh ack for each repeat.
             self.stop_arms(arms, request, reack=False)
 
@@ -156,16 +166,21 @@ class SafetyLoop:
                     # such repeats must cost a list entry, not a stop write each).
                     safety.note_also_stopped_by(request.stop_id)
                     continue
-                action = slot.tracker.config.stop_action
+                action = slot.stop_action
                 if not safety.latch(
                     request.stop_id, request.source, request.reason, now, now_ns, action
                 ):
                     continue
-                self._cancel_in_flight(slot, now, "a protective stop was latched", out)
+                if isinstance(slot, ArmSlot):
+                    self._cancel_in_flight(slot, now, "a protective stop was latched", out)
                 latched.append(arm)
         self._reack(repeats)
         if not latched:
             return
+        for arm in latched:
+            slot = self._slots[arm]
+            if isinstance(slot, DeviceSlot):
+                slot.driver.stop_started(now)
         later: list[Callable[[], None]] = []  # mirrors and observers, after every DDS write
         for arm in latched:
             self._write_stop(arm, request.stop_id, later)
@@ -173,11 +188,12 @@ class SafetyLoop:
         with self._lock:
             for arm in latched:
                 slot = self._slots[arm]
-                pubs = self._relay.publishers[arm]
                 ack = self._ack(arm, slot)
                 if ack is not None:
-                    acks.puts.append((pubs.stop_ack, encode(ack)))
-                out.puts.append((pubs.status, encode(slot.tracker.status(now, now_ns))))
+                    acks.puts.append((self._relay.stop_ack(arm), encode(ack)))
+                if isinstance(slot, ArmSlot):  # a device's state says it at its next put
+                    status = encode(slot.tracker.status(now, now_ns))
+                    out.puts.append((self._relay.publishers[arm].status, status))
         self._flush(acks)
         self._flush(out)
         for tell in later:
@@ -185,7 +201,7 @@ class SafetyLoop:
         for arm in latched:  # after every arm's stop is written: a file sync takes milliseconds
             self._latches.remember(arm, request)
         with self._lock:
-            actions = {self._slots[a].tracker.config.stop_action for a in latched}
+            actions = {self._slots[a].stop_action for a in latched}
         log.warning(
             "stopped %s by %s (%s)", ", ".join(latched), request.source, "/".join(sorted(actions))
         )
@@ -196,7 +212,7 @@ class SafetyLoop:
             for arm in arms:
                 ack = self._ack(arm, self._slots[arm])
                 if ack is not None:
-                    out.puts.append((self._relay.publishers[arm].stop_ack, encode(ack)))
+                    out.puts.append((self._relay.stop_ack(arm), encode(ack)))
         self._flush(out)
 
     def _write_stop(
@@ -205,6 +221,8 @@ class SafetyLoop:
         """Write the stop action of the stop latched on ``arm`` (``stop_id``; None: whichever
         is latched), composed at the moment of writing. True if it is this stop's first write
         (a hold without a fresh pose is written by a later repeat)."""
+        if isinstance(self._slots[arm], DeviceSlot):
+            return self._write_device_stop(arm, stop_id)
 
         def compose(slot: ArmSlot, now: float) -> tuple[p.Command, int] | None:
             stop = slot.safety.stop
@@ -225,14 +243,34 @@ class SafetyLoop:
                 return True
         return False
 
-    def _ack(self, arm: str, slot: ArmSlot) -> m.StopAck | None:
+    def _write_device_stop(self, unit: str, stop_id: str | None) -> bool:
+        """The device's stop action, under its write lock (nothing checked before the stop
+        is written after it); True if it is this stop's first write."""
+        slot = self._slots[unit]
+        assert isinstance(slot, DeviceSlot)
+        with self._writer.unit_lock(unit):
+            now = time.monotonic()
+            with self._lock:
+                stop = slot.safety.stop
+                if stop is None or (stop_id is not None and stop.stop_id != stop_id):
+                    return False  # reset meanwhile, or superseded
+                stop.last_sent_s = now
+            written, detail = slot.driver.write_stop(now)
+            with self._lock:
+                stop.detail = detail
+                if written and stop.dds_written_ns is None:
+                    stop.dds_written_ns = time.time_ns()
+                    return True
+        return False
+
+    def _ack(self, arm: str, slot: Unit) -> m.StopAck | None:
         stop = slot.safety.stop
         if stop is None:
             return None
         return m.StopAck(
             arm=arm,
             stop_id=stop.stop_id,
-            action=slot.tracker.config.stop_action,
+            action=slot.stop_action,
             received_ns=stop.received_ns,
             dds_written_ns=stop.dds_written_ns,
             still_ns=stop.still_ns,
@@ -250,6 +288,10 @@ class SafetyLoop:
                 return
             slot.safety.last_reason = f"reset by {source[:128]}"
         self._latches.forget(arm)
+        if isinstance(slot, DeviceSlot):  # it stays as the stop left it
+            slot.driver.stop_cleared()
+            log.warning("%s %s reset by %s", slot.kind, arm, source)
+            return
         with self._lock:
             status = encode(slot.tracker.status(now, now_ns))
 
@@ -305,11 +347,11 @@ class SafetyLoop:
             for _t, source in spare[: len(table) - MAX_HEARTBEAT_SOURCES]:
                 del table[source]
 
-    def on_still(self, arm: str, slot: ArmSlot, out: Outbox) -> None:
-        """Feedback showed a stopped arm still: acknowledge it (caller holds the lock)."""
+    def on_still(self, arm: str, slot: Unit, out: Outbox) -> None:
+        """Feedback showed a stopped robot still: acknowledge it (caller holds the lock)."""
         ack = self._ack(arm, slot)
         if ack is not None:
-            out.puts.append((self._relay.publishers[arm].stop_ack, encode(ack)))
+            out.puts.append((self._relay.stop_ack(arm), encode(ack)))
 
     def restore(self, arm: str, request: m.StopRequest) -> None:
         """Latch ``arm`` with the stop it had before the agent restarted (at start-up, before
@@ -317,14 +359,12 @@ class SafetyLoop:
         now, now_ns = time.monotonic(), time.time_ns()
         with self._lock:
             slot = self._slots[arm]
-            action = slot.tracker.config.stop_action
+            action = slot.stop_action
             slot.safety.latch(request.stop_id, request.source, request.reason, now, now_ns, action)
             slot.safety.last_reason = (
                 f"stopped before the agent restarted, by {request.source}: {request.reason}"
             )[:1000]
-        log.warning(
-            "arm %s: restored the stop latched before the restart (%s)", arm, request.stop_id
-        )
+        log.warning("%s: restored the stop latched before the restart (%s)", arm, request.stop_id)
 
     def latch_all(self, reason: str) -> None:
         """A thread of the agent failed: latch and stop every arm before the process exits."""

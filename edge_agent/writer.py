@@ -57,6 +57,16 @@ class ArmWriter:
         self._arm_locks = {arm: threading.Lock() for arm in slots}
         self.observers: list[Observer] = []
 
+    def add_units(self, units: list[str]) -> None:
+        """Give devices a write lock too (``unit_lock``; at start-up only)."""
+        for unit in units:
+            self._arm_locks.setdefault(unit, threading.Lock())
+
+    def unit_lock(self, unit: str) -> threading.Lock:
+        """The write lock of ``unit``: a device's driver writes under it, as an arm's commands
+        are written under it here (a stop's write and a command's never interleave)."""
+        return self._arm_locks[unit]
+
     def write(
         self, arm: str, compose: Compose, later: list[Callable[[], None]] | None = None
     ) -> Written | None:

@@ -18,7 +18,7 @@ import zenoh
 
 from fleet.devices import kind_of
 from fleet.devices.base import DeviceReply
-from fleet.devices.relay import error_reply
+from fleet.devices.driver import error_reply
 from fleet.inventory import Inventory
 from fleet.security.session import open_session
 from fleet.wire import keys, payloads

@@ -14,6 +14,7 @@ from __future__ import annotations
 import fcntl
 import socket
 import struct
+import threading
 import time
 from collections.abc import Iterable
 from dataclasses import dataclass
@@ -21,8 +22,10 @@ from pathlib import Path
 from typing import Literal
 
 from fleet.client import FleetClient
+from fleet.devices import kind_of
 from fleet.inventory import Inventory
 from fleet.wire import keys, payloads
+from fleet.wire import messages as m
 from fleet.wire.info import package_version, query_info
 
 Level = Literal["ok", "warn", "fail"]
@@ -274,6 +277,57 @@ def check_arms(client: FleetClient, arms: Iterable[str]) -> list[Check]:
             fix = f"find out why ({status.stop_reason}), then: fleet reset {arm}"
             found.append(Check(f"stop of {arm}", "warn", "latched", fix))
     return found
+
+
+def check_devices(client: FleetClient, devices: Iterable[str]) -> list[Check]:
+    """Each device: its agent's token and its DDS link and rate (from its diag)."""
+    found: list[Check] = []
+    inventory = client.inventory
+    for device in devices:
+        config = inventory.device(device)
+        kind = kind_of(config).key
+        token = client.keys.device(kind, device, keys.AGENT)
+        alive = any(r.ok is not None for r in client.session.liveliness().get(token, timeout=1.0))
+        if not alive:
+            fix = (
+                f"start it: edge-agent --interface {config.interface or '<card>'} --inventory "
+                f"{inventory.path} (or `fleet deploy systemd` and systemctl start it)"
+            )
+            found.append(
+                Check(f"agent of {device}", "fail", f"no liveliness token on {token}", fix)
+            )
+            continue
+        found.append(Check(f"agent of {device}", "ok", "alive"))
+        diag = _latest_diag(client, client.keys.device(kind, device, keys.DIAG), wait_s=1.6)
+        what = f"state of {kind} {device}"
+        if diag is None:
+            found.append(Check(what, "warn", "alive, no diag within 1.6 s"))
+        elif diag.link != "ok":
+            fix = (
+                f"the agent hears no state from {device}: is it powered, on "
+                f"{config.interface or 'a card'} and on this DDS domain? ({diag.last_error})"
+            )
+            found.append(Check(what, "fail", f"link {diag.link}", fix))
+        else:
+            found.append(Check(what, "ok", f"link ok, {diag.feedback_rate_hz:.1f} Hz"))
+    return found
+
+
+def _latest_diag(client: FleetClient, key: str, wait_s: float) -> m.Diag | None:
+    got: list[m.Diag] = []
+    arrived = threading.Event()
+
+    def on_diag(sample: object) -> None:
+        try:
+            got.append(payloads.DIAG.decode(sample.payload.to_bytes()))  # type: ignore[attr-defined]
+        except payloads.PayloadError:
+            return
+        arrived.set()
+
+    subscriber = client.session.declare_subscriber(key, on_diag)
+    arrived.wait(wait_s)
+    subscriber.undeclare()
+    return got[-1] if got else None
 
 
 def _diag_rates(client: FleetClient, arms: list[str], wait_s: float) -> dict[str, float]:

@@ -175,21 +175,16 @@ class Inventory(Struct, frozen=True):
 
     def device_network(self, device_ids: list[str]) -> DdsNetwork:
         """The one DDS network ``device_ids`` share (one agent process per network)."""
-        found = {
-            DdsNetwork(
-                self.domain_id if d.domain_id is None else d.domain_id,
-                d.interface,
-                tuple(self.peers if d.peers is None else d.peers),
-                d.multicast,
-            )
-            for d in (self.device(i) for i in device_ids)
-        }
-        if len(found) != 1:
-            raise InventoryError(
-                f"{self.path}: devices {', '.join(device_ids)} are on different DDS networks: "
-                "one agent process per network interface"
-            )
-        return found.pop()
+        return self.network_of([], device_ids)
+
+    def units_on(self, interface: str) -> tuple[list[str], list[str]]:
+        """The arms and the devices on network interface ``interface``."""
+        arms = [a.id for a in self.arms.values() if a.interface == interface]
+        return arms, [d.id for d in self.devices.values() if d.interface == interface]
+
+    def agent_of(self, unit: str) -> str:
+        """The principal of the agent serving arm or device ``unit``."""
+        return self.arms[unit].agent if unit in self.arms else self.device(unit).agent
 
     def role_of(self, principal: str) -> Role | None:
         """The role of ``principal``; None for a principal the inventory does not know."""
@@ -230,18 +225,26 @@ class Inventory(Struct, frozen=True):
         """The arm's DDS unicast peers (its own, or the fleet's)."""
         return tuple(self.peers if arm.peers is None else arm.peers)
 
-    def network_of(self, arm_ids: list[str]) -> DdsNetwork:
-        """The one (domain, interface, peers, multicast) that ``arm_ids`` share. One process
-        serves one network: CycloneDDS takes one configuration per domain and process, and arms
-        on different cards with the same topics must not hear each other (NIC binding)."""
-        arms = [self.arm(a) for a in arm_ids]
+    def network_of(self, arm_ids: list[str], device_ids: list[str] | None = None) -> DdsNetwork:
+        """The one (domain, interface, peers, multicast) that ``arm_ids`` and ``device_ids``
+        share. One process serves one network: CycloneDDS takes one configuration per domain
+        and process, and robots on different cards with the same topics must not hear each
+        other (NIC binding)."""
+        units: list[ArmConfig | DeviceBase] = [self.arm(a) for a in arm_ids]
+        units += [self.device(d) for d in device_ids or ()]
         networks = {
-            DdsNetwork(self.domain_of(a), a.interface, self.peers_of(a), a.multicast) for a in arms
+            DdsNetwork(
+                self.domain_id if u.domain_id is None else u.domain_id,
+                u.interface,
+                tuple(self.peers if u.peers is None else u.peers),
+                u.multicast,
+            )
+            for u in units
         }
         if len(networks) != 1:
             raise InventoryError(
-                f"{self.path}: arms on different DDS domains or interfaces need one process per "
-                f"network interface ({', '.join(f'{a.id}: {a.interface}' for a in arms)})"
+                f"{self.path}: robots on different DDS domains or interfaces need one process "
+                f"per network interface ({', '.join(f'{u.id}: {u.interface}' for u in units)})"
             )
         return networks.pop()
 
@@ -478,13 +481,17 @@ def _parse_devices(
             if device_id in arms or device_id in devices:
                 raise InventoryError(f"{path}: {where}: the id {device_id!r} is already used")
             merged = {**inherited, **table, "id": device_id}
-            merged.setdefault("agent", f"agent-{device_id}")
+            mount = merged.get("mount")
+            mounted_on = arms.get(mount) if isinstance(mount, str) else None
+            merged.setdefault("agent", mounted_on.agent if mounted_on else f"agent-{device_id}")
             device = _convert(merged, kind.config, path, where)
             _check_finite(device, path, where)
             problem = kind.check(device)
             mount = getattr(device, "mount", "")
             if problem is None and mount and mount not in arms:
                 problem = f"mount {mount!r} is not an arm of this inventory"
+            if problem is None and (device.watchdog_s <= 0 or device.lease_s <= 0):
+                problem = "watchdog_s and lease_s must be positive"
             if problem is not None:
                 raise _fail(path, where, problem)
             devices[device_id] = device

@@ -81,12 +81,22 @@ def units(inventory: Inventory, bin_dir: Path, user: str | None = None) -> dict[
         ),
         f"{PREFIX}-viewer.service": _unit("viewer", [fleet, "viewer", *inv], user, True),
     }
-    cards = sorted({arm.interface for arm in inventory.arms.values()})
-    for card in cards:
-        arms = [a.id for a in inventory.arms.values() if a.interface == card]
+    # One agent per network card (and agent identity: one process has one certificate),
+    # serving every arm and device on that card.
+    groups: dict[tuple[str, str], list[str]] = {}
+    for unit in [*inventory.arms.values(), *inventory.devices.values()]:
+        identity = unit.agent if inventory.security.enabled else ""
+        groups.setdefault((unit.interface, identity), []).append(unit.id)
+    shared_cards = {card for card, _p in groups if sum(c == card for c, _ in groups) > 1}
+    for (card, principal), served in sorted(groups.items()):
         name = re.sub(r"[^A-Za-z0-9_.-]", "_", card) or "any"
         argv = [agent, "--interface", card or '""', *inv]
-        text = _unit(f"edge agent of {', '.join(arms)} ({card or 'any card'})", argv, user, True)
+        if card in shared_cards:  # several identities on this card: one process each
+            name += f"-{principal}"
+            argv += ["--principal", principal]
+            for unit in served:
+                argv += ["--arm" if unit in inventory.arms else "--device", unit]
+        text = _unit(f"edge agent of {', '.join(served)} ({card or 'any card'})", argv, user, True)
         out[f"{PREFIX}-agent-{name}.service"] = text
     return out
 

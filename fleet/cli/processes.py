@@ -291,16 +291,10 @@ def _run_demo(args: argparse.Namespace, inventory: Inventory) -> int:
         simulated = [a.id for a in inventory.arms.values() if a.simulated]
         if simulated:
             supervisor.start("simulator", ["-m", "fleet.cli.main", "sim", *common])
-        for arm in inventory.arms:
-            supervisor.start(f"agent of {arm}", ["-m", "edge_agent", "--arm", arm, *common])
-        # Devices beside the arms: one agent process per agent principal (issue 14).
-        served: dict[str, list[str]] = {}
-        for device, config in inventory.devices.items():
-            served.setdefault(config.agent, []).append(device)
-        for principal, devices in served.items():
-            argv = ["-m", "edge_agent", "--principal", principal]
-            argv += [x for d in devices for x in ("--device", d)]
-            supervisor.start(f"agent of {', '.join(devices)}", [*argv, *common])
+        # One agent process per network card and agent identity: an arm and the devices
+        # mounted on it share one (their agent is the arm's by default).
+        for label, argv in agent_processes(inventory):
+            supervisor.start(f"agent of {label}", ["-m", "edge_agent", *argv, *common])
         supervisor.start("coordinator", ["-m", "fleet.cli.main", "coordinator", *common])
         if not args.no_dance:
             # Loops until a stop, which ends it: a reset permits motion, never restarts it (the
@@ -409,3 +403,18 @@ def _stop_children(children: list[subprocess.Popen[bytes]]) -> None:
                     "stop it by hand",
                     file=sys.stderr,
                 )
+
+
+def agent_processes(inventory: Inventory) -> list[tuple[str, list[str]]]:
+    """(label, edge-agent arguments) of the agent processes serving ``inventory``: one per
+    network card and agent principal (one process has one identity), each naming its robots."""
+    groups: dict[tuple[str, str], list[str]] = {}
+    for unit in [*inventory.arms.values(), *inventory.devices.values()]:
+        groups.setdefault((unit.interface, unit.agent), []).append(unit.id)
+    out = []
+    for (_card, principal), units in groups.items():
+        argv = ["--principal", principal]
+        for unit in units:
+            argv += ["--arm" if unit in inventory.arms else "--device", unit]
+        out.append((", ".join(units), argv))
+    return out

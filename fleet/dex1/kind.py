@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from fleet.devices import DeviceKind
 from fleet.dex1.config import GripperConfig, check_gripper
-from fleet.dex1.messages import GripEvent, GripperHold, GripperMove, GripperState
+from fleet.dex1.messages import GripEvent, GripperCommand, GripperState
 from fleet.wire import keys
 from fleet.wire.payloads import KIB, payload_kind
 
@@ -28,10 +28,10 @@ KIND = DeviceKind(
     check=check_gripper,
     payloads={
         keys.STATE: payload_kind("gripper state", GripperState, 4 * KIB),
-        keys.CMD: payload_kind("gripper command", GripperMove | GripperHold, 4 * KIB),
+        keys.CMD: payload_kind("gripper command", GripperCommand, 4 * KIB),
         keys.CONTACT: payload_kind("gripper contact", GripEvent, 4 * KIB),
     },
     summary=summary,
-    agent="fleet.dex1.relay:GripperRelay",
+    agent="fleet.dex1.relay:GripperDriver",
     sim="fleet.dex1.sim:SimGripper",
 )

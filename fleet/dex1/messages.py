@@ -9,6 +9,7 @@ from typing import Annotated, Literal
 
 from msgspec import Meta, Struct
 
+from fleet.devices.base import DeviceCommand, Release
 from fleet.wire.messages import Count, Name, StampNs, Text
 
 Radians = Annotated[float, Meta(ge=-100.0, le=100.0)]
@@ -45,7 +46,7 @@ class GripperState(Struct, frozen=True):
     mount: Name | Literal[""]
 
 
-class _GripperCommand(Struct, tag_field="op", kw_only=True, forbid_unknown_fields=True):
+class _GripperCommand(DeviceCommand, kw_only=True):
     pass
 
 
@@ -64,7 +65,7 @@ class GripperHold(_GripperCommand, tag="hold", kw_only=True):
     """Hold the measured position (a fresh one only)."""
 
 
-GripperCommand = GripperMove | GripperHold
+GripperCommand = GripperMove | GripperHold | Release
 
 
 class GripEvent(Struct, frozen=True):

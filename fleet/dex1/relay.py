@@ -6,8 +6,8 @@ The state reader is not waited on: ``tick`` polls it at the relay's grid (at mos
 uses from the serialized bytes (``codec.CDR_READERS``). A 500 Hz stream costs 50 wake-ups a
 second, not 500 plus the ticks between them (issue 14's benchmark: README, Benchmark).
 
-Threads and locks: ``fleet/devices/relay.py`` (``LatchedRelay``; ``_lock`` also guards the
-target).
+Threads and locks: ``fleet/devices/driver.py`` (``_lock`` also guards the target; the core's
+write lock of the device serializes every write with the stop's).
 """
 
 from __future__ import annotations
@@ -23,8 +23,8 @@ from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 
-from fleet.devices.base import DeviceReply
-from fleet.devices.relay import LatchedRelay, Put
+from fleet.devices.base import DeviceReply, Release
+from fleet.devices.driver import Done, DriverBase, LatchView, Put
 from fleet.dex1 import dds as ddx
 from fleet.dex1 import idl
 from fleet.dex1.codec import (
@@ -40,10 +40,10 @@ from fleet.dex1.codec import (
 )
 from fleet.dex1.config import GripperConfig
 from fleet.dex1.grip import GripChange, GripDetector
-from fleet.dex1.messages import GripEvent, GripperHold, GripperMove, GripperState
+from fleet.dex1.messages import GripEvent, GripperCommand, GripperHold, GripperMove, GripperState
 from fleet.wire import keys
 from fleet.wire import messages as m
-from fleet.wire.payloads import PayloadError, payload_kind
+from fleet.wire.payloads import payload_kind
 
 log = logging.getLogger("edge_agent.gripper")
 
@@ -55,16 +55,19 @@ the stop's confirmation see every sample within this; a batch is 10 samples at 5
 BATCH_SPAN_S = 0.2
 """A sample's age within a batch is bounded by this (the writer's stamps are not trusted)."""
 ANY_SAMPLE = SampleState.Any | ViewState.Any | InstanceState.Any
-COMMAND = payload_kind("gripper command", GripperMove | GripperHold, 4 * 1024)
+COMMAND = payload_kind("gripper command", GripperCommand, 4 * 1024)
 STILL_RAD_S = 0.05
 """A held gripper is confirmed still below this speed (measured over 20 ms)."""
 
 
-class GripperRelay(LatchedRelay):
-    """One Dex1-1 served by the agent (create on the host's start-up thread)."""
+class GripperDriver(DriverBase):
+    """One Dex1-1 served by the agent core (create on the core's start-up thread)."""
 
-    def __init__(self, config: GripperConfig, participant: Any, put: Put) -> None:
-        super().__init__(config.id, "hold", put, ("relayed", "commands", "write_failures"))
+    stop_action = "hold"
+    commands = COMMAND
+
+    def __init__(self, config: GripperConfig, participant: Any, put: Put, latch: LatchView) -> None:
+        super().__init__(config.id, put, latch, (), config.link_stale_s)
         self.config = config
         cmd_type, state_type = idl.FAMILIES[config.family]
         state_topic = Topic(participant, config.state_topic, state_type)
@@ -136,17 +139,13 @@ class GripperRelay(LatchedRelay):
             except BadSample as exc:
                 bad += 1
                 log.debug("gripper %s: bad state sample: %s", self.device, exc)
-        ack: m.StopAck | None = None
         with self._lock:
             self._counts["bad_samples"] += bad
             self._counts["dds_samples"] += len(valid) - bad
+            if bad:
+                self._last_error = f"{bad} state samples did not decode"
             if reading is not None:
                 self._latest, self._fresh = (reading, at_s), True
-            written = self._action_written_s
-            if written is not None and now_s - written > 0.02:
-                speed = self._grip.speed()
-                if speed is not None and abs(speed) < STILL_RAD_S and self._latch.confirm():
-                    ack = self._latch.ack()
         tau_est = reading.tau_est if reading is not None else 0.0
         for change in changes:
             event = GripEvent(
@@ -159,7 +158,6 @@ class GripperRelay(LatchedRelay):
                 tau_est=tau_est,  # the batch's newest: within one poll period of the change
             )
             self._put(keys.CONTACT, m.encode(event), True)
-        self._put_ack(ack)
 
     def _position(self, serialized: bytes, family: str) -> float:
         try:
@@ -182,8 +180,8 @@ class GripperRelay(LatchedRelay):
 
     def tick(self, now_s: float) -> float:
         """Poll the state (every sample since the last tick, in one batch), put the newest at
-        the relay rate (a 1 Hz repeat when nothing new, so a stale link is seen), write the
-        stop's hold until confirmed; returns when the next tick is due (the relay's grid)."""
+        the relay rate (a 1 Hz repeat when nothing new, so a stale link is seen); returns when
+        the next tick is due (the relay's grid)."""
         self._take(now_s)
         with self._lock:
             self._update_rate(now_s)
@@ -194,12 +192,9 @@ class GripperRelay(LatchedRelay):
                 # Keep the grid: a late tick does not shift the next put (the rate stays).
                 self._next_put_s = max(self._next_put_s + self._period_s, now_s - self._period_s)
                 self._counts["relayed"] += 1
-            hold_due = self._latch.due(now_s)
             next_s = self._next_put_s if self._next_put_s > now_s else now_s + self._poll_s
         if state is not None:
             self._put(keys.STATE, m.encode(state), False)
-        if hold_due:
-            self._write_stop_action(now_s)
         return min(next_s, now_s + self._poll_s)
 
     def _state(self, now_s: float) -> GripperState | None:
@@ -207,6 +202,7 @@ class GripperRelay(LatchedRelay):
             return None
         reading, at_s = self._latest
         stale = now_s - at_s > self.config.link_stale_s
+        latched, reason = self._latch()
         return GripperState(
             stamp_ns=time.time_ns(),
             q_rad=round(reading.q_rad, 5),
@@ -219,8 +215,8 @@ class GripperRelay(LatchedRelay):
             link="stale" if stale else "ok",
             target_rad=self._target,
             gripping=self._grip.gripping,
-            estopped=self._latch.latched,
-            stop_reason=self._latch.reason,
+            estopped=latched,
+            stop_reason=reason,
             dds_samples=self._counts["dds_samples"],
             relayed=self._counts["relayed"] + 1,
             bad_samples=self._counts["bad_samples"],
@@ -228,6 +224,21 @@ class GripperRelay(LatchedRelay):
             family=self.config.family,
             mount=self.config.mount,
         )
+
+    def stop_confirmed(self, now_s: float) -> bool:
+        """The hold is confirmed once the gripper moves slower than ``STILL_RAD_S`` (measured
+        after the hold's first write)."""
+        with self._lock:
+            written = self._stop_written_s
+        if written is None or now_s - written <= 0.02:
+            return False
+        speed = self._grip.speed()
+        return speed is not None and abs(speed) < STILL_RAD_S
+
+    def still(self) -> bool | None:
+        """Slower than ``STILL_RAD_S`` (None before two samples)."""
+        speed = self._grip.speed()
+        return None if speed is None else abs(speed) < STILL_RAD_S
 
     # ------------------------------------------------------------------ writes
 
@@ -239,7 +250,7 @@ class GripperRelay(LatchedRelay):
         return latest[0].q_rad
 
     def _write_target(self, target: Target) -> int:
-        """Write ``target`` (caller holds ``_write``); the wall-clock time it was written."""
+        """Write ``target`` (the core holds the device's write lock); the wall-clock time."""
         self._writer.write(ddx.command_sample(self.config.family, target))
         with self._lock:
             self._target = target.q_rad
@@ -250,76 +261,61 @@ class GripperRelay(LatchedRelay):
         c = self.config
         return Target(q_rad=min(max(q_rad, c.q_min_rad), c.q_max_rad), tau=c.tau, kp=c.kp, kd=c.kd)
 
-    def _write_stop_action(self, now_s: float) -> None:
-        """The hold of the measured position (only a fresh one: else latched, written when
+    def write_stop(self, now_s: float) -> tuple[bool, str | None]:
+        """The hold of the measured position (only a fresh one: else written by a repeat once
         one arrives)."""
-        ack = None
-        with self._write:
-            q = self._fresh_q(now_s)
-            with self._lock:
-                if not self._latch.latched:
-                    return
-                if q is None:
-                    first = self._latch.detail is None
-                    self._latch.detail = "no fresh position: the hold is written when one arrives"
-                    self._latch.last_write_s = now_s
-                    ack = self._latch.ack() if first else None
-            if q is not None:
-                self._write_target(self._hold_target(q))
-                with self._lock:
-                    first = self._latch.written_ns is None
-                    self._latch.detail = None
-                    self._latch.written(now_s)
-                    self._action_written_s = now_s
-                    ack = self._latch.ack() if first else None
-        self._put_ack(ack)
+        q = self._fresh_q(now_s)
+        if q is None:
+            return False, "no fresh position: the hold is written when one arrives"
+        self._write_target(self._hold_target(q))
+        with self._lock:
+            if self._stop_written_s is None:
+                self._stop_written_s = now_s
+        return True, None
 
     # ------------------------------------------------------------------ commands
 
-    def command(self, payload: bytes, principal: str) -> DeviceReply:
-        """Check and execute one command (3204 out of range, 3205 stopped or no state)."""
+    def moves(self, command: Any) -> bool:
+        """A move sets the fingers moving."""
+        return isinstance(command, GripperMove)
+
+    def allowed_while_latched(self, command: Any) -> bool:
+        """A hold keeps the gripper where it is: allowed under a stop."""
+        return isinstance(command, GripperHold)
+
+    def execute(self, command: Any, now_s: float, done: Done) -> DeviceReply | None:
+        """Check and write one command (3204 out of range, 3205 no state)."""
+        assert not isinstance(command, Release)  # the core serves releases
         with self._lock:
             self._counts["commands"] += 1
-        try:
-            cmd = COMMAND.decode(payload)
-        except PayloadError as exc:
-            code = m.ErrorCode.PARAMETER
-            if b'"op"' in payload and b'"move"' not in payload and b'"hold"' not in payload:
-                code = m.ErrorCode.NOT_IMPLEMENTED
-            return self._refuse(code, str(exc))
-        now_s = time.monotonic()
-        if isinstance(cmd, GripperHold):
+        if isinstance(command, GripperHold):
             q = self._fresh_q(now_s)
             if q is None:
-                return self._refuse(m.ErrorCode.REJECTED, self._no_state())
+                raise self._refuse(m.ErrorCode.REJECTED, self._no_state())
             target = self._hold_target(q)
         else:
-            if (cmd.open_pct is None) == (cmd.q_rad is None):
-                return self._refuse(m.ErrorCode.PARAMETER, "give exactly one of open_pct, q_rad")
+            if (command.open_pct is None) == (command.q_rad is None):
+                raise self._refuse(m.ErrorCode.PARAMETER, "give exactly one of open_pct, q_rad")
             c = self.config
-            q_rad = cmd.q_rad if cmd.q_rad is not None else (cmd.open_pct or 0.0) / 50.0 * math.pi
+            q_rad = (
+                command.q_rad
+                if command.q_rad is not None
+                else (command.open_pct or 0.0) / 50.0 * math.pi
+            )
             target = Target(
                 q_rad=q_rad,
-                tau=c.tau if cmd.tau is None else cmd.tau,
-                kp=c.kp if cmd.kp is None else cmd.kp,
-                kd=c.kd if cmd.kd is None else cmd.kd,
+                tau=c.tau if command.tau is None else command.tau,
+                kp=c.kp if command.kp is None else command.kp,
+                kd=c.kd if command.kd is None else command.kd,
             )
             problem = target_problem(target, self._limits)
             if problem is not None:
-                return self._refuse(
+                raise self._refuse(
                     m.ErrorCode.PARAMETER, f"gripper {self.device!r}: {problem} (inventory limits)"
                 )
-        with self._write:
-            with self._lock:
-                reason = self._latch.reason if self._latch.latched else None
-            if reason is not None and isinstance(cmd, GripperMove):
-                return self._refuse(
-                    m.ErrorCode.REJECTED,
-                    f"gripper {self.device!r} is stopped ({reason}); `fleet reset` releases it",
-                )
             if self._fresh_q(now_s) is None:
-                return self._refuse(m.ErrorCode.REJECTED, self._no_state())
-            written = self._write_target(target)
+                raise self._refuse(m.ErrorCode.REJECTED, self._no_state())
+        written = self._write_target(target)
         return DeviceReply(ok=True, device=self.device, written_ns=written)
 
     def _no_state(self) -> str:

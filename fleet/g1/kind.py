@@ -36,7 +36,7 @@ KIND = DeviceKind(
         keys.CMD: payload_kind("g1 command", G1Command, 4 * KIB),
     },
     summary=summary,
-    agent="fleet.g1.relay:G1Relay",
+    agent="fleet.g1.relay:G1Driver",
     sim="fleet.g1.sim:SimG1",
     stop_actions=("stop_move", "damp"),
 )

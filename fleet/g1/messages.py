@@ -6,6 +6,7 @@ from typing import Annotated, Literal
 
 from msgspec import Meta, Struct
 
+from fleet.devices.base import DeviceCommand, Release
 from fleet.wire.messages import Count, StampNs, Text
 
 Speed = Annotated[float, Meta(ge=-10.0, le=10.0)]
@@ -40,7 +41,7 @@ class G1State(Struct, frozen=True):
     """The latched stop's state when not confirmed (``unconfirmed: no state``)."""
 
 
-class _G1Command(Struct, tag_field="op", kw_only=True, forbid_unknown_fields=True):
+class _G1Command(DeviceCommand, kw_only=True):
     pass
 
 
@@ -85,7 +86,15 @@ class GetFsmId(_G1Command, tag="get_fsm_id", kw_only=True):
 
 
 G1Command = (
-    Damp | Start | StandUp | BalanceStand | ContinuousGait | StopMove | SetVelocity | GetFsmId
+    Damp
+    | Start
+    | StandUp
+    | BalanceStand
+    | ContinuousGait
+    | StopMove
+    | SetVelocity
+    | GetFsmId
+    | Release
 )
 OPS = {
     Damp: "damp",
@@ -96,4 +105,5 @@ OPS = {
     StopMove: "stop_move",
     SetVelocity: "set_velocity",
     GetFsmId: "get_fsm_id",
+    Release: "release",
 }

@@ -2,17 +2,17 @@
 calls over DDS RPC (checked first: bounds, seed 004's dynamic-state rule, the stop latch),
 and the stop action confirmed from sportmodestate.
 
-Issue 22 (firmware truth), kept in marked blocks so it ports to the G1 driver: the service
-name per device (``fleet/g1/probe.py``: ``sport``, ``loco`` or ``auto``; one request writer and
-response reader per candidate name); damp never refused for missing state, and a stop written
-without state reported ``unconfirmed: no state`` and repeated until state confirms it; the stop
-action's calls from ``loco.stop_calls`` (``stop_move`` also ends continuous gait).
+Threads as for every device (``fleet/devices/driver.py``). RPC: one long-lived request writer
+and response reader; each call gets a fresh request id, and its answer is matched by that id
+on the relay thread, which replies (no thread waits for the robot: a call unanswered within
+``rpc_timeout_s`` is answered 3104 by ``tick``). The core's write lock of the device
+serializes requests with the stop's own: nothing checked before a stop is written after it.
 
-Threads as for every device (``fleet/devices/relay.py``). RPC: one long-lived request writer
-and response reader; each call gets a fresh request id, its answer is matched by that id on
-the relay thread and handed to the waiting command thread (bounded wait: 3104 on timeout).
-``_write`` serializes requests with the latch decision: nothing checked before a stop is
-written after the stop's own request.
+Issue 22 (firmware truth), in marked blocks: the service name per device
+(``fleet/g1/probe.py``: ``sport``, ``loco`` or ``auto``; one request writer and response reader
+per candidate name, GetFsmId asked from ``tick`` until answered); the stop action's calls from
+``loco.stop_calls`` (``stop_move`` also ends continuous gait), to every candidate name while
+``auto`` has not found it.
 """
 
 from __future__ import annotations
@@ -20,8 +20,8 @@ from __future__ import annotations
 import itertools
 import logging
 import math
-import threading
 import time
+from dataclasses import dataclass
 from typing import Any
 
 from cyclonedds.core import Policy, Qos
@@ -30,15 +30,25 @@ from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 from cyclonedds.util import duration
 
-from fleet.devices.base import DeviceReply
-from fleet.devices.relay import LatchedRelay, Put, error_reply
+from fleet.devices.base import DeviceReply, Release
+from fleet.devices.driver import Done, DriverBase, LatchView, Put, error_reply
 from fleet.g1 import idl, loco
 from fleet.g1.config import G1Config
-from fleet.g1.messages import OPS, ContinuousGait, G1Command, G1State, SetVelocity
+from fleet.g1.messages import (
+    OPS,
+    BalanceStand,
+    ContinuousGait,
+    Damp,
+    G1Command,
+    G1State,
+    GetFsmId,
+    SetVelocity,
+    StopMove,
+)
 from fleet.g1.probe import ServiceProbe
 from fleet.wire import keys
 from fleet.wire import messages as m
-from fleet.wire.payloads import KIB, PayloadError, payload_kind
+from fleet.wire.payloads import KIB, payload_kind
 
 log = logging.getLogger("edge_agent.g1")
 
@@ -54,23 +64,31 @@ RPC_QOS = Qos(
 CONFIRM_SAMPLES = 3
 """The stop is confirmed by this many consecutive sportmodestate samples after its write."""
 MAX_PENDING = 16
-LATCH_PASSES = frozenset({"damp", "stop_move", "balance_stand", "get_fsm_id"})
-"""What a latched stop lets through: stops, continuous gait's way out, and a read."""
-NO_STATE = "unconfirmed: no state"
-"""A stop written while no fresh rt/sportmodestate is heard (absent before firmware 1.5.1)."""
 TICK_MAX_S = 0.05
 """Ticks at least this often: the stop action's repeat and the link's staleness."""
 _ids = itertools.count(time.time_ns())
 
 
-class G1Relay(LatchedRelay):
-    """One G1 served by the agent (create on the host's start-up thread)."""
+@dataclass
+class _Pending:
+    """A call awaiting the robot's answer."""
 
-    def __init__(self, config: G1Config, participant: Any, put: Put) -> None:
-        super().__init__(
-            config.id, config.stop_action, put, ("rpc_calls", "rpc_timeouts", "unmatched")
-        )
+    op: str
+    api_id: int
+    written_ns: int
+    deadline_s: float
+    done: Done
+
+
+class G1Driver(DriverBase):
+    """One G1 served by the agent core (create on the core's start-up thread)."""
+
+    commands = COMMAND
+
+    def __init__(self, config: G1Config, participant: Any, put: Put, latch: LatchView) -> None:
+        super().__init__(config.id, put, latch, ("rpc_calls", "unmatched"), config.link_stale_s)
         self.config = config
+        self.stop_action = config.stop_action
         state = Topic(participant, loco.STATE_TOPIC, idl.SportModeState_)
         self._state_reader = DataReader(participant, state, qos=STATE_READER_QOS)
         self.readers = [self._state_reader]
@@ -84,11 +102,12 @@ class G1Relay(LatchedRelay):
             self.readers.append(DataReader(participant, response, qos=RPC_QOS))
             self._writers[service] = DataWriter(participant, request, qos=RPC_QOS)
         self._probe_ids: dict[int, str] = {}
+        self._stop_detail: str | None = None
         self._latest: tuple[idl.SportModeState_, float] | None = None
         self._changed = False
         self._next_put_s = 0.0
         self._confirming = 0
-        self._pending: dict[int, tuple[threading.Event, list[idl.Response_]]] = {}
+        self._pending: dict[int, _Pending] = {}
         self._limits = (config.max_vx, config.max_vy, config.max_omega, config.max_duration_s)
 
     # ------------------------------------------------------------------ relay thread
@@ -98,7 +117,6 @@ class G1Relay(LatchedRelay):
         if index >= 1:
             self._on_responses(index)
             return
-        ack = None
         for sample in self._state_reader.take(N=64):
             if not isinstance(sample, idl.SportModeState_) or not math.isfinite(sample.task_time):
                 with self._lock:
@@ -110,40 +128,57 @@ class G1Relay(LatchedRelay):
                 if old is None or (old.fsm_id, old.fsm_mode) != (sample.fsm_id, sample.fsm_mode):
                     self._changed = True
                 self._latest = (sample, now_s)
-                if self._action_written_s is not None and now_s > self._action_written_s:
+                if self._stop_written_s is not None and now_s > self._stop_written_s:
                     self._confirming = self._confirming + 1 if self._stopped(sample) else 0
-                    if self._confirming >= CONFIRM_SAMPLES and self._latch.confirm():
-                        self._latch.detail = None
-                        ack = self._latch.ack()
-        self._put_ack(ack)
 
     def _stopped(self, sample: idl.SportModeState_) -> bool:
-        if self.config.stop_action == "damp":
-            return sample.fsm_id == loco.DAMP_FSM
-        return sample.fsm_mode == loco.STATIC
+        if self.stop_action == "damp":
+            return bool(sample.fsm_id == loco.DAMP_FSM)
+        return bool(sample.fsm_mode == loco.STATIC)
 
     def _on_responses(self, index: int) -> None:
         service = self._services[index - 1]
+        answered: list[tuple[_Pending, idl.Response_]] = []
         for response in self.readers[index].take(N=64):
             if not isinstance(response, idl.Response_):
                 continue
             with self._lock:
                 if self._probe_ids.pop(response.header.identity.id, None) is not None:
-                    # The topic it came on names the service that answered.
+                    # issue 22: the topic it came on names the service that answered.
                     if self._probe.answer(service):
                         log.info("%s: the LocoClient service is %r", self.device, service)
                     self._changed = True
                     continue
-                waiter = self._pending.get(response.header.identity.id)
-                if waiter is None:
+                call = self._pending.pop(response.header.identity.id, None)
+                if call is None:
                     self._counts["unmatched"] += 1  # another client's, or a late answer
                     continue
-                waiter[1].append(response)
-            waiter[0].set()
+            answered.append((call, response))
+        for call, response in answered:
+            call.done(self._answer(call, response))
+
+    def _answer(self, call: _Pending, response: idl.Response_) -> DeviceReply:
+        code = int(response.header.status.code)
+        if response.header.identity.api_id != call.api_id:
+            code = 3105  # request and response do not match (seed 001)
+        if code != 0:
+            return DeviceReply(
+                ok=False,
+                device=self.device,
+                error=m.ErrorInfo(
+                    code, f"g1 {self.device!r}: the robot answered {code} to {call.op}"
+                ),
+                written_ns=call.written_ns,
+            )
+        result = None
+        if call.op == "get_fsm_id":
+            value = loco.parse_data(response.data)
+            result = None if value is None else str(value)
+        return DeviceReply(ok=True, device=self.device, written_ns=call.written_ns, result=result)
 
     def tick(self, now_s: float) -> float:
-        """The state on change and at the relay rate; the stop action until confirmed.
-        Returns when the next tick is due (the host also ticks after each ``on_data``)."""
+        """The state on change and at the relay rate; calls past their timeout answered 3104.
+        Returns when the next tick is due."""
         with self._lock:
             self._update_rate(now_s)
             due = self._changed or now_s >= self._next_put_s
@@ -151,33 +186,40 @@ class G1Relay(LatchedRelay):
             if due:
                 self._changed = False
                 self._next_put_s = now_s + 1.0 / self.config.relay_hz
-            action_due = self._latch.due(now_s)
+                self._counts["relayed"] += 1
+            expired = [i for i, c in self._pending.items() if c.deadline_s <= now_s]
+            late = [self._pending.pop(i) for i in expired]
+            self._counts["timeouts"] += len(late)
             next_s = min(self._next_put_s, now_s + TICK_MAX_S)
             ask = self._probe.due(now_s)
         if state is not None:
             self._put(keys.STATE, m.encode(state), False)
-        if action_due:
-            self._write_stop_action(now_s)
         if ask:
             self._ask_service(ask)
+        for call in late:
+            why = (
+                f"g1 {self.device!r}: no answer to {call.op} within {self.config.rpc_timeout_s:g} s"
+            )
+            call.done(error_reply(self.device, m.ErrorCode.TIMEOUT, why))
         return next_s
 
     def _ask_service(self, services: tuple[str, ...]) -> None:
-        """issue 22: GetFsmId on each candidate name; the answer names the service."""
+        """issue 22: GetFsmId on each candidate name; the first answer names the service. (Not
+        under the core's write lock: a read, ordered against nothing.)"""
         call = loco.call_for("get_fsm_id")
-        with self._write:
-            for service in services:
-                request_id = self._send(call, waiter=False, service=service)
-                with self._lock:
-                    self._probe_ids[request_id] = service
-                    while len(self._probe_ids) > MAX_PENDING:  # unanswered asks: the oldest go
-                        self._probe_ids.pop(next(iter(self._probe_ids)))
+        for service in services:
+            request_id = self._send(call, None, service)
+            with self._lock:
+                self._probe_ids[request_id] = service
+                while len(self._probe_ids) > MAX_PENDING:  # unanswered asks: the oldest go
+                    self._probe_ids.pop(next(iter(self._probe_ids)))
 
     def _state(self, now_s: float) -> G1State | None:
         if self._latest is None:
             return None
         sample, at_s = self._latest
         mode = {0: "static", 1: "dynamic"}.get(sample.fsm_mode, "unknown")
+        latched, reason = self._latch()
         return G1State(
             stamp_ns=time.time_ns(),
             fsm_id=sample.fsm_id,
@@ -187,148 +229,128 @@ class G1Relay(LatchedRelay):
             task_id=sample.task_id,
             task_time=round(float(sample.task_time), 3),
             link="stale" if now_s - at_s > self.config.link_stale_s else "ok",
-            estopped=self._latch.latched,
-            stop_reason=self._latch.reason,
-            stop_action=self.config.stop_action,
+            estopped=latched,
+            stop_reason=reason,
+            stop_action=self.stop_action,
             dds_samples=self._counts["dds_samples"],
             bad_samples=self._counts["bad_samples"],
             dds_rate_hz=round(self._rate_hz, 1),
             service=self._probe.service,
             service_setting=self.config.service,
             service_answered=self._probe.service in self._probe.answered,
-            stop_detail=self._latch.detail,
+            stop_detail=self._stop_detail if latched else None,
         )
+
+    def _fresh_state(self, now_s: float) -> idl.SportModeState_ | None:
+        with self._lock:
+            latest = self._latest
+        if latest is None or now_s - latest[1] > self.config.link_stale_s:
+            return None
+        return latest[0]
+
+    def stop_confirmed(self, now_s: float) -> bool:
+        """``CONFIRM_SAMPLES`` consecutive states after the action's first write show it."""
+        with self._lock:
+            return self._stop_written_s is not None and self._confirming >= CONFIRM_SAMPLES
+
+    def stop_started(self, now_s: float) -> None:
+        """A new stop: confirmation starts over."""
+        with self._lock:
+            self._stop_written_s, self._confirming = None, 0
+            self._stop_detail = None
+
+    def still(self) -> bool | None:
+        """Static (fsm_mode 0) by the newest state; None without one."""
+        with self._lock:
+            latest = self._latest
+        return None if latest is None else bool(latest[0].fsm_mode == loco.STATIC)
 
     # ------------------------------------------------------------------ RPC
 
-    def _send(self, call: loco.Call, waiter: bool, service: str) -> int:
-        """Write one request to ``service`` (caller holds ``_write``); its id."""
+    def _send(self, call: loco.Call, pending: _Pending | None, service: str) -> int:
+        """Write one request to ``service`` (the core holds the device's write lock); its id."""
         request_id = next(_ids)
-        if waiter:
+        if pending is not None:
             with self._lock:
                 if len(self._pending) >= MAX_PENDING:
-                    raise OverflowError("too many calls awaiting the robot's answer")
-                self._pending[request_id] = (threading.Event(), [])
+                    raise self._refuse(
+                        m.ErrorCode.REJECTED,
+                        f"g1 {self.device!r} is busy: {MAX_PENDING} calls await the robot's answer",
+                    )
+                self._pending[request_id] = pending
         header = idl.RequestHeader_(identity=idl.RequestIdentity_(request_id, call.api_id))
         self._writers[service].write(idl.Request_(header=header, parameter=call.parameter))
         return request_id
 
-    def _await(self, request_id: int) -> idl.Response_ | None:
+    def write_stop(self, now_s: float) -> tuple[bool, str | None]:
+        """The stop action's calls (``loco.stop_calls``: ``stop_move`` also ends continuous
+        gait), to the service or, while ``auto`` has not found it, to every candidate name; no
+        answer awaited: the state confirms it. Written with or without state: damping can
+        always be activated."""
         with self._lock:
-            event, box = self._pending[request_id]
-        event.wait(self.config.rpc_timeout_s)
+            targets = self._probe.targets
+        for service in targets:
+            for call in loco.stop_calls(self.stop_action):
+                self._send(call, None, service)
+        detail = None
+        if self._fresh_state(now_s) is None:
+            detail = f"unconfirmed: no state on {loco.STATE_TOPIC}"
         with self._lock:
-            self._pending.pop(request_id, None)
-            return box[0] if box else None
-
-    def _write_stop_action(self, now_s: float) -> None:
-        """The stop action's calls (``loco.stop_calls``) to the service, or to every candidate
-        name while ``auto`` has not found it; written with or without state (issue 22: damping
-        "can always be activated"), reported ``unconfirmed: no state`` while none is fresh."""
-        calls = loco.stop_calls(self.config.stop_action)
-        with self._write:
-            with self._lock:
-                if not self._latch.latched:
-                    return
-                first = self._latch.written_ns is None
-                targets = self._probe.targets
-                latest = self._latest
-            for service in targets:
-                for call in calls:
-                    self._send(call, waiter=False, service=service)
-            with self._lock:
-                self._latch.written(now_s)
-                if first:
-                    self._action_written_s, self._confirming = now_s, 0
-                fresh = latest is not None and now_s - latest[1] <= self.config.link_stale_s
-                detail = None if fresh else NO_STATE
-                report = first or detail != self._latch.detail
-                self._latch.detail = detail
-                ack = self._latch.ack() if report and self._latch.confirmed_ns is None else None
-        self._put_ack(ack)
+            if self._stop_written_s is None:
+                self._stop_written_s, self._confirming = now_s, 0
+            self._stop_detail = detail
+        return True, detail
 
     # ------------------------------------------------------------------ commands
 
-    def command(self, payload: bytes, principal: str) -> DeviceReply:
-        """Check, call the robot, return its answer (its error code when it refuses)."""
-        try:
-            cmd = COMMAND.decode(payload)
-        except PayloadError as exc:
-            unknown = b'"op"' in payload and not any(
-                f'"{o}"'.encode() in payload for o in OPS.values()
+    def moves(self, command: Any) -> bool:
+        """Velocity and mode changes set the robot moving."""
+        return not isinstance(command, (Damp, StopMove, BalanceStand, GetFsmId, Release))
+
+    def allowed_while_latched(self, command: Any) -> bool:
+        """Damping, stopping (continuous gait's way out, BalanceStand, too) and asking are ways
+        to a safe state: allowed under a stop."""
+        return isinstance(command, (Damp, StopMove, BalanceStand, GetFsmId))
+
+    def execute(self, command: Any, now_s: float, done: Done) -> DeviceReply | None:
+        """Check and call the robot; ``done`` gets its answer (or 3104 past the timeout)."""
+        assert not isinstance(command, Release)  # the core serves releases
+        with self._lock:
+            self._counts["commands"] += 1
+        op = OPS[type(command)]
+        if isinstance(command, SetVelocity):
+            problem = loco.velocity_problem(
+                command.vx, command.vy, command.omega, command.duration_s, self._limits
             )
-            code = m.ErrorCode.NOT_IMPLEMENTED if unknown else m.ErrorCode.PARAMETER
-            return self._refuse(code, str(exc))
-        op = OPS[type(cmd)]
-        if isinstance(cmd, ContinuousGait):
-            call = loco.call_for(op, on=cmd.on)
-        elif isinstance(cmd, SetVelocity):
-            problem = loco.velocity_problem(cmd.vx, cmd.vy, cmd.omega, cmd.duration_s, self._limits)
             if problem is not None:
-                return self._refuse(m.ErrorCode.PARAMETER, f"g1 {self.device!r}: {problem}")
-            call = loco.call_for(op, cmd.vx, cmd.vy, cmd.omega, cmd.duration_s)
+                raise self._refuse(m.ErrorCode.PARAMETER, f"g1 {self.device!r}: {problem}")
+            call = loco.call_for(op, command.vx, command.vy, command.omega, command.duration_s)
+        elif isinstance(command, ContinuousGait):
+            call = loco.call_for(op, on=command.on)
         else:
             call = loco.call_for(op)
-        now_s = time.monotonic()
-        with self._write:
-            with self._lock:
-                latest = self._latest
-                reason = self._latch.reason
-                service = self._probe.service
-            if service is None:
-                return self._refuse(
-                    m.ErrorCode.REJECTED,
-                    f"g1 {self.device!r}: {self._probe.describe()}; is its high-level service "
-                    "running? (`service` in the inventory names it: sport, loco or auto)",
-                )
-            stale = latest is None or now_s - latest[1] > self.config.link_stale_s
-            # issue 22: damping "can always be activated" (seed 004), state or none.
-            if stale and op not in ("damp", "get_fsm_id"):
-                return self._refuse(
-                    m.ErrorCode.REJECTED,
-                    f"g1 {self.device!r}: no fresh {loco.STATE_TOPIC} (within "
-                    f"{self.config.link_stale_s:g} s); is its high-level service running?",
-                )
-            if reason is not None and op not in LATCH_PASSES:
-                return self._refuse(
-                    m.ErrorCode.REJECTED,
-                    f"g1 {self.device!r} is stopped ({reason}); `fleet reset` releases it",
-                )
-            why = (
-                None
-                if latest is None
-                else loco.refusal(op, call, latest[0].fsm_id, latest[0].fsm_mode)
+        with self._lock:
+            service = self._probe.service
+        if service is None:
+            raise self._refuse(
+                m.ErrorCode.REJECTED,
+                f"g1 {self.device!r}: {self._probe.describe()}; is its high-level service "
+                "running? (`service` in the inventory names it: sport, loco or auto)",
             )
+        state = self._fresh_state(now_s)
+        if state is None and not isinstance(command, (Damp, GetFsmId)):
+            raise self._refuse(
+                m.ErrorCode.REJECTED,
+                f"g1 {self.device!r}: no fresh {loco.STATE_TOPIC} (within "
+                f"{self.config.link_stale_s:g} s); is its high-level service running?",
+            )
+        if state is not None:
+            why = loco.refusal(op, call, state.fsm_id, state.fsm_mode)
             if why is not None:
-                return self._refuse(m.ErrorCode.REJECTED, f"g1 {self.device!r}: {why}")
-            try:
-                request_id = self._send(call, waiter=True, service=service)
-            except OverflowError as exc:
-                return self._refuse(m.ErrorCode.REJECTED, f"busy: {exc}")
-            written = time.time_ns()
+                raise self._refuse(m.ErrorCode.REJECTED, f"g1 {self.device!r}: {why}")
+        written = time.time_ns()
+        pending = _Pending(op, call.api_id, written, now_s + self.config.rpc_timeout_s, done)
+        self._send(call, pending, service)
         with self._lock:
             self._counts["rpc_calls"] += 1
-        response = self._await(request_id)
-        if response is None:
-            with self._lock:
-                self._counts["rpc_timeouts"] += 1
-            return error_reply(
-                self.device,
-                m.ErrorCode.TIMEOUT,
-                f"g1 {self.device!r}: no answer to {op} within {self.config.rpc_timeout_s:g} s",
-            )
-        code = int(response.header.status.code)
-        if response.header.identity.api_id != call.api_id:
-            code = 3105  # request and response do not match (seed 001)
-        if code != 0:
-            return DeviceReply(
-                ok=False,
-                device=self.device,
-                error=m.ErrorInfo(code, f"g1 {self.device!r}: the robot answered {code} to {op}"),
-                written_ns=written,
-            )
-        result = None
-        if op == "get_fsm_id":
-            value = loco.parse_data(response.data)
-            result = None if value is None else str(value)
-        return DeviceReply(ok=True, device=self.device, written_ns=written, result=result)
+        return None

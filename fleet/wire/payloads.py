@@ -14,6 +14,7 @@ gets is about 400 bytes), small enough that a flood of them costs little memory.
 
 from __future__ import annotations
 
+import typing
 from dataclasses import dataclass, field
 from typing import Any, Generic, TypeVar
 
@@ -73,14 +74,21 @@ class _CommandOp(msgspec.Struct):
 _COMMAND_OP: PayloadKind[_CommandOp] = payload_kind("command", _CommandOp, 4 * KIB)
 
 
-def unknown_op(data: bytes) -> str | None:
+def unknown_op(data: bytes, known: frozenset[str] | None = None) -> str | None:
     """The ``op`` of a command payload that failed to decode, if it names no command the
-    agents serve (answered 3203 "not implemented", not 3204 "bad parameter")."""
+    agents serve (``known``: the arm's by default; answered 3203 "not implemented", not 3204
+    "bad parameter")."""
     try:
         op = _COMMAND_OP.decode(data).op
     except PayloadError:
         return None
-    return None if op in m.COMMAND_OPS else op[:64]
+    return None if op in (m.COMMAND_OPS if known is None else known) else op[:64]
+
+
+def ops_of(kind: PayloadKind[Any]) -> frozenset[str]:
+    """The ``op`` tags of a tagged-union command kind."""
+    members = typing.get_args(kind.struct) or (kind.struct,)
+    return frozenset(str(c.__struct_config__.tag) for c in members)
 
 
 JOINTS: PayloadKind[m.Joints] = payload_kind("joints", m.Joints, 1 * KIB)
