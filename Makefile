@@ -6,6 +6,7 @@ STAMP := $(VENV)/.installed
 FUZZ_SECONDS ?= 60
 FUZZ_TIMEOUT ?= 10
 DURATION ?= 30m
+UNITREE_SDK := unitree-sdk2py-dimos==1.0.3
 
 .PHONY: demo test lint bench fuzz soak clean
 
@@ -13,8 +14,12 @@ $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 
-$(STAMP): pyproject.toml | $(BIN)/python
+# Unitree's Python SDK with its G1 clients is the far side of the G1 tests (issue 22), installed
+# --no-deps: it declares opencv-python, which none of its code the tests use imports, and it
+# runs on our cyclonedds 11. The stamp depends on this Makefile too, so an older venv gets it.
+$(STAMP): pyproject.toml Makefile | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e '.[test]'
+	$(BIN)/python -m pip install --quiet --no-deps $(UNITREE_SDK)
 	touch $(STAMP)
 
 # atheris (fuzz) and matplotlib (soak plot) are optional extras: never needed by `make test`.

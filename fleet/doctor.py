@@ -4,8 +4,9 @@ Checks, in the order a first bring-up meets them: the network card named in the 
 (exists, up, has an address), the DDS domain, the DDS peers (resolvable, and reached through
 that card, not through another one), the Zenoh router, every process's version and clock
 (``info/**`` queryables, fleet/wire/info.py), every arm's agent, the arm's feedback (link and
-rate as the agent sees them) and the coordinator. Host checks are pure functions of this host;
-fleet checks take an open ``FleetClient``.
+rate as the agent sees them), each G1's LocoClient service name (issue 22) and the
+coordinator. Host checks are pure functions of this host; fleet checks take an open
+``FleetClient``.
 """
 
 from __future__ import annotations
@@ -346,6 +347,39 @@ def _diag_rates(client: FleetClient, arms: list[str], wait_s: float) -> dict[str
         time.sleep(0.05)
     subscriber.undeclare()
     return dict(rates)
+
+
+def check_g1_services(states: dict[str, object]) -> list[Check]:
+    """Each G1 (``g1/<id>`` of ``FleetClient.device_snapshot``): which LocoClient service name
+    its agent uses and whether it answered GetFsmId (``sport``: ai_sport >= 8.2, ``loco``:
+    before; a wrong name times out every call, the stop's included)."""
+    found: list[Check] = []
+    for label, state in states.items():
+        if not label.startswith("g1/"):
+            continue
+        what = f"LocoClient service of {label}"
+        if state is None:
+            fix = f"start its agent: edge-agent --device {label.partition('/')[2]}"
+            found.append(
+                Check(what, "warn", "no G1 state (no agent, or no rt/sportmodestate)", fix)
+            )
+            continue
+        service = getattr(state, "service", None)
+        setting = getattr(state, "service_setting", "sport")
+        if service is None:
+            fix = "is the G1's high-level service running, on this DDS domain and card?"
+            found.append(Check(what, "fail", "auto: neither sport nor loco answered GetFsmId", fix))
+        elif not getattr(state, "service_answered", False):
+            other = "loco" if service == "sport" else "sport"
+            fix = (
+                f'set service = "{other}" (or "auto") under [g1.{label.partition("/")[2]}]: '
+                "ai_sport < 8.2 serves loco, >= 8.2 sport"
+            )
+            found.append(Check(what, "fail", f"{service}: no answer to GetFsmId", fix))
+        else:
+            how = " (auto)" if setting == "auto" else ""
+            found.append(Check(what, "ok", f"{service}{how}: answered GetFsmId"))
+    return found
 
 
 def check_coordinator(client: FleetClient) -> Check:

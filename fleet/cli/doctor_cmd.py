@@ -53,6 +53,8 @@ def run_doctor(args: argparse.Namespace) -> int:
             report([doctor.Check(f"router {endpoints}", "ok", f"answered in {elapsed_ms:.0f} ms")])
             report(doctor.check_arms(client, inventory.arms))
             report(doctor.check_devices(client, inventory.devices))
+            if any(label.startswith("g1/") for label in client.device_labels()):
+                report(doctor.check_g1_services(client.device_snapshot()))
             report(doctor.check_processes(client))
             report([doctor.check_coordinator(client)])
     failed = sum(c.level == "fail" for c in checks)

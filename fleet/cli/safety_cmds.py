@@ -73,6 +73,7 @@ def run_estop(args: argparse.Namespace) -> int:
                 f"{arm}: stopped ({ack.action}): received {_ms(ack.received_ns, sent_ns)}, "
                 f"DDS written {_ms(ack.dds_written_ns, sent_ns)}, "
                 f"confirmed {_ms(ack.still_ns, sent_ns)}"
+                + (f" ({ack.detail})" if ack.detail else "")
             )
             continue
         if ack.action != "hold":

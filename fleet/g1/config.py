@@ -7,14 +7,19 @@ from typing import Literal
 from fleet.devices.base import DeviceBase
 
 G1StopAction = Literal["stop_move", "damp"]
+G1Service = Literal["sport", "loco", "auto"]
 
 
 class G1Config(DeviceBase, frozen=True, forbid_unknown_fields=True, kw_only=True):
     """One G1 (its high-level motion service)."""
 
+    service: G1Service = "sport"
+    """The LocoClient service's name: ``sport`` (ai_sport >= 8.2, Unitree's SDK today), ``loco``
+    (ai_sport < 8.2), ``auto`` (ask GetFsmId on both at start, use the one that answered)."""
     stop_action: G1StopAction = "stop_move"
-    """``stop_move``: zero velocity, the robot keeps balancing (confirmed by fsm_mode 0);
-    ``damp``: the always-allowed fallback (fsm 1). A damped humanoid sinks to the ground."""
+    """``stop_move``: zero velocity and continuous gait off, the robot keeps balancing
+    (confirmed by fsm_mode 0); ``damp``: the always-allowed fallback (fsm 1), written even
+    without state. A damped humanoid sinks to the ground."""
     relay_hz: float = 10.0
     """Zenoh state rate (newest wins; every change of fsm_id or fsm_mode is put at once)."""
     rpc_timeout_s: float = 1.0
@@ -31,6 +36,10 @@ class G1Config(DeviceBase, frozen=True, forbid_unknown_fields=True, kw_only=True
     """Simulator only: the FSM it starts in (500: walking controller, standing)."""
     sim_settle_s: float = 0.3
     """Simulator only: how long it keeps stepping (fsm_mode 1) after the velocity ends."""
+    sim_service: Literal["sport", "loco"] = "sport"
+    """Simulator only: the name it serves the LocoClient API on."""
+    sim_state: bool = True
+    """Simulator only: publish rt/sportmodestate (false: firmware before 1.5.1 has none)."""
 
 
 def check_g1(config: G1Config) -> str | None:

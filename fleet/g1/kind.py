@@ -13,7 +13,17 @@ from fleet.wire.payloads import device_payloads
 def summary(state: G1State) -> str:
     """One ``fleet status`` line's details."""
     stopped = f" STOPPED ({state.stop_action})" if state.estopped else ""
-    return f"fsm {state.fsm_id} {state.fsm_name}, {state.mode}, {state.dds_rate_hz:.0f} Hz{stopped}"
+    if state.estopped and state.stop_detail:
+        stopped += f" {state.stop_detail}"
+    service = state.service or f"{state.service_setting}: asking sport, loco"
+    if state.service is not None and not state.service_answered:
+        service += " (no answer to GetFsmId)"
+    elif state.service_setting == "auto" and state.service is not None:
+        service += " (auto)"
+    return (
+        f"fsm {state.fsm_id} {state.fsm_name}, {state.mode}, {state.dds_rate_hz:.0f} Hz, "
+        f"service {service}{stopped}"
+    )
 
 
 KIND = DeviceKind(

@@ -1,12 +1,21 @@
 """The G1 LocoClient over DDS, as unitree_sdk2 defines it, and the FSM table of seed 004. Pure.
 
-Topics ``rt/api/loco/request`` / ``rt/api/loco/response`` (``rt/api/<service>/...``, service
-``loco``). API ids from unitree_sdk2's ``g1_loco_api``: 7001 GetFsmId, 7002 GetFsmMode, 7101
-SetFsmId, 7102 SetBalanceMode, 7105 SetVelocity. The client's calls map onto them as Unitree's
-SDK does: Damp = SetFsmId(1), Start = SetFsmId(500), StandUp = SetFsmId(4) (lock standing),
-BalanceStand = SetBalanceMode(0), StopMove = SetVelocity(0, 0, 0, 1 s). Parameters are JSON
+Topics ``rt/api/<service>/request`` / ``rt/api/<service>/response``. The service is named
+``sport`` by Unitree's SDK for ai_sport >= 8.2 (``g1_loco_api``'s ``LOCO_SERVICE_NAME``, the
+firmware seed 004 describes) and ``loco`` before 8.2: a per-device setting (``G1Config.service``).
+API ids from unitree_sdk2's ``g1_loco_api``: 7001 GetFsmId, 7002 GetFsmMode, 7003
+GetBalanceMode, 7101 SetFsmId,
+7102 SetBalanceMode, 7105 SetVelocity. The client's calls map onto them as Unitree's SDK does
+(unitree_sdk2 ``g1_loco_client.hpp``): Damp = SetFsmId(1), Start = SetFsmId(500), StandUp =
+SetFsmId(4) (lock standing), BalanceStand = SetBalanceMode(0), ContinuousGait(flag) =
+SetBalanceMode(flag ? 1 : 0), StopMove = SetVelocity(0, 0, 0, 1 s). Parameters are JSON
 (``{"data": x}``; SetVelocity ``{"velocity": [vx, vy, omega], "duration": d}``); GetFsmId
 answers ``{"data": id}``.
+
+SetBalanceMode is no FSM switch (the walking controller stays, fsm_id unchanged): it is allowed
+in the dynamic state, and SetBalanceMode(0) is the only way out of continuous gait, where the
+robot keeps stepping (fsm_mode 1) at zero velocity. So the stop action ``stop_move`` is the two
+calls ``stop_calls`` returns: StopMove, then ContinuousGait(false).
 """
 
 from __future__ import annotations
@@ -14,18 +23,22 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import dataclass
+from typing import Literal
 
-SERVICE = "loco"
-REQUEST_TOPIC = f"rt/api/{SERVICE}/request"
-RESPONSE_TOPIC = f"rt/api/{SERVICE}/response"
+Service = Literal["sport", "loco"]
+SERVICES: tuple[Service, ...] = ("sport", "loco")
+"""``sport``: ai_sport >= 8.2 (Unitree's SDK today); ``loco``: older firmware."""
 STATE_TOPIC = "rt/sportmodestate"
 
 GET_FSM_ID = 7001
 GET_FSM_MODE = 7002
+GET_BALANCE_MODE = 7003
 SET_FSM_ID = 7101
 SET_BALANCE_MODE = 7102
 SET_VELOCITY = 7105
-API_IDS = frozenset({GET_FSM_ID, GET_FSM_MODE, SET_FSM_ID, SET_BALANCE_MODE, SET_VELOCITY})
+API_IDS = frozenset(
+    {GET_FSM_ID, GET_FSM_MODE, GET_BALANCE_MODE, SET_FSM_ID, SET_BALANCE_MODE, SET_VELOCITY}
+)
 
 FSM_NAMES: dict[int, str] = {
     0: "zero torque",
@@ -46,6 +59,16 @@ WALK_FSMS = frozenset({500, 501, 801, 802})
 STATIC, DYNAMIC = 0, 1
 
 
+def request_topic(service: str) -> str:
+    """The topic a LocoClient writes its requests to (``rt/api/<service>/request``)."""
+    return f"rt/api/{service}/request"
+
+
+def response_topic(service: str) -> str:
+    """The topic the service answers on (``rt/api/<service>/response``)."""
+    return f"rt/api/{service}/response"
+
+
 def fsm_name(fsm_id: int) -> str:
     """The seed's name of ``fsm_id`` (``unknown <id>`` for ids it does not list)."""
     return FSM_NAMES.get(fsm_id, f"unknown {fsm_id}")
@@ -62,15 +85,23 @@ class Call:
 
 
 def call_for(
-    op: str, vx: float = 0.0, vy: float = 0.0, omega: float = 0.0, duration_s: float = 1.0
+    op: str,
+    vx: float = 0.0,
+    vy: float = 0.0,
+    omega: float = 0.0,
+    duration_s: float = 1.0,
+    on: bool = False,
 ) -> Call:
     """The RPC of one fleet op (``damp``, ``start``, ``stand_up``, ``balance_stand``,
-    ``stop_move``, ``set_velocity``, ``get_fsm_id``); ValueError for another."""
+    ``continuous_gait`` (``on``), ``stop_move``, ``set_velocity``, ``get_fsm_id``);
+    ValueError for another."""
     data = {
         "damp": (SET_FSM_ID, {"data": DAMP_FSM}, False),
         "start": (SET_FSM_ID, {"data": 500}, True),
         "stand_up": (SET_FSM_ID, {"data": 4}, True),
-        "balance_stand": (SET_BALANCE_MODE, {"data": 0}, True),
+        # SetBalanceMode keeps the FSM: not a mode switch (and 0 is continuous gait's way out).
+        "balance_stand": (SET_BALANCE_MODE, {"data": 0}, False),
+        "continuous_gait": (SET_BALANCE_MODE, {"data": 1 if on else 0}, False),
         "stop_move": (SET_VELOCITY, {"velocity": [0.0, 0.0, 0.0], "duration": 1.0}, False),
         "set_velocity": (
             SET_VELOCITY,
@@ -83,6 +114,18 @@ def call_for(
         raise ValueError(f"no LocoClient call for {op!r}")
     api_id, parameter, switches = data
     return Call(api_id, json.dumps(parameter), switches)
+
+
+def stop_calls(action: str) -> tuple[Call, ...]:
+    """The calls of one write of a stop action, in order. ``damp``: SetFsmId(1). ``stop_move``:
+    StopMove (SetVelocity 0), then ContinuousGait(false) (SetBalanceMode 0): without it a robot
+    in continuous gait keeps stepping and the stop never confirms; in balance mode 0 already it
+    changes nothing."""
+    if action == "damp":
+        return (call_for("damp"),)
+    if action == "stop_move":
+        return (call_for("stop_move"), call_for("balance_stand"))
+    raise ValueError(f"no G1 stop action {action!r}")
 
 
 def refusal(op: str, call: Call, fsm_id: int, fsm_mode: int) -> str | None:

@@ -30,6 +30,15 @@ class G1State(Struct, frozen=True):
     dds_samples: Count
     bad_samples: Count
     dds_rate_hz: float
+    service: str | None = None
+    """The LocoClient service name commands go to (``sport``/``loco``; None: ``auto`` still
+    asking both)."""
+    service_setting: str = "sport"
+    """The inventory's ``service`` (``sport``, ``loco`` or ``auto``)."""
+    service_answered: bool = False
+    """The service answered GetFsmId (someone serves ``rt/api/<service>``)."""
+    stop_detail: Text | None = None
+    """The latched stop's state when not confirmed (``unconfirmed: no state``)."""
 
 
 class _G1Command(DeviceCommand, kw_only=True):
@@ -52,6 +61,13 @@ class BalanceStand(_G1Command, tag="balance_stand", kw_only=True):
     """SetBalanceMode(0)."""
 
 
+class ContinuousGait(_G1Command, tag="continuous_gait", kw_only=True):
+    """SetBalanceMode(1 if on else 0): with ``on`` the robot keeps stepping at zero velocity
+    (a fleet stop turns it off)."""
+
+    on: bool
+
+
 class StopMove(_G1Command, tag="stop_move", kw_only=True):
     """SetVelocity(0, 0, 0)."""
 
@@ -69,12 +85,23 @@ class GetFsmId(_G1Command, tag="get_fsm_id", kw_only=True):
     """GetFsmId: the reply's ``result`` is the id."""
 
 
-G1Command = Damp | Start | StandUp | BalanceStand | StopMove | SetVelocity | GetFsmId | Release
+G1Command = (
+    Damp
+    | Start
+    | StandUp
+    | BalanceStand
+    | ContinuousGait
+    | StopMove
+    | SetVelocity
+    | GetFsmId
+    | Release
+)
 OPS = {
     Damp: "damp",
     Start: "start",
     StandUp: "stand_up",
     BalanceStand: "balance_stand",
+    ContinuousGait: "continuous_gait",
     StopMove: "stop_move",
     SetVelocity: "set_velocity",
     GetFsmId: "get_fsm_id",

@@ -7,6 +7,12 @@ and response reader; each call gets a fresh request id, and its answer is matche
 on the relay thread, which replies (no thread waits for the robot: a call unanswered within
 ``rpc_timeout_s`` is answered 3104 by ``tick``). The core's write lock of the device
 serializes requests with the stop's own: nothing checked before a stop is written after it.
+
+Issue 22 (firmware truth), in marked blocks: the service name per device
+(``fleet/g1/probe.py``: ``sport``, ``loco`` or ``auto``; one request writer and response reader
+per candidate name, GetFsmId asked from ``tick`` until answered); the stop action's calls from
+``loco.stop_calls`` (``stop_move`` also ends continuous gait), to every candidate name while
+``auto`` has not found it.
 """
 
 from __future__ import annotations
@@ -28,7 +34,17 @@ from fleet.devices.base import DeviceReply, Release
 from fleet.devices.driver import Done, DriverBase, LatchView, Put, error_reply
 from fleet.g1 import idl, loco
 from fleet.g1.config import G1Config
-from fleet.g1.messages import OPS, Damp, G1State, GetFsmId, SetVelocity, StopMove
+from fleet.g1.messages import (
+    OPS,
+    BalanceStand,
+    ContinuousGait,
+    Damp,
+    G1State,
+    GetFsmId,
+    SetVelocity,
+    StopMove,
+)
+from fleet.g1.probe import ServiceProbe
 from fleet.wire import keys
 from fleet.wire import messages as m
 from fleet.wire.payloads import G1_COMMAND
@@ -73,12 +89,19 @@ class G1Driver(DriverBase):
         self.config = config
         self.stop_action = config.stop_action
         state = Topic(participant, loco.STATE_TOPIC, idl.SportModeState_)
-        request = Topic(participant, loco.REQUEST_TOPIC, idl.Request_)
-        response = Topic(participant, loco.RESPONSE_TOPIC, idl.Response_)
         self._state_reader = DataReader(participant, state, qos=STATE_READER_QOS)
-        self._response_reader = DataReader(participant, response, qos=RPC_QOS)
-        self._writer = DataWriter(participant, request, qos=RPC_QOS)
-        self.readers = [self._state_reader, self._response_reader]
+        self.readers = [self._state_reader]
+        # issue 22: one request writer and response reader per candidate service name.
+        self._probe = ServiceProbe(config.service)
+        self._services = self._probe.candidates
+        self._writers: dict[str, DataWriter] = {}
+        for service in self._services:
+            request = Topic(participant, loco.request_topic(service), idl.Request_)
+            response = Topic(participant, loco.response_topic(service), idl.Response_)
+            self.readers.append(DataReader(participant, response, qos=RPC_QOS))
+            self._writers[service] = DataWriter(participant, request, qos=RPC_QOS)
+        self._probe_ids: dict[int, str] = {}
+        self._stop_detail: str | None = None
         self._latest: tuple[idl.SportModeState_, float] | None = None
         self._changed = False
         self._next_put_s = 0.0
@@ -90,8 +113,8 @@ class G1Driver(DriverBase):
 
     def on_data(self, index: int, now_s: float) -> None:
         """State samples (newest kept; stop confirmation) or RPC responses (matched by id)."""
-        if index == 1:
-            self._on_responses()
+        if index >= 1:
+            self._on_responses(index)
             return
         for sample in self._state_reader.take(N=64):
             if not isinstance(sample, idl.SportModeState_) or not math.isfinite(sample.task_time):
@@ -112,12 +135,19 @@ class G1Driver(DriverBase):
             return bool(sample.fsm_id == loco.DAMP_FSM)
         return bool(sample.fsm_mode == loco.STATIC)
 
-    def _on_responses(self) -> None:
+    def _on_responses(self, index: int) -> None:
+        service = self._services[index - 1]
         answered: list[tuple[_Pending, idl.Response_]] = []
-        for response in self._response_reader.take(N=64):
+        for response in self.readers[index].take(N=64):
             if not isinstance(response, idl.Response_):
                 continue
             with self._lock:
+                if self._probe_ids.pop(response.header.identity.id, None) is not None:
+                    # issue 22: the topic it came on names the service that answered.
+                    if self._probe.answer(service):
+                        log.info("%s: the LocoClient service is %r", self.device, service)
+                    self._changed = True
+                    continue
                 call = self._pending.pop(response.header.identity.id, None)
                 if call is None:
                     self._counts["unmatched"] += 1  # another client's, or a late answer
@@ -160,14 +190,28 @@ class G1Driver(DriverBase):
             late = [self._pending.pop(i) for i in expired]
             self._counts["timeouts"] += len(late)
             next_s = min(self._next_put_s, now_s + TICK_MAX_S)
+            ask = self._probe.due(now_s)
         if state is not None:
             self._put(keys.STATE, m.encode(state), False)
+        if ask:
+            self._ask_service(ask)
         for call in late:
             why = (
                 f"g1 {self.device!r}: no answer to {call.op} within {self.config.rpc_timeout_s:g} s"
             )
             call.done(error_reply(self.device, m.ErrorCode.TIMEOUT, why))
         return next_s
+
+    def _ask_service(self, services: tuple[str, ...]) -> None:
+        """issue 22: GetFsmId on each candidate name; the first answer names the service. (Not
+        under the core's write lock: a read, ordered against nothing.)"""
+        call = loco.call_for("get_fsm_id")
+        for service in services:
+            request_id = self._send(call, None, service)
+            with self._lock:
+                self._probe_ids[request_id] = service
+                while len(self._probe_ids) > MAX_PENDING:  # unanswered asks: the oldest go
+                    self._probe_ids.pop(next(iter(self._probe_ids)))
 
     def _state(self, now_s: float) -> G1State | None:
         if self._latest is None:
@@ -190,6 +234,10 @@ class G1Driver(DriverBase):
             dds_samples=self._counts["dds_samples"],
             bad_samples=self._counts["bad_samples"],
             dds_rate_hz=round(self._rate_hz, 1),
+            service=self._probe.service,
+            service_setting=self.config.service,
+            service_answered=self._probe.service in self._probe.answered,
+            stop_detail=self._stop_detail if latched else None,
         )
 
     def _fresh_state(self, now_s: float) -> idl.SportModeState_ | None:
@@ -208,6 +256,7 @@ class G1Driver(DriverBase):
         """A new stop: confirmation starts over."""
         with self._lock:
             self._stop_written_s, self._confirming = None, 0
+            self._stop_detail = None
 
     def still(self) -> bool | None:
         """Static (fsm_mode 0) by the newest state; None without one."""
@@ -217,8 +266,8 @@ class G1Driver(DriverBase):
 
     # ------------------------------------------------------------------ RPC
 
-    def _send(self, call: loco.Call, pending: _Pending | None) -> int:
-        """Write one request (the core holds the device's write lock); its id."""
+    def _send(self, call: loco.Call, pending: _Pending | None, service: str) -> int:
+        """Write one request to ``service`` (the core holds the device's write lock); its id."""
         request_id = next(_ids)
         if pending is not None:
             with self._lock:
@@ -229,29 +278,38 @@ class G1Driver(DriverBase):
                     )
                 self._pending[request_id] = pending
         header = idl.RequestHeader_(identity=idl.RequestIdentity_(request_id, call.api_id))
-        self._writer.write(idl.Request_(header=header, parameter=call.parameter))
+        self._writers[service].write(idl.Request_(header=header, parameter=call.parameter))
         return request_id
 
     def write_stop(self, now_s: float) -> tuple[bool, str | None]:
-        """The stop action's call (no answer awaited: the state confirms it). Written with or
-        without state: damping can always be activated."""
-        self._send(loco.call_for(self.stop_action), None)
+        """The stop action's calls (``loco.stop_calls``: ``stop_move`` also ends continuous
+        gait), to the service or, while ``auto`` has not found it, to every candidate name; no
+        answer awaited: the state confirms it. Written with or without state: damping can
+        always be activated."""
+        with self._lock:
+            targets = self._probe.targets
+        for service in targets:
+            for call in loco.stop_calls(self.stop_action):
+                self._send(call, None, service)
+        detail = None
+        if self._fresh_state(now_s) is None:
+            detail = f"unconfirmed: no state on {loco.STATE_TOPIC}"
         with self._lock:
             if self._stop_written_s is None:
                 self._stop_written_s, self._confirming = now_s, 0
-        if self._fresh_state(now_s) is None:
-            return True, f"unconfirmed: no state on {loco.STATE_TOPIC}"
-        return True, None
+            self._stop_detail = detail
+        return True, detail
 
     # ------------------------------------------------------------------ commands
 
     def moves(self, command: Any) -> bool:
         """Velocity and mode changes set the robot moving."""
-        return not isinstance(command, (Damp, StopMove, GetFsmId, Release))
+        return not isinstance(command, (Damp, StopMove, BalanceStand, GetFsmId, Release))
 
     def allowed_while_latched(self, command: Any) -> bool:
-        """Damping, stopping and asking are ways to a safe state: allowed under a stop."""
-        return isinstance(command, (Damp, StopMove, GetFsmId))
+        """Damping, stopping (continuous gait's way out, BalanceStand, too) and asking are ways
+        to a safe state: allowed under a stop."""
+        return isinstance(command, (Damp, StopMove, BalanceStand, GetFsmId))
 
     def execute(self, command: Any, now_s: float, done: Done) -> DeviceReply | None:
         """Check and call the robot; ``done`` gets its answer (or 3104 past the timeout)."""
@@ -266,10 +324,20 @@ class G1Driver(DriverBase):
             if problem is not None:
                 raise self._refuse(m.ErrorCode.PARAMETER, f"g1 {self.device!r}: {problem}")
             call = loco.call_for(op, command.vx, command.vy, command.omega, command.duration_s)
+        elif isinstance(command, ContinuousGait):
+            call = loco.call_for(op, on=command.on)
         else:
             call = loco.call_for(op)
+        with self._lock:
+            service = self._probe.service
+        if service is None:
+            raise self._refuse(
+                m.ErrorCode.REJECTED,
+                f"g1 {self.device!r}: {self._probe.describe()}; is its high-level service "
+                "running? (`service` in the inventory names it: sport, loco or auto)",
+            )
         state = self._fresh_state(now_s)
-        if state is None and not isinstance(command, Damp):
+        if state is None and not isinstance(command, (Damp, GetFsmId)):
             raise self._refuse(
                 m.ErrorCode.REJECTED,
                 f"g1 {self.device!r}: no fresh {loco.STATE_TOPIC} (within "
@@ -281,7 +349,7 @@ class G1Driver(DriverBase):
                 raise self._refuse(m.ErrorCode.REJECTED, f"g1 {self.device!r}: {why}")
         written = time.time_ns()
         pending = _Pending(op, call.api_id, written, now_s + self.config.rpc_timeout_s, done)
-        self._send(call, pending)
+        self._send(call, pending, service)
         with self._lock:
             self._counts["rpc_calls"] += 1
         return None

@@ -1,12 +1,19 @@
 """A simulated G1 high-level motion service on real DDS: ``rt/sportmodestate`` at
-``sim_rate_hz``, the LocoClient API over ``rt/api/loco/request|response`` with seed 001's
-error codes, and the FSM transitions of seed 004's table.
+``sim_rate_hz`` (unless ``sim_state`` is off: firmware before 1.5.1), the LocoClient API over
+``rt/api/<sim_service>/request|response`` (``sport`` or ``loco``) with seed 001's error codes,
+and the FSM transitions of seed 004's table.
 
 The model (``G1Model``) is pure: SetFsmId switches to a listed id (damping always; any other
 only in a static state, else 3205); SetVelocity needs the walking controller (500/501/801/802,
 else 3205), makes the robot dynamic (fsm_mode 1) for its duration plus ``settle_s`` of
-stepping, a zero velocity ends it after ``settle_s``; SetBalanceMode 1 is continuous gait
-(dynamic until 0); an unknown API id is 3203, a bad parameter 3204.
+stepping, a zero velocity ends it after ``settle_s``. SetBalanceMode (walking controller only,
+allowed while dynamic: it is no FSM switch) is continuous gait with 1, as Unitree's SDK's
+``ContinuousGait(true)`` sends it: the robot keeps stepping (dynamic) whatever the velocity,
+a zero velocity included, until SetBalanceMode(0) (``ContinuousGait(false)`` /
+``BalanceStand``), after which it stops ``settle_s`` after its velocity ends (seed 004:
+"the robot will continue to step even if the current speed is 0"; balance stand: "when the
+speed command is 0 and the robot is stable, the robot stops stepping"). GetBalanceMode answers
+the mode. An unknown API id is 3203, a bad parameter 3204.
 """
 
 from __future__ import annotations
@@ -57,6 +64,8 @@ class G1Model:
             return 0, json.dumps({"data": self.fsm_id})
         if api_id == loco.GET_FSM_MODE:
             return 0, json.dumps({"data": self.fsm_mode(now_s)})
+        if api_id == loco.GET_BALANCE_MODE:
+            return 0, json.dumps({"data": int(self.continuous)})
         if api_id == loco.SET_FSM_ID:
             return self._set_fsm(params.get("data"), now_s), ""
         if api_id == loco.SET_BALANCE_MODE:
@@ -77,6 +86,8 @@ class G1Model:
             return int(ErrorCode.PARAMETER)
         if self.fsm_id not in loco.WALK_FSMS:
             return int(ErrorCode.REJECTED)
+        if self.continuous and mode == 0:  # it stops stepping once the velocity has ended
+            self.moving_until_s = max(self.moving_until_s, now_s + self.settle_s)
         self.continuous = mode == 1
         return 0
 
@@ -105,11 +116,12 @@ class SimG1:
         self.device = config.id
         self.config = config
         state = Topic(participant, loco.STATE_TOPIC, idl.SportModeState_)
-        request = Topic(participant, loco.REQUEST_TOPIC, idl.Request_)
-        response = Topic(participant, loco.RESPONSE_TOPIC, idl.Response_)
+        request = Topic(participant, loco.request_topic(config.sim_service), idl.Request_)
+        response = Topic(participant, loco.response_topic(config.sim_service), idl.Response_)
         self._requests = DataReader(participant, request, qos=RPC_QOS)
         self._responses = DataWriter(participant, response, qos=RPC_QOS)
         self._state = DataWriter(participant, state, qos=STATE_WRITER_QOS)
+        self.publish_state = config.sim_state
         self.readers = [self._requests]
         self.model = G1Model(config.sim_fsm_id, config.sim_settle_s)
         self.period_s = 1.0 / config.sim_rate_hz
@@ -135,6 +147,7 @@ class SimG1:
     def step(self, now_s: float) -> float:
         """Publish one sportmodestate; the next time it is due."""
         mode = self.model.fsm_mode(now_s)
-        self._state.write(idl.SportModeState_(fsm_id=self.model.fsm_id, fsm_mode=mode))
+        if self.publish_state:
+            self._state.write(idl.SportModeState_(fsm_id=self.model.fsm_id, fsm_mode=mode))
         self.next_s = max(self.next_s + self.period_s, now_s)
         return self.next_s
