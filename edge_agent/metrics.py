@@ -26,6 +26,20 @@ PER_ARM: tuple[tuple[Any, str, str, Any], ...] = (
 )
 
 
+# The same for every device (gripper, G1), from its diag and the core's safety state.
+PER_DEVICE: tuple[tuple[Any, str, str, Any], ...] = (
+    (counter, "d1_agent_device_relayed", "state samples relayed", lambda d, s: d.relayed),
+    (counter, "d1_agent_device_malformed", "state that did not decode", lambda d, s: d.malformed),
+    (counter, "d1_agent_device_refused", "commands refused", lambda d, s: d.rejected),
+    (counter, "d1_agent_device_commands", "commands written", lambda d, s: d.commands),
+    (counter, "d1_agent_device_timeouts", "answers that did not come", lambda d, s: d.ack_timeouts),
+    (gauge, "d1_agent_device_rate_hz", "DDS state samples/s", lambda d, s: d.feedback_rate_hz),
+    (gauge, "d1_agent_device_link_ok", "1 when the link is ok", lambda d, s: d.link == "ok"),
+    (gauge, "d1_agent_device_estopped", "1 while a stop is latched", lambda d, s: s.latched),
+    (gauge, "d1_agent_device_lease_held", "1 while leased", lambda d, s: s.lease is not None),
+)
+
+
 def agent_collectors(agent: Any) -> list[Any]:
     """The collectors of an ``EdgeAgent`` (registered by ``--metrics-port``; typed Any: nothing
     imports edge_agent.agent but __main__). Reads its ``lock``, ``slots``, ``counters``,
@@ -52,6 +66,19 @@ def agent_collectors(agent: Any) -> list[Any]:
         metrics = [
             kind(name, text, ["arm"], [([arm], get(*row)) for arm, row in rows.items()])
             for kind, name, text, get in PER_ARM
+        ]
+        devices = {
+            device: (slot.kind, agent.device_diag(device, now, stamp_ns), slot.safety)
+            for device, slot in agent.devices.items()
+        }
+        metrics += [
+            kind(
+                name,
+                text,
+                ["device", "kind"],
+                [([d, k], get(diag, safety)) for d, (k, diag, safety) in devices.items()],
+            )
+            for kind, name, text, get in PER_DEVICE
         ]
         metrics += [
             counter(name, "the agent's own count", [], [([], v)]) for name, v in own.items()
