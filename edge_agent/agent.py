@@ -33,6 +33,7 @@ from edge_agent.holds import hold_command
 from edge_agent.inbox import CommandInbox, InboxCounters, SafetyInbox
 from edge_agent.latches import LatchStore, default_state_dir
 from edge_agent.link import DdsLink
+from edge_agent.origins import FeedbackWriter
 from edge_agent.relay import JSON, ZenohRelay, principal_of
 from edge_agent.scheduler import StartScheduler
 from edge_agent.serving import CommandService
@@ -153,7 +154,9 @@ class EdgeAgent:
 
     # ------------------------------------------------------------------ the relay thread
 
-    def _on_feedback(self, arm: str, text: bytes, now: float, writer: int | None = None) -> None:
+    def _on_feedback(
+        self, arm: str, text: bytes, now: float, writer: FeedbackWriter | None = None
+    ) -> None:
         stamp_ns = time.time_ns()
         pubs = self.relay.publishers[arm]
         out = Outbox()

@@ -35,6 +35,7 @@ from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 
+from edge_agent.origins import FeedbackWriter, WriterDirectory
 from fleet.d1 import dds
 from fleet.guard import ThreadGuard
 from fleet.inventory import DdsNetwork
@@ -44,8 +45,8 @@ log = logging.getLogger("edge_agent.link")
 TAKE_BATCH = 64
 ANY_SAMPLE = SampleState.Any | ViewState.Any | InstanceState.Any
 
-FeedbackHandler = Callable[[str, bytes, float, "int | None"], None]
-"""(arm id, feedback text as UTF-8 bytes, monotonic receive time, the DDS writer's handle)."""
+FeedbackHandler = Callable[[str, bytes, float, "FeedbackWriter | None"], None]
+"""(arm id, feedback text as UTF-8 bytes, monotonic receive time, the DDS writer and its host)."""
 BadSampleHandler = Callable[[str, str], None]
 """(arm id, why the sample is not an ArmString_)."""
 TickHandler = Callable[[float], None]
@@ -122,6 +123,7 @@ class DdsLink:
             writer = DataWriter(participant, cmd, qos=dds.COMMAND_WRITER_QOS)
             self._writers[arm] = (writer, bool(getattr(writer, "_use_version_2", False)))
         self._ready = ReadySet(participant, [reader for _arm, reader in self._readers])
+        self._directory = WriterDirectory(participant)
         self._stop = threading.Event()
         self._thread = guard.thread(self._run, "relay")
 
@@ -162,7 +164,8 @@ class DdsLink:
             except ValueError as exc:
                 self._on_bad_sample(arm, str(exc))
                 continue
-            self._on_feedback(arm, text, now, int(info.publication_handle))
+            writer = self._directory.identify(reader, int(info.publication_handle))
+            self._on_feedback(arm, text, now, writer)
 
     def close(self) -> None:
         """Stop the thread, then delete the participant (idempotent)."""

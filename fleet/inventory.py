@@ -117,6 +117,10 @@ class ArmConfig(Struct, frozen=True, forbid_unknown_fields=True):
     sim_error_status: int = 0
     """The ``error_status`` the simulated arm reports while abnormal: 0 (the table) or a
     bitfield value (the contact plan's reading)."""
+    sim_feedback_writers: int = 1
+    """How many DDS writers the simulated arm's feedback comes from: 1, or 3 as the arm's own
+    driver does it (seed 000: marm_communication sends the angles, marm_control the acks,
+    marm_controller the status and motor reports; three participants)."""
 
     @property
     def joint_ranges_deg(self) -> JointRanges:
@@ -347,6 +351,8 @@ def _check_arm(arm: ArmConfig, path: str) -> None:
             f"gripper_closed_deg {gripper[0]:g} and gripper_open_deg {gripper[1]:g} must be "
             "within -360..360 and at least 1 deg apart",
         )
+    if arm.sim_feedback_writers not in (1, 3):
+        raise _fail(path, where, "sim_feedback_writers must be 1 or 3")
     if arm.sim_error_status == 1:
         raise _fail(path, where, "sim_error_status 1 is the normal value: use 0 or a bitfield")
     contact_problem = check_config(arm.contact)

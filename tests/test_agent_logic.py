@@ -9,6 +9,7 @@ import pytest
 
 from edge_agent.commands import InFlight, Plan, Refused, plan
 from edge_agent.holds import clamp_to_limits
+from edge_agent.origins import FeedbackWriter
 from edge_agent.tracker import ArmTracker
 from fleet.d1 import protocol as p
 from fleet.inventory import ArmConfig
@@ -545,15 +546,54 @@ def test_unload_and_power_off_stops_wait_for_the_arms_status() -> None:
 # ----------------------------------------------------------------------------- feedback trust
 
 
-def test_feedback_from_a_second_writer_is_dropped() -> None:
+ARM_HOST = "arm-1 udp/192.168.123.100"
+
+
+def _text(message: p.ArmMessage) -> str:
+    return p.encode_message(message)
+
+
+def test_the_arms_own_writers_on_its_host_are_trusted_a_second_angle_writer_is_not() -> None:
+    """Seed 000's driver publishes rt/arm_Feedback from three services (three participants on
+    the arm's card): angles from one, acks from another, status from a third all count."""
     tracker = ArmTracker(ArmConfig(id="a1"))
-    assert tracker.on_feedback(_feedback(HOME), 0.0, writer=7) is not None
+    angles, acks, status = (FeedbackWriter(h, ARM_HOST) for h in (7, 8, 9))
+    assert tracker.on_feedback(_feedback(HOME), 0.0, angles) is not None
+    assert tracker.on_feedback(_text(p.ReceiveAck(4, True)), 0.02, acks) is not None
+    assert tracker.on_feedback(_text(p.ExecuteAck(4, True)), 0.03, status) is not None
+    status_text = _text(p.D1Status(True, True, 1))
+    assert tracker.on_feedback(status_text, 0.05, status) is not None
+    assert tracker.foreign == 0 and tracker.enabled is True
+    # A second writer of angles, even on the arm's host (a process beside the arm's services).
     forged = (80.0, 30.0, 30.0, 0.0, 0.0, 0.0, 10.0)
-    assert tracker.on_feedback(_feedback(forged), 0.01, writer=9) is None
-    assert tracker.foreign == 1 and tracker.angles_deg == HOME
-    # A rebooted arm (a new writer) takes over once the old one was silent for link_lost_s.
-    later = tracker.config.link_lost_s + 0.5
-    assert tracker.on_feedback(_feedback(HOME), later, writer=9) is not None
+    assert tracker.on_feedback(_feedback(forged), 0.06, acks) is None
+    # Any writer on another host (a rogue participant elsewhere on the arm's network).
+    rogue = FeedbackWriter(11, "laptop udp/192.168.123.50")
+    assert tracker.on_feedback(_text(p.ExecuteAck(5, True)), 0.07, rogue) is None
+    assert tracker.on_feedback(status_text, 0.08, rogue) is None
+    assert tracker.foreign == 3 and tracker.angles_deg == HOME
+    # The angle writer keeps its report while it speaks ...
+    assert tracker.on_feedback(_feedback(HOME), 1.5, angles) is not None
+    assert tracker.on_feedback(_feedback(HOME), 1.6, acks) is None
+    # ... a restarted service (a new writer) takes its report over once the old one was silent
+    # for link_lost_s; a replaced arm (another host) once the whole arm was.
+    later = 1.5 + tracker.config.link_lost_s + 0.1
+    assert tracker.on_feedback(status_text, later - 0.2, status) is not None
+    assert tracker.on_feedback(_feedback(HOME), later, acks) is not None
+    assert tracker.on_feedback(_feedback(HOME), later + 0.1, rogue) is None
+    replaced = later + 0.1 + tracker.config.link_lost_s + 0.1
+    assert tracker.on_feedback(_feedback(HOME), replaced, rogue) is not None
+
+
+def test_writers_of_no_named_host_are_one_group() -> None:
+    """A participant that announces no host (another DDS vendor): such writers are one host."""
+    tracker = ArmTracker(ArmConfig(id="a1"))
+    assert tracker.on_feedback(_feedback(HOME), 0.0, FeedbackWriter(7, None)) is not None
+    assert tracker.on_feedback(_text(p.ExecuteAck(4, True)), 0.1, FeedbackWriter(8, None))
+    forged = (80.0, 30.0, 30.0, 0.0, 0.0, 0.0, 10.0)
+    assert tracker.on_feedback(_feedback(forged), 0.2, FeedbackWriter(9, None)) is None
+    assert tracker.on_feedback(_feedback(HOME), 0.3, FeedbackWriter(9, ARM_HOST)) is None
+    assert tracker.foreign == 2
 
 
 def test_an_impossible_jump_is_never_the_pose_unless_it_persists() -> None:
