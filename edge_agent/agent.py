@@ -337,10 +337,18 @@ def _log_error_status(arm: str, error_status: int) -> None:
 
 def _on_ack(slot: ArmSlot, ack: p.ReceiveAck | p.ExecuteAck, now: float) -> None:
     """Credit ``ack`` to the written command it answers (caller holds the lock): by its seq, or,
-    when its seq names none (an arm answering seq 10, as the spec's examples do), to the oldest
-    command awaiting this kind of ack (``acks.py``), counted as unmatched."""
+    when it carries seq 10 (an arm answering as the spec's examples do), to the oldest command
+    awaiting this kind of ack (``acks.py``), counted as unmatched; any other seq is counted as
+    foreign and credited to nothing."""
     tracker = slot.tracker
     seq, how = slot.acks.answered(ack, now)
+    if how == "foreign":
+        tracker.acks_foreign += 1
+        tracker.last_error = (
+            f"{type(ack).__name__} with seq {ack.seq} ignored: neither a command of ours nor "
+            f"the arm's seq {p.ARM_REPORT_SEQ} (another client commanding the arm?)"
+        )
+        return
     if seq is None:
         tracker.acks_ignored += 1
         why = "a late or repeated ack" if how == "late" else "no command written awaits one"

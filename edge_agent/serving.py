@@ -184,7 +184,7 @@ class CommandService:
             seqs=seqs,
             started_s=now,
             recv_deadline_s=start + config.recv_ack_timeout_s,
-            exec_deadline_s=start + config.exec_ack_timeout_s,
+            exec_deadline_s=start + slot.acks.exec_timeouts.longest(planned.commands),
             reach_deadline_s=start + command.timeout_s if command.wait_reached else None,
             targets_deg=planned.targets_deg,
             tolerance_deg=command.tolerance_deg,

@@ -64,6 +64,8 @@ class ArmTracker:
     acks_unmatched: int = 0
     """Acks whose seq named no command we wrote (an arm that answers seq 10): credited to the
     oldest command awaiting that ack (``acks.py``)."""
+    acks_foreign: int = 0
+    """Acks whose seq is neither one we wrote lately nor 10: credited to no command."""
     acks_ignored: int = 0
     """Acks credited to no command: late or repeated, or with no command awaiting one."""
     last_error: str | None = None
@@ -243,6 +245,7 @@ class ArmTracker:
             ack_timeouts=self.ack_timeouts,
             acks_unmatched=self.acks_unmatched,
             acks_ignored=self.acks_ignored,
+            acks_foreign=self.acks_foreign,
             feedback_rate_hz=round(self.feedback_rate_hz(), 2),
             last_feedback_age_s=None if age is None else round(age, 3),
             last_error=self.last_error,

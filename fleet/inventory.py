@@ -42,6 +42,9 @@ DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 
 StopAction = Literal["hold", "unload", "power_off"]
 SimAckSeq = Literal["echo", "fixed"]
+SimExecAck = Literal["at_once", "on_arrival"]
+EXEC_ACK_TIMEOUT_OPS = ("move_joint", "move_joints", "torque", "power", "zero")
+"""The ops of the per-op execute-ack timeout table (the D1 commands they send)."""
 
 
 class DdsNetwork(NamedTuple):
@@ -100,6 +103,10 @@ class ArmConfig(Struct, frozen=True, forbid_unknown_fields=True):
     link_lost_s: float = 2.0
     recv_ack_timeout_s: float = 0.5
     exec_ack_timeout_s: float = 2.0
+    exec_ack_timeouts: dict[str, float] = msgspec.field(default_factory=dict)
+    """Execute-ack timeout per op (``move_joint``, ``move_joints``, ``torque``, ``power``,
+    ``zero``) over the built-in table (``edge_agent/acks.py``: moves 5 s, zero 10 s, the rest
+    ``exec_ack_timeout_s``): "executed" may mean "motion finished"."""
     joint_sign: tuple[int, ...] = (1,) * JOINT_COUNT
     watchdog_s: float = 0.5
     lease_s: float = 3.0
@@ -117,6 +124,9 @@ class ArmConfig(Struct, frozen=True, forbid_unknown_fields=True):
     sim_error_status: int = 0
     """The ``error_status`` the simulated arm reports while abnormal: 0 (the table) or a
     bitfield value (the contact plan's reading)."""
+    sim_exec_ack: SimExecAck = "at_once"
+    """When the simulated arm sends a motion's execute ack: ``at_once`` (when it took the
+    target) or ``on_arrival`` (when the joints reached it: "executed" as "motion finished")."""
     sim_feedback_writers: int = 1
     """How many DDS writers the simulated arm's feedback comes from: 1, or 3 as the arm's own
     driver does it (seed 000: marm_communication sends the angles, marm_control the acks,
@@ -267,6 +277,7 @@ def _enum_choices() -> dict[str, tuple[str, ...]]:
     return {
         "stop_action": get_args(StopAction),
         "sim_ack_seq": get_args(SimAckSeq),
+        "sim_exec_ack": get_args(SimExecAck),
         "mode": get_args(SecurityMode),
         "role": get_args(Role),
     }
@@ -339,6 +350,15 @@ def _check_arm(arm: ArmConfig, path: str) -> None:
         raise _fail(path, where, "need 0 < link_stale_s < link_lost_s")
     if arm.recv_ack_timeout_s <= 0 or arm.exec_ack_timeout_s <= 0:
         raise _fail(path, where, "ack timeouts must be positive")
+    for op, timeout_s in arm.exec_ack_timeouts.items():
+        if op not in EXEC_ACK_TIMEOUT_OPS:
+            raise _fail(
+                path,
+                f"{where}.exec_ack_timeouts",
+                f"unknown op {op!r} (one of: {', '.join(EXEC_ACK_TIMEOUT_OPS)})",
+            )
+        if not 0 < timeout_s <= 600:
+            raise _fail(path, f"{where}.exec_ack_timeouts.{op}", "must be within 0..600 s")
     if arm.watchdog_s <= 0 or arm.lease_s <= 0:
         raise _fail(path, where, "watchdog_s and lease_s must be positive")
     if not 10 <= arm.max_speed_deg_s <= 10000:
@@ -433,8 +453,9 @@ def parse_inventory(text: str, path: str = DEFAULT_INVENTORY) -> Inventory:
             raise InventoryError(f"{path}: {where}: the id is the table's name; remove 'id'")
         merged = {**defaults, **arm_raw, "id": arm_id}
         merged.setdefault("agent", f"agent-{arm_id}")
-        if isinstance(defaults.get("contact"), dict) and isinstance(arm_raw.get("contact"), dict):
-            merged["contact"] = _merge(defaults["contact"], arm_raw["contact"])
+        for table in ("contact", "exec_ack_timeouts"):  # merged field by field
+            if isinstance(defaults.get(table), dict) and isinstance(arm_raw.get(table), dict):
+                merged[table] = _merge(defaults[table], arm_raw[table])
         arm = _convert(merged, ArmConfig, path, where)
         _check_arm(arm, path)
         arms[arm_id] = arm

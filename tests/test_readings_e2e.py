@@ -177,6 +177,44 @@ def test_three_writer_mode_is_checked_by_the_inventory() -> None:
         raise AssertionError("sim_feedback_writers = 2 was accepted")
 
 
+# ----------------------------------------------------------------------------- execute ack
+
+ARRIVAL_ARMS = (
+    # "Executed" as "motion finished": a slow arm whose execute ack comes on arrival.
+    '[arms.slow]\nsuffix = "_1"\nsim_exec_ack = "on_arrival"\n'
+    "sim_dynamics = {mode1 = {rate_deg_s = 30.0, lag_s = 0.3}}\n"
+)
+
+
+def test_a_long_move_and_a_return_to_zero_complete_past_two_seconds(tmp_path: Path) -> None:
+    """Before: one execute-ack timeout, 2 s, for every op: a move or a return to zero whose
+    execute ack comes when the motion finished failed 3104 although the arm did it. And an ack
+    whose seq is neither ours nor 10 was credited to our oldest command."""
+    with _harness(tmp_path, ARRIVAL_ARMS) as harness:
+        client = harness.start_fleet()
+        fleet = harness.inventory.fleet
+        for command in (m.MoveJoint(joint=0, angle_deg=80.0), m.Zero()):
+            reply = client.command("slow", command)
+            assert reply.ok and reply.executed, (command, reply)
+            assert reply.latency_ms > 2000.0, reply  # it did take longer than the old timeout
+        channel = dds.DdsChannel(harness.domain)
+        try:
+            topic = Topic(channel.participant, dds.feedback_topic("_1"), dds.ArmString_)
+            other = DataWriter(channel.participant, topic, qos=dds.FEEDBACK_WRITER_QOS)
+            # Another client's command acked on the arm's topic: never ours.
+            foreign = dds.ArmString_(p.encode_message(p.ExecuteAck(4242, False)))
+
+            def counted() -> bool:
+                other.write(foreign)
+                return next_diag(client, fleet, "slow").acks_foreign > 0
+
+            wait_until(counted, 15.0)
+            reply = client.command("slow", m.MoveJoint(joint=0, angle_deg=2.0))
+            assert reply.ok and reply.executed, reply
+        finally:
+            channel.close()
+
+
 # ----------------------------------------------------------------------------- error_status
 
 ERROR_ARMS = (

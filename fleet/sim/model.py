@@ -73,6 +73,11 @@ class SimArmModel:
     """What the arm accepts (its gripper's own range, from the inventory)."""
     rng: random.Random = field(default_factory=lambda: random.Random(0), repr=False)
     dynamics: SimDynamics = field(default_factory=SimDynamics)
+    exec_ack_on_arrival: bool = False
+    """The execute ack of a motion (1/1, 1/2, 1/7) comes once the joints reached their targets
+    ("executed" as "motion finished"), not at once (``sim_exec_ack``)."""
+    arrival_tolerance_deg: float = 0.5
+    _pending_exec: list[int] = field(default_factory=list, repr=False)
     # joint -> (stall angle, joint was at or below it when the stall was first met)
     _stall_side: dict[int, tuple[float, bool]] = field(default_factory=dict, repr=False)
     _joints: list[JointResponse] = field(default_factory=list, repr=False)
@@ -174,7 +179,25 @@ class SimArmModel:
         except (p.InvalidCommand, MalformedMessage) as exc:
             return self._acks(exc.seq, received=False, executed=None) if exc.seq is not None else []
         executed = self._execute(command)
+        motion = isinstance(command, (p.SetJointAngle, p.SetAllAngles, p.ReturnToZero))
+        if executed and motion and self.exec_ack_on_arrival and not self.faults.mute_acks:
+            self._pending_exec.append(seq)
+            return self._acks(seq, received=True, executed=None)
         return self._acks(seq, received=True, executed=executed)
+
+    def arrived_acks(self) -> list[p.ArmMessage]:
+        """The execute acks of motions that have now reached their targets (every motion
+        pending: the newest target is the one reached)."""
+        if not self._pending_exec:
+            return []
+        reached = all(
+            abs(a - t) <= self.arrival_tolerance_deg
+            for a, t in zip(self.angles_deg, self.target_deg, strict=True)
+        )
+        if not reached:
+            return []
+        seqs, self._pending_exec = self._pending_exec, []
+        return [p.ExecuteAck(seq, True) for seq in seqs]
 
     def _acks(self, seq: int, received: bool, executed: bool | None) -> list[p.ArmMessage]:
         if self.faults.mute_acks:

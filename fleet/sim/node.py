@@ -38,7 +38,13 @@ from cyclonedds.topic import Topic
 from cyclonedds.util import duration
 
 from fleet.d1 import dds
-from fleet.d1.protocol import ARM_REPORT_SEQ, encode_message
+from fleet.d1.protocol import (
+    ARM_REPORT_SEQ,
+    ArmMessage,
+    ExecuteAck,
+    ReceiveAck,
+    encode_message,
+)
 from fleet.guard import ThreadGuard
 from fleet.inventory import ArmConfig, Inventory
 from fleet.security.session import open_session
@@ -128,6 +134,7 @@ class SimulatedArms:
                 time_s=now, joint_ranges_deg=arm.joint_ranges_deg, dynamics=arm.sim_dynamics
             )
             model.faults.abnormal_value = arm.sim_error_status
+            model.exec_ack_on_arrival = arm.sim_exec_ack == "on_arrival"
             self._arms[arm.id] = _SimArm(
                 arm, reader, condition, writer, model, ack_writer, status_writer
             )
@@ -207,11 +214,15 @@ class SimulatedArms:
                 text = getattr(sample, "data_", None)
                 if text is None:
                     continue  # an InvalidSample: a writer went away
-                for ack in arm.model.apply(text):
-                    if arm.config.sim_ack_seq == "fixed":
-                        # The spec's examples' reading: every ack carries the arm's own seq 10.
-                        ack = msgspec.structs.replace(ack, seq=ARM_REPORT_SEQ)
-                    arm.ack_writer.write(dds.ArmString_(encode_message(ack)))
+                self._send_acks(arm, arm.model.apply(text))
+
+    @staticmethod
+    def _send_acks(arm: _SimArm, acks: list[ArmMessage]) -> None:
+        for ack in acks:
+            if arm.config.sim_ack_seq == "fixed" and isinstance(ack, (ReceiveAck, ExecuteAck)):
+                # The spec's examples' reading: every ack carries the arm's own seq 10.
+                ack = msgspec.structs.replace(ack, seq=ARM_REPORT_SEQ)
+            arm.ack_writer.write(dds.ArmString_(encode_message(ack)))
 
     def _publish_feedback(self, now: float) -> None:
         while self._due[0][0] <= now + BATCH_S:
@@ -227,6 +238,7 @@ class SimulatedArms:
             report = arm.model.joint_report()
             if report is not None:
                 arm.writer.write(dds.ArmString_(encode_message(report)))
+            self._send_acks(arm, arm.model.arrived_acks())
             if arm.reports % STATUS_EVERY == 0:
                 for status in arm.model.status_reports():
                     arm.status_writer.write(dds.ArmString_(encode_message(status)))

@@ -138,12 +138,16 @@ class Diag(Struct, frozen=True):
     write_failures: Count = 0
     """DDS writes that failed (maybe sent)."""
     foreign_feedback: Count = 0
-    """Valid-looking feedback from a second DDS writer on the arm's topic (dropped)."""
+    """Valid-looking feedback the arm did not send (dropped): from a writer on another host,
+    or a second writer of a periodic report on the arm's host."""
     implausible_feedback: Count = 0
     """Angle reports implying an impossible speed (dropped: a sensor fault or a forgery)."""
     acks_unmatched: Count = 0
-    """Acks whose seq named no command written to the arm (an arm answering seq 10, as the
-    spec's examples do): credited to the arm's oldest command awaiting that kind of ack."""
+    """Acks with seq 10 (an arm answering as the spec's examples do): credited to the arm's
+    oldest command awaiting that kind of ack."""
+    acks_foreign: Count = 0
+    """Acks whose seq is neither a command we wrote lately nor 10 (another client commanding
+    the arm, or garbage): credited to no command."""
     acks_ignored: Count = 0
     """Acks credited to no command: late (after the ack timeout) or repeated, or none awaited."""
     contact_model: Text | None = None
