@@ -258,7 +258,7 @@ class EdgeAgent:
             reply = flight.reply(now)
             if reply.error is not None:
                 slot.tracker.last_error = reply.error.message
-                if reply.error.code == ErrorCode.TIMEOUT:
+                if reply.error.code == ErrorCode.TIMEOUT:  # an ack, not a target, is late
                     slot.tracker.ack_timeouts += 1
             out.replies.append((query, reply))
 

@@ -175,14 +175,12 @@ class InFlight:
         """Record an acknowledgment for one of our seqs."""
         if isinstance(ack, p.ReceiveAck):
             if not ack.ok:
-                self.fail(
-                    ErrorCode.INVALID_RESPONSE, f"the arm refused seq {ack.seq} (recv_status 0)"
-                )
+                self.fail(ErrorCode.ARM_REFUSED, f"the arm refused seq {ack.seq} (recv_status 0)")
             self.received.add(ack.seq)
         else:
             if not ack.ok:
                 self.fail(
-                    ErrorCode.INVALID_RESPONSE,
+                    ErrorCode.ARM_FAILED,
                     f"the arm failed to execute seq {ack.seq} (exec_status 0)",
                 )
             self.executed.add(ack.seq)
@@ -204,7 +202,7 @@ class InFlight:
                 self.reached = False
                 worst = _worst_joint(self.targets_deg, angles_deg)
                 waited = self.reach_deadline_s - self.started_s
-                self.fail(ErrorCode.TIMEOUT, f"target not reached within {waited:.1f} s{worst}")
+                self.fail(ErrorCode.NOT_REACHED, f"target not reached within {waited:.1f} s{worst}")
             return
         if now >= self.recv_deadline_s and len(self.received) < len(self.seqs):
             self.fail(

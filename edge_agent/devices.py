@@ -10,7 +10,7 @@ process exits 1):
   readers go to their relay's ``on_data``, then its ``tick``; each relay's ``tick`` also runs
   when the time it asked for comes (a gripper polls its 500 Hz state there, at its relay rate:
   waking for every sample cost more than the work), at least every ``TICK_MAX_S``;
-- ``dev-commands``: commands from a bounded queue (full: 3205 "busy" at once, from the
+- ``dev-commands``: commands from a bounded queue (full: 4003 "busy" at once, from the
   callback); a G1 RPC may block it up to its timeout, never the stops;
 - ``dev-safety``: stops and resets from a bounded FIFO (a stop that finds it full still
   latches every device: its payload is not needed to stop).
@@ -204,7 +204,7 @@ class DeviceHost:
             try:
                 self._commands.put_nowait(_Command(relay, payload, principal, query, reply_key))
             except queue.Full:
-                busy = error_reply(device, m.ErrorCode.REJECTED, "busy: too many commands queued")
+                busy = error_reply(device, m.ErrorCode.BUSY, "busy: too many commands queued")
                 query.reply(reply_key, m.encode(busy), encoding=JSON)
                 query.drop()
 

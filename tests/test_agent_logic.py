@@ -85,7 +85,7 @@ MOTIONS = [
 @pytest.mark.parametrize("command", MOTIONS)
 def test_motion_refused_while_estopped(command: m.ArmCommand) -> None:
     error = _refused(command, _tracker(estopped=True))
-    assert error.code == ErrorCode.REJECTED == 3205
+    assert error.code == ErrorCode.REJECTED == 4002
     assert "stopped" in str(error) and "fleet reset a1" in str(error)
 
 
@@ -313,7 +313,7 @@ def test_recv_status_0_fails_the_command() -> None:
     assert flight.done
     reply = flight.reply(100.1)
     assert not reply.ok
-    assert reply.error is not None and reply.error.code == ErrorCode.INVALID_RESPONSE == 3106
+    assert reply.error is not None and reply.error.code == ErrorCode.ARM_REFUSED == 4007
     assert "recv_status 0" in reply.error.message
 
 
@@ -322,7 +322,7 @@ def test_exec_status_0_fails_the_command() -> None:
     flight.on_ack(p.ReceiveAck(5, True))
     flight.on_ack(p.ExecuteAck(5, False))
     reply = flight.reply(100.1)
-    assert reply.error is not None and reply.error.code == ErrorCode.INVALID_RESPONSE
+    assert reply.error is not None and reply.error.code == ErrorCode.ARM_FAILED == 4008
     assert "exec_status 0" in reply.error.message
 
 
@@ -330,7 +330,7 @@ def test_first_error_wins() -> None:
     flight = _flight()
     flight.on_ack(p.ReceiveAck(5, False))
     flight.on_time(200.0, None)
-    assert flight.error is not None and flight.error.code == ErrorCode.INVALID_RESPONSE
+    assert flight.error is not None and flight.error.code == ErrorCode.ARM_REFUSED
 
 
 def test_reached_completes_a_wait_reached_command() -> None:
@@ -375,7 +375,7 @@ def test_not_reached_times_out_naming_the_worst_joint() -> None:
     assert flight.done
     reply = flight.reply(110.0)
     assert not reply.ok and reply.reached is False
-    assert reply.error is not None and reply.error.code == ErrorCode.TIMEOUT
+    assert reply.error is not None and reply.error.code == ErrorCode.NOT_REACHED
     assert "not reached within 10.0 s" in reply.error.message
     assert "joint 1 is 15.0 deg away" in reply.error.message
 

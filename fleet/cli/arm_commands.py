@@ -140,7 +140,7 @@ def _send(args: argparse.Namespace, command: m.ArmCommand) -> int:
             multi = client.multi(args.target, command, partial=args.partial)
             if multi.error is not None:
                 print(f"FAILED [{multi.error.code}] {multi.error.message}")
-                return 3 if multi.error.code == ErrorCode.NOT_REGISTERED else 1
+                return 3 if multi.error.code == ErrorCode.NO_AGENT else 1
             replies, skew = list(multi.replies.values()), multi.start_skew_ms
         else:
             with ThreadPoolExecutor(max_workers=min(16, len(arms))) as pool:
@@ -159,6 +159,6 @@ def _send(args: argparse.Namespace, command: m.ArmCommand) -> int:
     if all(r.ok for r in replies):
         return 0
     unreachable = all(
-        r.ok or (r.error is not None and r.error.code == ErrorCode.NOT_REGISTERED) for r in replies
+        r.ok or (r.error is not None and r.error.code == ErrorCode.NO_AGENT) for r in replies
     )
     return 3 if unreachable else 1

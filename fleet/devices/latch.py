@@ -1,7 +1,7 @@
 """The stop latch of one device (pure): what stopped it, its acknowledgment, and its reset.
 
 The same contract as the arm's (README, Protective stop): a stop latches at once and refuses
-every motion (3205) until an operator's reset; its action is written and repeated every
+every motion (4002) until an operator's reset; its action is written and repeated every
 ``REPEAT_S`` until the device's own state confirms it; the ack is published when acted on and
 again when confirmed. Repeats of one ``stop_id`` are ignored.
 """

@@ -277,7 +277,7 @@ class GripperRelay(LatchedRelay):
     # ------------------------------------------------------------------ commands
 
     def command(self, payload: bytes, principal: str) -> DeviceReply:
-        """Check and execute one command (3204 out of range, 3205 stopped or no state)."""
+        """Check and execute one command (3204 out of range, 4002 stopped or no state)."""
         with self._lock:
             self._counts["commands"] += 1
         try:

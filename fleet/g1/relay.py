@@ -235,7 +235,7 @@ class G1Relay(LatchedRelay):
             try:
                 request_id = self._send(call, waiter=True)
             except OverflowError as exc:
-                return self._refuse(m.ErrorCode.REJECTED, f"busy: {exc}")
+                return self._refuse(m.ErrorCode.BUSY, f"busy: {exc}")
             written = time.time_ns()
         with self._lock:
             self._counts["rpc_calls"] += 1
@@ -250,7 +250,7 @@ class G1Relay(LatchedRelay):
             )
         code = int(response.header.status.code)
         if response.header.identity.api_id != call.api_id:
-            code = 3105  # request and response do not match (seed 001)
+            code = m.ErrorCode.MISMATCH  # request and response do not match (seed 001)
         if code != 0:
             return DeviceReply(
                 ok=False,
