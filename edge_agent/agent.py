@@ -116,6 +116,7 @@ class EdgeAgent:
         configs = {a: inventory.arm(a) for a in arm_ids}
         paths = {a: inventory.calibration_path(a) for a in arm_ids}
         self.contact = ContactEdge(configs, self.relay, self.lock, self.writer, paths)
+        self.writer.observers.append(self._on_written)
         self.scheduler = StartScheduler(self.guard, self.stopping)
         self.commands = CommandService(
             self.lock,
@@ -195,6 +196,19 @@ class EdgeAgent:
             self.collect_finished(slot, now, out)
         self.flush(out)
         self.contact.flush()  # force-limit writes, after the lock
+
+    def _on_written(self, arm: str, command: p.Command, now: float) -> None:
+        """Watch the pose after an enable of all joints; a motion ends the watch (called
+        without the lock, after the write)."""
+        with self.lock:
+            tracker = self.slots[arm].tracker
+            if isinstance(command, p.SetAllTorque) and command.mode > 0:
+                setting = f"funcode 5 mode {command.mode}, enable_mode {tracker.config.enable_mode}"
+                tracker.sag.armed(tracker.angles_deg, now, setting)
+            elif isinstance(command, (p.SetJointAngle, p.ReturnToZero)) or (
+                isinstance(command, p.SetAllAngles) and command.angles_deg != tracker.angles_deg
+            ):
+                tracker.sag.cancel()
 
     def cancel_in_flight(self, slot: ArmSlot, now: float, why: str, out: Outbox) -> None:
         """Fail every command in flight on ``slot`` (caller holds the lock)."""

@@ -146,7 +146,9 @@ def _plan_torque(command: m.Torque, tracker: ArmTracker, now: float) -> Plan:
     # target first, so enabling never moves the arm.
     here = _measured(tracker, now, "cannot set the target to the measured pose before enabling")
     on: p.Command = (
-        p.SetAllTorque(command.strength if command.strength is not None else 1)
+        p.SetAllTorque(
+            command.strength if command.strength is not None else tracker.config.enable_mode
+        )
         if command.joint is None
         else p.SetJointTorque(command.joint, True)
     )

@@ -6,15 +6,19 @@ feedback string and asks it for the link state; nothing here touches DDS or Zeno
 
 from __future__ import annotations
 
+import logging
 from collections import deque
 from dataclasses import dataclass, field
 
 from edge_agent.origins import FeedbackWriter
 from edge_agent.safety import ArmSafety
+from edge_agent.sag import SagCheck
 from fleet.d1 import protocol as p
 from fleet.d1.errors import MalformedMessage, UnknownMessage
 from fleet.inventory import ArmConfig
 from fleet.wire.messages import ArmStatus, ContactModel, Diag, LinkState
+
+log = logging.getLogger("edge_agent.tracker")
 
 RATE_WINDOW = 20
 """Feedback rate is measured over the last 20 angle reports (about 2 s)."""
@@ -74,6 +78,8 @@ class ArmTracker:
     contact_note: str | None = None
     contact_free_moves: int = 0
     contact_model_error_deg: float | None = None
+    sag: SagCheck = field(default_factory=SagCheck)
+    """Whether the arm holds its pose after an enable (``sag.py``)."""
     _angle_times: deque[float] = field(default_factory=lambda: deque(maxlen=RATE_WINDOW))
     _host: str | None = None
     _host_s: float | None = None
@@ -119,6 +125,10 @@ class ArmTracker:
             self.angles_deg = message.angles_deg
             self.angles_s = now
             self._angle_times.append(now)
+            sagging = self.sag.on_angles(message.angles_deg, now)
+            if sagging is not None:
+                self.last_error = f"arm {self.config.id!r}: {sagging}"
+                log.warning("%s", self.last_error)
         elif isinstance(message, p.D1Status):
             self.enabled, self.powered = message.enabled, message.powered
             self.error_status = message.error_status

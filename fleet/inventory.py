@@ -43,6 +43,7 @@ DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 StopAction = Literal["hold", "unload", "power_off"]
 SimAckSeq = Literal["echo", "fixed"]
 SimExecAck = Literal["at_once", "on_arrival"]
+SimEnable = Literal["table", "strength"]
 EXEC_ACK_TIMEOUT_OPS = ("move_joint", "move_joints", "torque", "power", "zero")
 """The ops of the per-op execute-ack timeout table (the D1 commands they send)."""
 
@@ -101,6 +102,10 @@ class ArmConfig(Struct, frozen=True, forbid_unknown_fields=True):
     stop_action: StopAction = "hold"
     link_stale_s: float = 0.35
     link_lost_s: float = 2.0
+    enable_mode: int = 1
+    """Funcode 5 ``mode`` sent to enable all joints: 1 (the spec's table: 1 = enable) or a
+    holding strength up to 80000 (the spec's note: 0..80000, 80000 fully locked). After every
+    enable the agent checks that the arm holds its pose and warns naming this setting."""
     recv_ack_timeout_s: float = 0.5
     exec_ack_timeout_s: float = 2.0
     exec_ack_timeouts: dict[str, float] = msgspec.field(default_factory=dict)
@@ -127,6 +132,9 @@ class ArmConfig(Struct, frozen=True, forbid_unknown_fields=True):
     sim_exec_ack: SimExecAck = "at_once"
     """When the simulated arm sends a motion's execute ack: ``at_once`` (when it took the
     target) or ``on_arrival`` (when the joints reached it: "executed" as "motion finished")."""
+    sim_enable: SimEnable = "table"
+    """How the simulated arm reads funcode 5 ``mode``: ``table`` (any mode > 0 enables) or
+    ``strength`` (0..80000: below ``SAG_BELOW`` the arm is limp and its shoulder sags)."""
     sim_feedback_writers: int = 1
     """How many DDS writers the simulated arm's feedback comes from: 1, or 3 as the arm's own
     driver does it (seed 000: marm_communication sends the angles, marm_control the acks,
@@ -278,6 +286,7 @@ def _enum_choices() -> dict[str, tuple[str, ...]]:
         "stop_action": get_args(StopAction),
         "sim_ack_seq": get_args(SimAckSeq),
         "sim_exec_ack": get_args(SimExecAck),
+        "sim_enable": get_args(SimEnable),
         "mode": get_args(SecurityMode),
         "role": get_args(Role),
     }
@@ -371,6 +380,8 @@ def _check_arm(arm: ArmConfig, path: str) -> None:
             f"gripper_closed_deg {gripper[0]:g} and gripper_open_deg {gripper[1]:g} must be "
             "within -360..360 and at least 1 deg apart",
         )
+    if not 1 <= arm.enable_mode <= 80000:
+        raise _fail(path, where, "enable_mode must be within 1..80000")
     if arm.sim_feedback_writers not in (1, 3):
         raise _fail(path, where, "sim_feedback_writers must be 1 or 3")
     if arm.sim_error_status == 1:

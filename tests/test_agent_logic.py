@@ -610,3 +610,26 @@ def test_an_impossible_jump_is_never_the_pose_unless_it_persists() -> None:
     assert tracker.on_feedback(_feedback(fallen), 0.4) is None
     assert tracker.on_feedback(_feedback(fallen), 0.5) is not None
     assert tracker.angles_deg == fallen
+
+
+# ----------------------------------------------------------------------------- enable strength
+
+
+def test_a_pose_that_drifts_after_an_enable_is_warned_once() -> None:
+    from edge_agent.sag import SagCheck
+
+    check = SagCheck()
+    check.armed(HOME, 0.0, "enable_mode 1")
+    assert check.on_angles(HOME, 0.1) is None
+    sagged = (HOME[0], HOME[1] - 3.0, *HOME[2:])
+    warning = check.on_angles(sagged, 0.5)
+    assert (
+        warning is not None and "joint 1 drifted 3.0 deg" in warning and "enable_mode 1" in warning
+    )
+    assert check.on_angles(sagged, 0.6) is None and check.sagged == 1
+    check.armed(HOME, 1.0, "enable_mode 80000")
+    assert check.on_angles(HOME, 2.1) is None  # held for the whole window
+    assert check.on_angles(sagged, 2.2) is None  # past it: a later motion is not a sag
+    check.armed(HOME, 3.0, "x")
+    check.cancel()  # a motion command was written
+    assert check.on_angles(sagged, 3.5) is None

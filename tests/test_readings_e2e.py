@@ -215,6 +215,37 @@ def test_a_long_move_and_a_return_to_zero_complete_past_two_seconds(tmp_path: Pa
             channel.close()
 
 
+# ----------------------------------------------------------------------------- enable strength
+
+ENABLE_ARMS = (
+    # The note's reading (mode is a 0..80000 strength): mode 1 leaves the arm limp.
+    '[arms.limp]\nsuffix = "_1"\nsim_enable = "strength"\n'
+    '[arms.locked]\nsuffix = "_2"\nsim_enable = "strength"\nenable_mode = 80000\n'
+)
+
+
+def test_an_enable_that_leaves_the_arm_limp_is_warned_naming_the_setting(tmp_path: Path) -> None:
+    """Before: mode 1 was sent and the fleet believed the arm enabled, limp or not."""
+    with _harness(tmp_path, ENABLE_ARMS) as harness:
+        client = harness.start_fleet()
+        for arm in ("limp", "locked"):
+            assert client.command(arm, m.MoveJoint(joint=1, angle_deg=30.0, wait_reached=True)).ok
+            reply = client.command(arm, m.Torque(on=True))
+            assert reply.ok and reply.executed, reply
+        warned = wait_until(lambda: "does not hold its pose" in harness.log("agent"), 10.0)
+        assert warned
+        log = harness.log("agent")
+        assert "arm 'limp'" in log and "enable_mode 1" in log and "enable_mode = 80000" in log
+        assert "arm 'locked': the arm does not hold" not in log, log[-3000:]
+        # Later the locked arm still stands where it was enabled (reached within 2 deg of 30).
+        sag = next_diag(client, harness.inventory.fleet, "limp")
+        assert sag.last_error is not None and "does not hold its pose" in sag.last_error
+        joints = client.snapshot(["locked"])["locked"][1]
+        assert joints is not None and abs(joints.angles_deg[1] - 30.0) <= 2.5, joints
+        strength = client.command("limp", m.Torque(on=True, strength=80000))
+        assert strength.ok, strength
+
+
 # ----------------------------------------------------------------------------- error_status
 
 ERROR_ARMS = (

@@ -75,8 +75,18 @@ def register(
     torque = arm_parser("torque", "enable (on) or unload (off) joint motors")
     torque.add_argument("state", choices=("on", "off"))
     torque.add_argument("--joint", type=int, default=None, help="one joint (default all)")
+    torque.add_argument(
+        "--strength",
+        type=int,
+        default=None,
+        help="all joints only: funcode 5 mode, 1..80000 (default: the arm's enable_mode; the "
+        "spec's table reads 1 as enable, its note 0..80000 as strength, 80000 fully locked)",
+    )
     torque.set_defaults(
-        run=lambda a: _send(a, m.Torque(on=a.state == "on", joint=a.joint, **_opts(a)))
+        run=lambda a: _send(
+            a,
+            m.Torque(on=a.state == "on", joint=a.joint, strength=a.strength, **_opts(a)),
+        )
     )
 
     power = arm_parser("power", "switch the motors' power")

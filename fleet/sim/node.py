@@ -135,6 +135,7 @@ class SimulatedArms:
             )
             model.faults.abnormal_value = arm.sim_error_status
             model.exec_ack_on_arrival = arm.sim_exec_ack == "on_arrival"
+            model.enable_strength = arm.sim_enable == "strength"
             self._arms[arm.id] = _SimArm(
                 arm, reader, condition, writer, model, ack_writer, status_writer
             )
