@@ -38,6 +38,7 @@ from edge_agent.holds import hold_command
 from edge_agent.inbox import CommandInbox, InboxCounters, IncomingQuery, SafetyInbox
 from edge_agent.latches import LatchStore, default_state_dir
 from edge_agent.link import DdsLink
+from edge_agent.origins import FeedbackWriter
 from edge_agent.relay import JSON, ZenohRelay, principal_of
 from edge_agent.safety import ArmSafety
 from edge_agent.scheduler import StartScheduler
@@ -149,6 +150,7 @@ class EdgeAgent:
         configs = {a: inventory.arm(a) for a in arm_ids}
         paths = {a: inventory.calibration_path(a) for a in arm_ids}
         self.contact = ContactEdge(configs, self.relay, self.lock, self.writer, paths)
+        self.writer.observers.append(self._on_written)
         self.scheduler = StartScheduler(self.guard, self.stopping)
         self.commands = CommandService(
             self.lock,
@@ -234,7 +236,9 @@ class EdgeAgent:
 
     # ------------------------------------------------------------------ the relay thread
 
-    def _on_feedback(self, arm: str, text: bytes, now: float, writer: int | None = None) -> None:
+    def _on_feedback(
+        self, arm: str, text: bytes, now: float, writer: FeedbackWriter | None = None
+    ) -> None:
         stamp_ns = time.time_ns()
         pubs = self.relay.publishers[arm]
         out = Outbox()
@@ -273,6 +277,19 @@ class EdgeAgent:
             self.collect_finished(slot, now, out)
         self.flush(out)
         self.contact.flush()  # force-limit writes, after the lock
+
+    def _on_written(self, arm: str, command: p.Command, now: float) -> None:
+        """Watch the pose after an enable of all joints; a motion ends the watch (called
+        without the lock, after the write)."""
+        with self.lock:
+            tracker = self.slots[arm].tracker
+            if isinstance(command, p.SetAllTorque) and command.mode > 0:
+                setting = f"funcode 5 mode {command.mode}, enable_mode {tracker.config.enable_mode}"
+                tracker.sag.armed(tracker.angles_deg, now, setting)
+            elif isinstance(command, (p.SetJointAngle, p.ReturnToZero)) or (
+                isinstance(command, p.SetAllAngles) and command.angles_deg != tracker.angles_deg
+            ):
+                tracker.sag.cancel()
 
     def cancel_in_flight(self, slot: ArmSlot, now: float, why: str, out: Outbox) -> None:
         """Fail every command in flight on ``slot`` (caller holds the lock)."""
@@ -368,7 +385,7 @@ class EdgeAgent:
             reply = flight.reply(now)
             if reply.error is not None:
                 slot.tracker.last_error = reply.error.message
-                if reply.error.code == ErrorCode.TIMEOUT:
+                if reply.error.code == ErrorCode.TIMEOUT:  # an ack, not a target, is late
                     slot.tracker.ack_timeouts += 1
             out.replies.append((query, reply))
 
@@ -447,10 +464,18 @@ def _log_error_status(arm: str, error_status: int) -> None:
 
 def _on_ack(slot: ArmSlot, ack: p.ReceiveAck | p.ExecuteAck, now: float) -> None:
     """Credit ``ack`` to the written command it answers (caller holds the lock): by its seq, or,
-    when its seq names none (an arm answering seq 10, as the spec's examples do), to the oldest
-    command awaiting this kind of ack (``acks.py``), counted as unmatched."""
+    when it carries seq 10 (an arm answering as the spec's examples do), to the oldest command
+    awaiting this kind of ack (``acks.py``), counted as unmatched; any other seq is counted as
+    foreign and credited to nothing."""
     tracker = slot.tracker
     seq, how = slot.acks.answered(ack, now)
+    if how == "foreign":
+        tracker.acks_foreign += 1
+        tracker.last_error = (
+            f"{type(ack).__name__} with seq {ack.seq} ignored: neither a command of ours nor "
+            f"the arm's seq {p.ARM_REPORT_SEQ} (another client commanding the arm?)"
+        )
+        return
     if seq is None:
         tracker.acks_ignored += 1
         why = "a late or repeated ack" if how == "late" else "no command written awaits one"

@@ -146,7 +146,9 @@ def _plan_torque(command: m.Torque, tracker: ArmTracker, now: float) -> Plan:
     # target first, so enabling never moves the arm.
     here = _measured(tracker, now, "cannot set the target to the measured pose before enabling")
     on: p.Command = (
-        p.SetAllTorque(command.strength if command.strength is not None else 1)
+        p.SetAllTorque(
+            command.strength if command.strength is not None else tracker.config.enable_mode
+        )
         if command.joint is None
         else p.SetJointTorque(command.joint, True)
     )
@@ -175,14 +177,12 @@ class InFlight:
         """Record an acknowledgment for one of our seqs."""
         if isinstance(ack, p.ReceiveAck):
             if not ack.ok:
-                self.fail(
-                    ErrorCode.INVALID_RESPONSE, f"the arm refused seq {ack.seq} (recv_status 0)"
-                )
+                self.fail(ErrorCode.ARM_REFUSED, f"the arm refused seq {ack.seq} (recv_status 0)")
             self.received.add(ack.seq)
         else:
             if not ack.ok:
                 self.fail(
-                    ErrorCode.INVALID_RESPONSE,
+                    ErrorCode.ARM_FAILED,
                     f"the arm failed to execute seq {ack.seq} (exec_status 0)",
                 )
             self.executed.add(ack.seq)
@@ -204,7 +204,7 @@ class InFlight:
                 self.reached = False
                 worst = _worst_joint(self.targets_deg, angles_deg)
                 waited = self.reach_deadline_s - self.started_s
-                self.fail(ErrorCode.TIMEOUT, f"target not reached within {waited:.1f} s{worst}")
+                self.fail(ErrorCode.NOT_REACHED, f"target not reached within {waited:.1f} s{worst}")
             return
         if now >= self.recv_deadline_s and len(self.received) < len(self.seqs):
             self.fail(

@@ -8,7 +8,7 @@ may stop anyway); a stop that finds the FIFO full is not dropped either: its tar
 and the safety thread latches it ("flood").
 
 Commands (``CommandInbox``): a bounded FIFO of queries for the ``commands`` thread; a query that
-finds it full is answered 3205 "busy" at once, from the queryable's callback (replying there is
+finds it full is answered 4003 "busy" at once, from the queryable's callback (replying there is
 how Zenoh's own examples serve queries), so the caller learns that the agent is overloaded
 instead of waiting for a timeout, and nothing is queued without bound.
 
@@ -35,7 +35,7 @@ MAX_BEAT_SOURCES = 64
 """Distinct heartbeat sources kept between two safety ticks (50 ms); sources that watch an
 arm are always kept."""
 COMMAND_DEPTH = 256
-"""Commands waiting for the commands thread; one more is answered 3205 "busy"."""
+"""Commands waiting for the commands thread; one more is answered 4003 "busy"."""
 
 
 @dataclass(frozen=True)

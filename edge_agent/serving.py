@@ -8,7 +8,7 @@ lock). A device's own checks and its write are its driver's (``DeviceDriver.exec
 (limits, link, power, in-flight limit) are here: it assigns seqs, registers them in flight
 (under the agent's lock, before any write, so no ack can arrive unmatched) and writes them
 through the arm's writer, now or at a synchronized start. Replies are sent by whichever thread
-completes the command (see ``EdgeAgent``). Queries the inbox could not queue are answered 3205
+completes the command (see ``EdgeAgent``). Queries the inbox could not queue are answered 4003
 "busy" (``busy``).
 """
 
@@ -46,7 +46,7 @@ MAX_START_DELAY_S = 5.0
 """A synchronized start further ahead than this is refused (a clock problem, not a plan)."""
 MAX_IN_FLIGHT = 32
 """Commands in flight per arm (waiting for acks, a target or a start time); one more is
-refused 3205 "busy". A real client has one or two; 65534 in flight exhausted the seqs."""
+refused 4003 "busy". A real client has one or two; 65534 in flight exhausted the seqs."""
 
 Collect = Callable[[ArmSlot, float, Outbox], None]
 Flush = Callable[[Outbox], None]
@@ -136,7 +136,7 @@ class CommandService:
         try:
             self._scheduler.schedule(now + delay_s, write)
         except SchedulerFull as exc:
-            self._fail(item.arm, flight, ErrorCode.REJECTED, f"busy: {exc}")
+            self._fail(item.arm, flight, ErrorCode.BUSY, f"busy: {exc}")
 
     def _accept(
         self, slot: ArmSlot, item: IncomingQuery, command: m.ArmCommand, now: float
@@ -167,14 +167,14 @@ class CommandService:
         flights = {id(f) for f, _q in slot.in_flight.values()}
         if len(flights) >= MAX_IN_FLIGHT:
             raise Refused(
-                ErrorCode.REJECTED,
+                ErrorCode.BUSY,
                 f"arm {item.arm!r} is busy: {len(flights)} commands in flight (max "
                 f"{MAX_IN_FLIGHT}); wait for their replies",
             )
         try:
             seqs = tuple(slot.seqs.allocate() for _ in planned.commands)
         except SeqExhausted as exc:  # cannot happen under MAX_IN_FLIGHT; never a crash
-            raise Refused(ErrorCode.REJECTED, f"arm {item.arm!r} is busy: {exc}") from None
+            raise Refused(ErrorCode.BUSY, f"arm {item.arm!r} is busy: {exc}") from None
         if (
             isinstance(command, m.MOTION_OPS)
             and owner is not None
@@ -188,7 +188,7 @@ class CommandService:
             seqs=seqs,
             started_s=now,
             recv_deadline_s=start + config.recv_ack_timeout_s,
-            exec_deadline_s=start + config.exec_ack_timeout_s,
+            exec_deadline_s=start + slot.acks.exec_timeouts.longest(planned.commands),
             reach_deadline_s=start + command.timeout_s if command.wait_reached else None,
             targets_deg=planned.targets_deg,
             tolerance_deg=command.tolerance_deg,
@@ -349,10 +349,10 @@ class CommandService:
         """Answer a query the inbox could not queue (called on the Zenoh thread)."""
         why = f"{item.arm!r}: the agent is busy (its command queue is full); retry later"
         if item.arm in self._devices:
-            reply = error_reply(item.arm, ErrorCode.REJECTED, why)
+            reply = error_reply(item.arm, ErrorCode.BUSY, why)
             self._reply_device(item, reply, time.monotonic())
             return
-        self._refuse(item, ErrorCode.REJECTED, why, time.monotonic())
+        self._refuse(item, ErrorCode.BUSY, why, time.monotonic())
 
     def _refuse(self, item: IncomingQuery, code: ErrorCode, message: str, started: float) -> None:
         self._reply_now(item, started, ErrorInfo(int(code), message[:1000]))
@@ -371,12 +371,12 @@ def _check_order(
     """Duplicates, out-of-order commands and commands past their lifetime: Refused."""
     refusal = order.refusal(principal, owner, command.stamp_ns)
     if refusal is not None:
-        raise Refused(ErrorCode.TIMEOUT, f"{label}: {refusal}")
+        raise Refused(ErrorCode.OUT_OF_ORDER, f"{label}: {refusal}")
     if command.lifetime_s is not None and command.stamp_ns is not None:
         age_s = (time.time_ns() - command.stamp_ns) / 1e9
         if age_s > command.lifetime_s:
             raise Refused(
-                ErrorCode.TIMEOUT,
+                ErrorCode.EXPIRED,
                 f"target for {label} arrived {age_s * 1000:.0f} ms after it was sent, "
                 f"past its lifetime of {command.lifetime_s * 1000:.0f} ms: not executed",
             )

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import zenoh
 
-from edge_agent.acks import AckMatcher
+from edge_agent.acks import AckMatcher, ExecTimeouts
 from edge_agent.commands import InFlight
 from edge_agent.ordering import CommandOrder
 from edge_agent.safety import ArmSafety
@@ -37,7 +37,8 @@ class ArmSlot:
 
     def __post_init__(self) -> None:
         config = self.tracker.config
-        self.acks = AckMatcher(config.recv_ack_timeout_s, config.exec_ack_timeout_s)
+        exec_timeouts = ExecTimeouts(config.exec_ack_timeout_s, config.exec_ack_timeouts)
+        self.acks = AckMatcher(config.recv_ack_timeout_s, exec_timeouts)
 
     @property
     def safety(self) -> ArmSafety:

@@ -6,14 +6,19 @@ feedback string and asks it for the link state; nothing here touches DDS or Zeno
 
 from __future__ import annotations
 
+import logging
 from collections import deque
 from dataclasses import dataclass, field
 
+from edge_agent.origins import FeedbackWriter
 from edge_agent.safety import ArmSafety
+from edge_agent.sag import SagCheck
 from fleet.d1 import protocol as p
 from fleet.d1.errors import MalformedMessage, UnknownMessage
 from fleet.inventory import ArmConfig
 from fleet.wire.messages import ArmStatus, ContactModel, Diag, LinkState
+
+log = logging.getLogger("edge_agent.tracker")
 
 RATE_WINDOW = 20
 """Feedback rate is measured over the last 20 angle reports (about 2 s)."""
@@ -22,6 +27,8 @@ NOMINAL_PERIOD_S = 0.1
 about this far apart in the arm's time."""
 JUMP_MARGIN_DEG = 2.0
 """Noise a report may add on top of the fastest plausible motion."""
+PERIODIC: frozenset[type] = frozenset({p.JointAngles, p.D1Status, p.MotorStatus})
+"""The reports the arm sends on its own, periodically: one writer each."""
 REANCHOR_REPORTS = 3
 """Consecutive reports that agree with each other, but not with the pose before them, are a
 real jump (an unloaded arm that fell, a first report after a long gap): the pose follows them."""
@@ -51,7 +58,8 @@ class ArmTracker:
     unknown_fields: int = 0
     rejected: int = 0
     foreign: int = 0
-    """Valid-looking reports from a second DDS writer on the arm's feedback topic (dropped)."""
+    """Valid-looking reports the arm did not send (dropped): from a writer on another host than
+    the arm's, or a second writer of a periodic report the arm's host already sends."""
     implausible: int = 0
     """Angle reports implying a motion faster than the arm can make (dropped: a sensor fault
     or a forgery is never a pose to hold)."""
@@ -60,6 +68,8 @@ class ArmTracker:
     acks_unmatched: int = 0
     """Acks whose seq named no command we wrote (an arm that answers seq 10): credited to the
     oldest command awaiting that ack (``acks.py``)."""
+    acks_foreign: int = 0
+    """Acks whose seq is neither one we wrote lately nor 10: credited to no command."""
     acks_ignored: int = 0
     """Acks credited to no command: late or repeated, or with no command awaiting one."""
     last_error: str | None = None
@@ -68,9 +78,14 @@ class ArmTracker:
     contact_note: str | None = None
     contact_free_moves: int = 0
     contact_model_error_deg: float | None = None
+    sag: SagCheck = field(default_factory=SagCheck)
+    """Whether the arm holds its pose after an enable (``sag.py``)."""
     _angle_times: deque[float] = field(default_factory=lambda: deque(maxlen=RATE_WINDOW))
-    _writer: int | None = None
-    _writer_s: float = 0.0
+    _host: str | None = None
+    _host_s: float | None = None
+    """The arm's host (of the first writer heard) and when the arm last spoke from it."""
+    _owners: dict[type, tuple[FeedbackWriter, float]] = field(default_factory=dict)
+    """Periodic report kind -> the writer that sends it and when it last did."""
     _jumps: list[tuple[tuple[float, ...], float]] = field(default_factory=list)
 
     def __post_init__(self) -> None:
@@ -82,7 +97,7 @@ class ArmTracker:
         return self.safety.latched
 
     def on_feedback(
-        self, text: str | bytes, now: float, writer: int | None = None
+        self, text: str | bytes, now: float, writer: FeedbackWriter | None = None
     ) -> p.Decoded | None:
         """Decode one feedback string and update the state; None (and counted) if malformed,
         from a second writer, or an implausible jump."""
@@ -96,9 +111,9 @@ class ArmTracker:
             self.malformed += 1
             self.last_error = f"malformed feedback: {exc}"
             return None
-        if not self._from_the_arm(writer, now):
-            return None
         message = decoded.message
+        if not self._from_the_arm(writer, type(message), now):
+            return None
         if isinstance(message, p.JointAngles) and not self._plausible(message.angles_deg, now):
             return None
         self.relayed += 1
@@ -110,6 +125,10 @@ class ArmTracker:
             self.angles_deg = message.angles_deg
             self.angles_s = now
             self._angle_times.append(now)
+            sagging = self.sag.on_angles(message.angles_deg, now)
+            if sagging is not None:
+                self.last_error = f"arm {self.config.id!r}: {sagging}"
+                log.warning("%s", self.last_error)
         elif isinstance(message, p.D1Status):
             self.enabled, self.powered = message.enabled, message.powered
             self.error_status = message.error_status
@@ -117,23 +136,36 @@ class ArmTracker:
             self.motors_ok = message.motors_ok
         return decoded
 
-    def _from_the_arm(self, writer: int | None, now: float) -> bool:
-        """The arm's feedback comes from one DDS writer: the first heard, kept while it speaks
-        (a rebooted arm's new writer takes over once the old one was silent for
-        ``link_lost_s``). Anything else on the topic is a rogue participant: counted, dropped."""
+    def _from_the_arm(self, writer: FeedbackWriter | None, kind: type, now: float) -> bool:
+        """Whether ``writer`` is one of the arm's own writers for a message of ``kind``.
+
+        The arm publishes its feedback from several services (seed 000: three participants on
+        its card), so trust goes to its *host*: the host of the first writer heard, kept while
+        the arm speaks from it (a replaced arm's host takes over once the old one was silent
+        for ``link_lost_s``). On that host each periodic report (angles, status, motors) has
+        one writer, the first heard, kept while it speaks: a second writer of angles even on
+        the arm's own host (a rogue process beside the arm's services) is foreign. Acks may
+        come from any writer on the arm's host (one service acks a move, another an enable).
+        The speed-plausibility check (``_plausible``) still runs on what is accepted."""
         if writer is None:
             return True
-        if self._writer is None or now - self._writer_s > self.config.link_lost_s:
-            self._writer = writer
-        if writer != self._writer:
-            self.foreign += 1
-            self.last_error = (
-                "feedback from a second DDS writer on the arm's topic was ignored (a rogue "
-                "participant on the arm's network?)"
-            )
-            return False
-        self._writer_s = now
+        lost = self.config.link_lost_s
+        if self._host_s is None or now - self._host_s > lost:
+            self._host, self._owners = writer.host, {}
+        if writer.host != self._host:
+            return self._foreign(f"from host {writer.host!r}, not the arm's {self._host!r}")
+        if kind in PERIODIC:
+            owner = self._owners.get(kind)
+            if owner is not None and owner[0].handle != writer.handle and now - owner[1] <= lost:
+                return self._foreign(f"a second writer of {kind.__name__} on the arm's host")
+            self._owners[kind] = (writer, now)
+        self._host_s = now
         return True
+
+    def _foreign(self, why: str) -> bool:
+        self.foreign += 1
+        self.last_error = f"feedback {why} was ignored (a rogue participant on the arm's network?)"
+        return False
 
     def _plausible(self, angles: tuple[float, ...], now: float) -> bool:
         """False for a report that jumps further than ``max_speed_deg_s`` allows since the
@@ -223,6 +255,7 @@ class ArmTracker:
             ack_timeouts=self.ack_timeouts,
             acks_unmatched=self.acks_unmatched,
             acks_ignored=self.acks_ignored,
+            acks_foreign=self.acks_foreign,
             feedback_rate_hz=round(self.feedback_rate_hz(), 2),
             last_feedback_age_s=None if age is None else round(age, 3),
             last_error=self.last_error,

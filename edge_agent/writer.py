@@ -79,7 +79,8 @@ class ArmWriter:
                 slot = self._slots[arm]
                 chosen = compose(slot, now)
                 if chosen is not None:
-                    slot.acks.written(chosen[1], now)  # before the write: the ack may overtake it
+                    # before the write: the ack may overtake it
+                    slot.acks.written(chosen[1], now, chosen[0])
             if chosen is None:
                 return None
             command, seq = chosen

@@ -30,7 +30,7 @@ DEVICE_REPLY = payloads.DEVICE_REPLY
 REPLY_MARGIN_S = 2.0
 """A command's query waits this much longer than the command's own timeout."""
 COMMAND_LIFETIME_S = 5.0
-"""A command that reaches its agent later than this after it was sent is refused (3104): a
+"""A command that reaches its agent later than this after it was sent is refused (4005): a
 replay, or a network that held it, never executes it late. Hosts' clocks must agree to well
 within this (NTP); a streamed target sets its own, shorter lifetime."""
 
@@ -51,7 +51,7 @@ def _no_reply(arm: str, why: str) -> m.CommandReply:
         executed=None,
         reached=None,
         latency_ms=0.0,
-        error=ErrorInfo(int(ErrorCode.NOT_REGISTERED), why),
+        error=ErrorInfo(int(ErrorCode.NO_AGENT), why),
     )
 
 
@@ -155,7 +155,7 @@ class FleetClient:
             f"{self.keys.device(kind, device, keys.AGENT)}?); is the edge-agent of its card "
             f"(`edge-agent --interface {self.inventory.device(device).interface}`) running?"
         )
-        return error_reply(device, ErrorCode.NOT_REGISTERED, why)
+        return error_reply(device, ErrorCode.NO_AGENT, why)
 
     def multi(
         self,
@@ -166,7 +166,7 @@ class FleetClient:
         partial: bool = False,
     ) -> m.MultiArmReply:
         """Send ``command`` to an arm, a group or ``all`` through the coordinator (one owner,
-        synchronized start: all or nothing unless ``partial``). Fails with 3103 when no
+        synchronized start: all or nothing unless ``partial``). Fails with 4001 when no
         coordinator answers."""
         self.inventory.resolve(target)
         request = m.MultiArmRequest(
@@ -182,7 +182,7 @@ class FleetClient:
                     why = f"unreadable reply from the coordinator: {exc}"
                     return m.MultiArmReply(False, {}, None, ErrorInfo(int(ErrorCode.UNKNOWN), why))
         why = f"no coordinator answered on {key}; is `fleet coordinator` running?"
-        return m.MultiArmReply(False, {}, None, ErrorInfo(int(ErrorCode.NOT_REGISTERED), why))
+        return m.MultiArmReply(False, {}, None, ErrorInfo(int(ErrorCode.NO_AGENT), why))
 
     def command_key(self, arm: str) -> str:
         """Where this client's commands to ``arm`` go (``arm/<arm>/cmd/<principal>``)."""

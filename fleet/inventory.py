@@ -42,6 +42,10 @@ DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 
 StopAction = Literal["hold", "unload", "power_off"]
 SimAckSeq = Literal["echo", "fixed"]
+SimExecAck = Literal["at_once", "on_arrival"]
+SimEnable = Literal["table", "strength"]
+EXEC_ACK_TIMEOUT_OPS = ("move_joint", "move_joints", "torque", "power", "zero")
+"""The ops of the per-op execute-ack timeout table (the D1 commands they send)."""
 
 
 class DdsNetwork(NamedTuple):
@@ -98,8 +102,16 @@ class ArmConfig(Struct, frozen=True, forbid_unknown_fields=True):
     stop_action: StopAction = "hold"
     link_stale_s: float = 0.35
     link_lost_s: float = 2.0
+    enable_mode: int = 1
+    """Funcode 5 ``mode`` sent to enable all joints: 1 (the spec's table: 1 = enable) or a
+    holding strength up to 80000 (the spec's note: 0..80000, 80000 fully locked). After every
+    enable the agent checks that the arm holds its pose and warns naming this setting."""
     recv_ack_timeout_s: float = 0.5
     exec_ack_timeout_s: float = 2.0
+    exec_ack_timeouts: dict[str, float] = msgspec.field(default_factory=dict)
+    """Execute-ack timeout per op (``move_joint``, ``move_joints``, ``torque``, ``power``,
+    ``zero``) over the built-in table (``edge_agent/acks.py``: moves 5 s, zero 10 s, the rest
+    ``exec_ack_timeout_s``): "executed" may mean "motion finished"."""
     joint_sign: tuple[int, ...] = (1,) * JOINT_COUNT
     watchdog_s: float = 0.5
     lease_s: float = 3.0
@@ -117,6 +129,16 @@ class ArmConfig(Struct, frozen=True, forbid_unknown_fields=True):
     sim_error_status: int = 0
     """The ``error_status`` the simulated arm reports while abnormal: 0 (the table) or a
     bitfield value (the contact plan's reading)."""
+    sim_exec_ack: SimExecAck = "at_once"
+    """When the simulated arm sends a motion's execute ack: ``at_once`` (when it took the
+    target) or ``on_arrival`` (when the joints reached it: "executed" as "motion finished")."""
+    sim_enable: SimEnable = "table"
+    """How the simulated arm reads funcode 5 ``mode``: ``table`` (any mode > 0 enables) or
+    ``strength`` (0..80000: below ``SAG_BELOW`` the arm is limp and its shoulder sags)."""
+    sim_feedback_writers: int = 1
+    """How many DDS writers the simulated arm's feedback comes from: 1, or 3 as the arm's own
+    driver does it (seed 000: marm_communication sends the angles, marm_control the acks,
+    marm_controller the status and motor reports; three participants)."""
 
     @property
     def joint_ranges_deg(self) -> JointRanges:
@@ -266,6 +288,8 @@ def _enum_choices() -> dict[str, tuple[str, ...]]:
     return {
         "stop_action": get_args(StopAction),
         "sim_ack_seq": get_args(SimAckSeq),
+        "sim_exec_ack": get_args(SimExecAck),
+        "sim_enable": get_args(SimEnable),
         "mode": get_args(SecurityMode),
         "role": get_args(Role),
     }
@@ -338,6 +362,15 @@ def _check_arm(arm: ArmConfig, path: str) -> None:
         raise _fail(path, where, "need 0 < link_stale_s < link_lost_s")
     if arm.recv_ack_timeout_s <= 0 or arm.exec_ack_timeout_s <= 0:
         raise _fail(path, where, "ack timeouts must be positive")
+    for op, timeout_s in arm.exec_ack_timeouts.items():
+        if op not in EXEC_ACK_TIMEOUT_OPS:
+            raise _fail(
+                path,
+                f"{where}.exec_ack_timeouts",
+                f"unknown op {op!r} (one of: {', '.join(EXEC_ACK_TIMEOUT_OPS)})",
+            )
+        if not 0 < timeout_s <= 600:
+            raise _fail(path, f"{where}.exec_ack_timeouts.{op}", "must be within 0..600 s")
     if arm.watchdog_s <= 0 or arm.lease_s <= 0:
         raise _fail(path, where, "watchdog_s and lease_s must be positive")
     if not 10 <= arm.max_speed_deg_s <= 10000:
@@ -350,6 +383,10 @@ def _check_arm(arm: ArmConfig, path: str) -> None:
             f"gripper_closed_deg {gripper[0]:g} and gripper_open_deg {gripper[1]:g} must be "
             "within -360..360 and at least 1 deg apart",
         )
+    if not 1 <= arm.enable_mode <= 80000:
+        raise _fail(path, where, "enable_mode must be within 1..80000")
+    if arm.sim_feedback_writers not in (1, 3):
+        raise _fail(path, where, "sim_feedback_writers must be 1 or 3")
     if arm.sim_error_status == 1:
         raise _fail(path, where, "sim_error_status 1 is the normal value: use 0 or a bitfield")
     contact_problem = check_config(arm.contact)
@@ -430,8 +467,9 @@ def parse_inventory(text: str, path: str = DEFAULT_INVENTORY) -> Inventory:
             raise InventoryError(f"{path}: {where}: the id is the table's name; remove 'id'")
         merged = {**defaults, **arm_raw, "id": arm_id}
         merged.setdefault("agent", f"agent-{arm_id}")
-        if isinstance(defaults.get("contact"), dict) and isinstance(arm_raw.get("contact"), dict):
-            merged["contact"] = _merge(defaults["contact"], arm_raw["contact"])
+        for table in ("contact", "exec_ack_timeouts"):  # merged field by field
+            if isinstance(defaults.get(table), dict) and isinstance(arm_raw.get(table), dict):
+                merged[table] = _merge(defaults[table], arm_raw[table])
         arm = _convert(merged, ArmConfig, path, where)
         _check_arm(arm, path)
         arms[arm_id] = arm

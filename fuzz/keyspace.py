@@ -49,7 +49,7 @@ def seeds() -> list[bytes]:
         executed=None,
         reached=None,
         latency_ms=1.5,
-        error=m.ErrorInfo(3205, "busy"),
+        error=m.ErrorInfo(int(m.ErrorCode.BUSY), "busy"),
         written_ns=2,
     )
     commands: list[m.ArmCommand] = [

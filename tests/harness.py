@@ -23,6 +23,8 @@ from typing import IO, TypeVar
 from fleet.client import FleetClient
 from fleet.d1.dds import MAX_PARTICIPANTS_PER_HOST
 from fleet.inventory import Inventory, load_inventory
+from fleet.wire import keys, payloads
+from fleet.wire import messages as m
 
 T = TypeVar("T")
 
@@ -90,6 +92,16 @@ def wait_until(predicate: Callable[[], T], timeout_s: float, interval_s: float =
         if time.monotonic() >= deadline:
             raise AssertionError(f"condition not met within {timeout_s} s: {predicate}")
         time.sleep(interval_s)
+
+
+def next_diag(client: FleetClient, fleet: str, arm: str) -> m.Diag:
+    """The arm's next diag (the agent publishes it every second)."""
+    subscriber = client.session.declare_subscriber(keys.KeySpace(fleet).arm(arm, keys.DIAG))
+    try:
+        sample = wait_until(subscriber.try_recv, 5.0)
+    finally:
+        subscriber.undeclare()
+    return payloads.DIAG.decode(sample.payload.to_bytes())
 
 
 def inventory_text(

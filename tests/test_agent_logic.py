@@ -9,6 +9,7 @@ import pytest
 
 from edge_agent.commands import InFlight, Plan, Refused, plan
 from edge_agent.holds import clamp_to_limits
+from edge_agent.origins import FeedbackWriter
 from edge_agent.tracker import ArmTracker
 from fleet.d1 import protocol as p
 from fleet.inventory import ArmConfig
@@ -84,7 +85,7 @@ MOTIONS = [
 @pytest.mark.parametrize("command", MOTIONS)
 def test_motion_refused_while_estopped(command: m.ArmCommand) -> None:
     error = _refused(command, _tracker(estopped=True))
-    assert error.code == ErrorCode.REJECTED == 3205
+    assert error.code == ErrorCode.REJECTED == 4002
     assert "stopped" in str(error) and "fleet reset a1" in str(error)
 
 
@@ -312,7 +313,7 @@ def test_recv_status_0_fails_the_command() -> None:
     assert flight.done
     reply = flight.reply(100.1)
     assert not reply.ok
-    assert reply.error is not None and reply.error.code == ErrorCode.INVALID_RESPONSE == 3106
+    assert reply.error is not None and reply.error.code == ErrorCode.ARM_REFUSED == 4007
     assert "recv_status 0" in reply.error.message
 
 
@@ -321,7 +322,7 @@ def test_exec_status_0_fails_the_command() -> None:
     flight.on_ack(p.ReceiveAck(5, True))
     flight.on_ack(p.ExecuteAck(5, False))
     reply = flight.reply(100.1)
-    assert reply.error is not None and reply.error.code == ErrorCode.INVALID_RESPONSE
+    assert reply.error is not None and reply.error.code == ErrorCode.ARM_FAILED == 4008
     assert "exec_status 0" in reply.error.message
 
 
@@ -329,7 +330,7 @@ def test_first_error_wins() -> None:
     flight = _flight()
     flight.on_ack(p.ReceiveAck(5, False))
     flight.on_time(200.0, None)
-    assert flight.error is not None and flight.error.code == ErrorCode.INVALID_RESPONSE
+    assert flight.error is not None and flight.error.code == ErrorCode.ARM_REFUSED
 
 
 def test_reached_completes_a_wait_reached_command() -> None:
@@ -374,7 +375,7 @@ def test_not_reached_times_out_naming_the_worst_joint() -> None:
     assert flight.done
     reply = flight.reply(110.0)
     assert not reply.ok and reply.reached is False
-    assert reply.error is not None and reply.error.code == ErrorCode.TIMEOUT
+    assert reply.error is not None and reply.error.code == ErrorCode.NOT_REACHED
     assert "not reached within 10.0 s" in reply.error.message
     assert "joint 1 is 15.0 deg away" in reply.error.message
 
@@ -545,15 +546,54 @@ def test_unload_and_power_off_stops_wait_for_the_arms_status() -> None:
 # ----------------------------------------------------------------------------- feedback trust
 
 
-def test_feedback_from_a_second_writer_is_dropped() -> None:
+ARM_HOST = "arm-1 udp/192.168.123.100"
+
+
+def _text(message: p.ArmMessage) -> str:
+    return p.encode_message(message)
+
+
+def test_the_arms_own_writers_on_its_host_are_trusted_a_second_angle_writer_is_not() -> None:
+    """Seed 000's driver publishes rt/arm_Feedback from three services (three participants on
+    the arm's card): angles from one, acks from another, status from a third all count."""
     tracker = ArmTracker(ArmConfig(id="a1"))
-    assert tracker.on_feedback(_feedback(HOME), 0.0, writer=7) is not None
+    angles, acks, status = (FeedbackWriter(h, ARM_HOST) for h in (7, 8, 9))
+    assert tracker.on_feedback(_feedback(HOME), 0.0, angles) is not None
+    assert tracker.on_feedback(_text(p.ReceiveAck(4, True)), 0.02, acks) is not None
+    assert tracker.on_feedback(_text(p.ExecuteAck(4, True)), 0.03, status) is not None
+    status_text = _text(p.D1Status(True, True, 1))
+    assert tracker.on_feedback(status_text, 0.05, status) is not None
+    assert tracker.foreign == 0 and tracker.enabled is True
+    # A second writer of angles, even on the arm's host (a process beside the arm's services).
     forged = (80.0, 30.0, 30.0, 0.0, 0.0, 0.0, 10.0)
-    assert tracker.on_feedback(_feedback(forged), 0.01, writer=9) is None
-    assert tracker.foreign == 1 and tracker.angles_deg == HOME
-    # A rebooted arm (a new writer) takes over once the old one was silent for link_lost_s.
-    later = tracker.config.link_lost_s + 0.5
-    assert tracker.on_feedback(_feedback(HOME), later, writer=9) is not None
+    assert tracker.on_feedback(_feedback(forged), 0.06, acks) is None
+    # Any writer on another host (a rogue participant elsewhere on the arm's network).
+    rogue = FeedbackWriter(11, "laptop udp/192.168.123.50")
+    assert tracker.on_feedback(_text(p.ExecuteAck(5, True)), 0.07, rogue) is None
+    assert tracker.on_feedback(status_text, 0.08, rogue) is None
+    assert tracker.foreign == 3 and tracker.angles_deg == HOME
+    # The angle writer keeps its report while it speaks ...
+    assert tracker.on_feedback(_feedback(HOME), 1.5, angles) is not None
+    assert tracker.on_feedback(_feedback(HOME), 1.6, acks) is None
+    # ... a restarted service (a new writer) takes its report over once the old one was silent
+    # for link_lost_s; a replaced arm (another host) once the whole arm was.
+    later = 1.5 + tracker.config.link_lost_s + 0.1
+    assert tracker.on_feedback(status_text, later - 0.2, status) is not None
+    assert tracker.on_feedback(_feedback(HOME), later, acks) is not None
+    assert tracker.on_feedback(_feedback(HOME), later + 0.1, rogue) is None
+    replaced = later + 0.1 + tracker.config.link_lost_s + 0.1
+    assert tracker.on_feedback(_feedback(HOME), replaced, rogue) is not None
+
+
+def test_writers_of_no_named_host_are_one_group() -> None:
+    """A participant that announces no host (another DDS vendor): such writers are one host."""
+    tracker = ArmTracker(ArmConfig(id="a1"))
+    assert tracker.on_feedback(_feedback(HOME), 0.0, FeedbackWriter(7, None)) is not None
+    assert tracker.on_feedback(_text(p.ExecuteAck(4, True)), 0.1, FeedbackWriter(8, None))
+    forged = (80.0, 30.0, 30.0, 0.0, 0.0, 0.0, 10.0)
+    assert tracker.on_feedback(_feedback(forged), 0.2, FeedbackWriter(9, None)) is None
+    assert tracker.on_feedback(_feedback(HOME), 0.3, FeedbackWriter(9, ARM_HOST)) is None
+    assert tracker.foreign == 2
 
 
 def test_an_impossible_jump_is_never_the_pose_unless_it_persists() -> None:
@@ -570,3 +610,26 @@ def test_an_impossible_jump_is_never_the_pose_unless_it_persists() -> None:
     assert tracker.on_feedback(_feedback(fallen), 0.4) is None
     assert tracker.on_feedback(_feedback(fallen), 0.5) is not None
     assert tracker.angles_deg == fallen
+
+
+# ----------------------------------------------------------------------------- enable strength
+
+
+def test_a_pose_that_drifts_after_an_enable_is_warned_once() -> None:
+    from edge_agent.sag import SagCheck
+
+    check = SagCheck()
+    check.armed(HOME, 0.0, "enable_mode 1")
+    assert check.on_angles(HOME, 0.1) is None
+    sagged = (HOME[0], HOME[1] - 3.0, *HOME[2:])
+    warning = check.on_angles(sagged, 0.5)
+    assert (
+        warning is not None and "joint 1 drifted 3.0 deg" in warning and "enable_mode 1" in warning
+    )
+    assert check.on_angles(sagged, 0.6) is None and check.sagged == 1
+    check.armed(HOME, 1.0, "enable_mode 80000")
+    assert check.on_angles(HOME, 2.1) is None  # held for the whole window
+    assert check.on_angles(sagged, 2.2) is None  # past it: a later motion is not a sag
+    check.armed(HOME, 3.0, "x")
+    check.cancel()  # a motion command was written
+    assert check.on_angles(sagged, 3.5) is None

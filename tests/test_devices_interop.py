@@ -194,6 +194,9 @@ def test_wrapper_publishers_are_relayed_and_commands_decode(fleet: FleetHarness)
             wait_until(lambda: hg_cmd.msg is not None, 5.0)
             hcmd = hg_cmd.msg.motor_cmd[0]
             assert (hcmd.mode, hcmd.q, hcmd.kd) == pytest.approx((0, 2.0, 0.5))
+            # No effort given: 0, as in seed 003's example (``tau=0.0``) and Unitree's
+            # teleoperation; before, 0.5.
+            assert (hcmd.dq, hcmd.tau) == (0.0, 0.0)
             assert list(hg_cmd.msg.reserve) == [0, 0, 0, 0]
             for repeater in repeaters:
                 repeater.close()

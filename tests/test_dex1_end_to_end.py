@@ -97,7 +97,7 @@ def test_gripper_state_commands_grip_and_stop(fleet: FleetHarness) -> None:
         for device in ("gripper/gl", "gripper/gr"):
             ack = acks[device]
             assert ack is not None and ack.done, acks
-        assert client.device_command("gl", GripperMove(open_pct=80.0)).error.code == 3205  # type: ignore[union-attr]
+        assert client.device_command("gl", GripperMove(open_pct=80.0)).error.code == 4002  # type: ignore[union-attr]
         assert client.device_command("gl", GripperHold()).ok  # a hold is always allowed
         wait_until(lambda: (s := states.latest()) is not None and s.estopped, 3.0)
         client.reset()

@@ -79,7 +79,7 @@ def test_a_hold_never_drags_an_owned_arm_and_delayed_commands_share_one_thread(
         m.MoveJoint(joint=0, angle_deg=60.0, owner="alice", start_at_ns=start) for _ in range(400)
     ]
     replies = _fire(client, "a1", delayed)
-    busy = [r for r in replies if r.error is not None and r.error.code == ErrorCode.REJECTED]
+    busy = [r for r in replies if r.error is not None and r.error.code == ErrorCode.BUSY]
     print(f"400 delayed commands: {len(busy)} busy, threads {before} -> {threads_of(agent)}")
     assert len(replies) == 400 and len(busy) >= 400 - 32
     assert threads_of(agent) <= before + 2

@@ -165,14 +165,15 @@ def test_duplicates_old_and_late_commands_are_refused(client: FleetClient, kind:
     first = send(client, kind, with_envelope(kind.moves(), owner="ord", stamp_ns=stamp))
     assert first.ok, first
     again = send(client, kind, with_envelope(kind.moves(), owner="ord", stamp_ns=stamp))
-    assert not again.ok and again.code == ErrorCode.TIMEOUT, again
+    assert not again.ok and again.code == ErrorCode.OUT_OF_ORDER, again
     older = send(client, kind, with_envelope(kind.moves(), owner="ord", stamp_ns=stamp - 1000))
-    assert not older.ok and older.code == ErrorCode.TIMEOUT, older
+    assert not older.ok and older.code == ErrorCode.OUT_OF_ORDER, older
     late = with_envelope(
         kind.moves(), owner="late", stamp_ns=time.time_ns() - 2_000_000_000, lifetime_s=0.5
     )
     outcome = send(client, kind, late)
-    assert not outcome.ok and "lifetime" in outcome.message, outcome
+    assert not outcome.ok and outcome.code == ErrorCode.EXPIRED, outcome
+    assert "lifetime" in outcome.message, outcome
     for owner in ("ord",):
         send(client, kind, release(kind, owner))
 
@@ -249,7 +250,7 @@ def test_latch_survives_an_agent_restart(fleet: FleetHarness, kind: Kind) -> Non
     def refused() -> bool:
         nonlocal outcome
         outcome = send(client, kind, kind.moves())
-        return outcome.code != ErrorCode.NOT_REGISTERED
+        return outcome.code != ErrorCode.NO_AGENT
 
     wait_until(refused, 30.0, interval_s=0.5)
     assert outcome is not None and not outcome.ok and outcome.code == ErrorCode.REJECTED, outcome

@@ -63,7 +63,7 @@ def test_duplicates_replays_and_stale_commands_never_run(fleet_harness: FleetHar
         move = m.MoveJoint(joint=0, angle_deg=7.0, owner="p", stamp_ns=now, lifetime_s=5.0)
         assert _send(h, client, move).ok
         again = _send(h, client, move)  # a duplicate, or a replay within the lifetime
-        assert again.error is not None and again.error.code == ErrorCode.TIMEOUT
+        assert again.error is not None and again.error.code == ErrorCode.OUT_OF_ORDER
         assert "duplicate" in again.error.message
         stale = msgspec.structs.replace(move, stamp_ns=now - 1_000_000, angle_deg=30.0)
         late = _send(h, client, stale)  # overtaken by a newer command of the same owner
@@ -92,8 +92,8 @@ def test_a_player_counts_an_overtaken_target_instead_of_aborting() -> None:
     again = order.refusal("ann", "ann/player", 200)
     assert late is not None and again is not None
     # As edge_agent/serving.py words the refusal.
-    assert overtaken(ErrorInfo(int(ErrorCode.TIMEOUT), f"arm 'a2': {late}"))
-    assert not overtaken(ErrorInfo(int(ErrorCode.TIMEOUT), f"arm 'a2': {again}"))
+    assert overtaken(ErrorInfo(int(ErrorCode.OUT_OF_ORDER), f"arm 'a2': {late}"))
+    assert not overtaken(ErrorInfo(int(ErrorCode.OUT_OF_ORDER), f"arm 'a2': {again}"))
     lifetime = "target for arm 'a2' arrived 400 ms after it was sent, past its lifetime"
-    assert not overtaken(ErrorInfo(int(ErrorCode.TIMEOUT), lifetime))
+    assert not overtaken(ErrorInfo(int(ErrorCode.EXPIRED), lifetime))
     assert not overtaken(ErrorInfo(int(ErrorCode.PARAMETER), f"arm 'a2': {late}"))

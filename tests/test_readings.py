@@ -9,7 +9,7 @@ import xml.etree.ElementTree as ET
 
 import pytest
 
-from edge_agent.acks import AckMatcher
+from edge_agent.acks import AckMatcher, ExecTimeouts
 from fleet.d1 import dds
 from fleet.d1 import protocol as p
 from fleet.d1.errors import InvalidCommand, NetworkInterfaceError
@@ -66,6 +66,46 @@ def test_a_late_echoed_ack_is_ignored_not_credited_to_another_command() -> None:
     assert acks.answered(p.ReceiveAck(1, True), now=0.7) == (None, "late")
     assert acks.answered(p.ReceiveAck(2, True), now=0.7) == (2, "seq")
     assert acks.answered(p.ReceiveAck(2, True), now=0.7) == (None, "late")  # repeated
+
+
+def test_an_ack_whose_seq_is_neither_ours_nor_10_is_foreign_never_credited() -> None:
+    """Before: any seq but ours answered our oldest command (another client's command on the
+    arm's topic, acked with its own seq, completed ours)."""
+    acks = AckMatcher(recv_timeout_s=0.5, exec_timeout_s=2.0)
+    acks.written(1, now=0.0)
+    assert acks.answered(p.ExecuteAck(4242, False), now=0.1) == (None, "foreign")
+    assert acks.answered(p.ReceiveAck(4, True), now=0.1) == (None, "foreign")
+    assert acks.awaiting() == (1, 1)
+    assert acks.answered(p.ExecuteAck(10, True), now=0.1) == (1, "oldest")
+
+
+def test_the_execute_ack_timeout_is_per_op() -> None:
+    """A return to zero or a long move may be "executed" only once the motion finished."""
+    timeouts = ExecTimeouts(2.0, {"torque": 3.0})
+    assert timeouts.of(p.ReturnToZero()) == 10.0
+    assert timeouts.of(p.SetJointAngle(0, 90.0)) == 5.0
+    assert timeouts.of(p.SetAllTorque(1)) == 3.0  # the arm's own table
+    assert timeouts.of(p.SetPower(True)) == 2.0 and timeouts.of(None) == 2.0
+    assert ExecTimeouts(12.0).of(p.ReturnToZero()) == 12.0  # never less than the default
+    hold_then_enable = (p.SetAllAngles((0.0,) * 7, 0), p.SetAllTorque(1))
+    assert timeouts.longest(hold_then_enable) == 5.0
+    acks = AckMatcher(recv_timeout_s=0.5, exec_timeout_s=timeouts)
+    acks.written(1, now=0.0, command=p.ReturnToZero())
+    acks.written(2, now=0.0, command=p.SetPower(True))
+    # At 4 s the power's execute ack is overdue, the zero's is not: seq 10 answers the zero.
+    assert acks.answered(p.ExecuteAck(10, True), now=4.0) == (1, "oldest")
+    assert acks.answered(p.ExecuteAck(2, True), now=4.0) == (None, "late")
+
+
+def test_the_per_op_table_is_checked_and_merged_over_the_defaults() -> None:
+    inventory = parse_inventory(
+        BASE + "[defaults]\nexec_ack_timeouts = {zero = 20.0, power = 4.0}\n"
+        "[arms.a1]\nexec_ack_timeouts = {zero = 30.0}\n"
+    )
+    assert inventory.arm("a1").exec_ack_timeouts == {"zero": 30.0, "power": 4.0}
+    for bad, words in (("{fly = 1.0}", "unknown op 'fly'"), ("{zero = 0.0}", "0..600")):
+        with pytest.raises(InventoryError, match=words):
+            parse_inventory(BASE + f"[arms.a1]\nexec_ack_timeouts = {bad}\n")
 
 
 def test_the_tables_are_bounded_when_the_arm_never_answers() -> None:

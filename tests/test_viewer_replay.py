@@ -139,7 +139,7 @@ def test_the_event_log_keeps_transitions_and_is_bounded() -> None:
     for status in (ok, ok, stopped, stopped, stopped, ok):
         fleet.ingest(SPACE.arm("a1", keys.STATUS), encode(status))
     diag = m.Diag(1, "ok", 10, 0, 0, 0, 0, 3, 0, 10.0, 0.1)
-    refused = m.Diag(1, "ok", 20, 0, 0, 0, 2, 5, 0, 10.0, 0.1, last_error="3205 stopped")
+    refused = m.Diag(1, "ok", 20, 0, 0, 0, 2, 5, 0, 10.0, 0.1, last_error="4002 stopped")
     fleet.ingest(SPACE.arm("a1", keys.DIAG), encode(diag))
     fleet.ingest(SPACE.arm("a1", keys.DIAG), encode(refused))
     fleet.ingest(SPACE.arm("a9", keys.STATUS), encode(stopped))  # not an inventory arm
@@ -147,7 +147,7 @@ def test_the_event_log_keeps_transitions_and_is_bounded() -> None:
     assert fleet.malformed == 1
     newest = [(e.kind, e.text) for e in fleet.events.newest()]
     assert newest == [
-        ("refused", "refused 2 commands: 3205 stopped"),
+        ("refused", "refused 2 commands: 4002 stopped"),
         ("released", "stop released by a reset"),
         ("stop", "STOPPED (latched): watchdog"),
     ]

@@ -64,7 +64,7 @@ class PlayResult:
 def overtaken(error: m.ErrorInfo) -> bool:
     """The agent refused a streamed target because a newer one of ours got there first
     (``arm 'a2': out of order: ...``)."""
-    return error.code == m.ErrorCode.TIMEOUT and f": {m.OVERTAKEN}: " in error.message
+    return error.code == m.ErrorCode.OUT_OF_ORDER and f": {m.OVERTAKEN}: " in error.message
 
 
 def path_error_deg(measured: Pose, target: Pose, closing_sign: float = -1.0) -> float:

@@ -77,8 +77,18 @@ def register(
     torque = arm_parser("torque", "enable (on) or unload (off) joint motors")
     torque.add_argument("state", choices=("on", "off"))
     torque.add_argument("--joint", type=int, default=None, help="one joint (default all)")
+    torque.add_argument(
+        "--strength",
+        type=int,
+        default=None,
+        help="all joints only: funcode 5 mode, 1..80000 (default: the arm's enable_mode; the "
+        "spec's table reads 1 as enable, its note 0..80000 as strength, 80000 fully locked)",
+    )
     torque.set_defaults(
-        run=lambda a: _send(a, m.Torque(on=a.state == "on", joint=a.joint, **_opts(a)))
+        run=lambda a: _send(
+            a,
+            m.Torque(on=a.state == "on", joint=a.joint, strength=a.strength, **_opts(a)),
+        )
     )
 
     power = arm_parser("power", "switch the motors' power")
@@ -150,7 +160,7 @@ def _send(args: argparse.Namespace, command: m.ArmCommand) -> int:
             multi = client.multi(args.target, command, partial=args.partial)
             if multi.error is not None:
                 print(f"FAILED [{multi.error.code}] {multi.error.message}")
-                return 3 if multi.error.code == ErrorCode.NOT_REGISTERED else 1
+                return 3 if multi.error.code == ErrorCode.NO_AGENT else 1
             replies, skew = list(multi.replies.values()), multi.start_skew_ms
         else:
             with ThreadPoolExecutor(max_workers=min(16, len(arms))) as pool:
@@ -169,7 +179,7 @@ def _send(args: argparse.Namespace, command: m.ArmCommand) -> int:
     if all(r.ok for r in replies):
         return 0
     unreachable = all(
-        r.ok or (r.error is not None and r.error.code == ErrorCode.NOT_REGISTERED) for r in replies
+        r.ok or (r.error is not None and r.error.code == ErrorCode.NO_AGENT) for r in replies
     )
     return 3 if unreachable else 1
 

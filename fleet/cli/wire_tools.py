@@ -182,6 +182,7 @@ DIAG_COLUMNS = (
     ("ack_timeouts", "ack_to", 6),
     ("acks_unmatched", "unmatch", 7),
     ("acks_ignored", "ignored", 7),
+    ("acks_foreign", "foreign", 7),
     ("feedback_rate_hz", "rate_hz", 7),
     ("last_feedback_age_s", "age_s", 6),
     ("bad_payloads", "badpl", 5),

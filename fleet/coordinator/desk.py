@@ -3,7 +3,7 @@
 A multi-arm request can wait minutes for its arms to reach their targets, so requests run on a
 pool of ``MAX_ACTIVE_REQUESTS`` workers. Nothing queues without bound and nothing goes
 unanswered: the Zenoh callback queues at most ``QUERY_DEPTH`` requests and answers one more
-3205 "busy" itself (replying in a queryable's callback is Zenoh's own pattern); a request that
+4003 "busy" itself (replying in a queryable's callback is Zenoh's own pattern); a request that
 finds every worker occupied is answered "busy" at once instead of waiting behind them.
 """
 
@@ -23,7 +23,7 @@ from fleet.wire.messages import ErrorCode, ErrorInfo, encode
 
 JSON = zenoh.Encoding.APPLICATION_JSON
 MAX_ACTIVE_REQUESTS = 4
-"""Multi-arm requests served at once; one more is answered 3205 "busy" at once."""
+"""Multi-arm requests served at once; one more is answered 4003 "busy" at once."""
 QUERY_DEPTH = 64
 """Requests waiting for the desk; beyond it they are answered "busy"."""
 BUSY_WHY = (
@@ -72,7 +72,7 @@ class RequestDesk:
         if queued:
             self._wake.set()
         else:
-            self._reply(query, error_reply(ErrorCode.REJECTED, BUSY_WHY))
+            self._reply(query, error_reply(ErrorCode.BUSY, BUSY_WHY))
 
     def counters(self) -> tuple[int, int]:
         """(busy answers, requests being served)."""
@@ -93,7 +93,7 @@ class RequestDesk:
                 if not self._queries:
                     self._wake.clear()
             if query is not None and refuse:
-                self._reply(query, error_reply(ErrorCode.REJECTED, BUSY_WHY))
+                self._reply(query, error_reply(ErrorCode.BUSY, BUSY_WHY))
             elif query is not None:
                 self._pool.submit(self._guard.wrap(self._answer, "multi-arm request"), query)
 

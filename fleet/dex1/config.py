@@ -33,10 +33,12 @@ class GripperConfig(DeviceBase, frozen=True, forbid_unknown_fields=True, kw_only
     kp_max: float = 10.0
     kd_max: float = 1.0
     kp: float = 5.0
-    """Position gain sent when a command gives none."""
+    """Position gain sent when a command gives none (Unitree's teleoperation sends 5 and 0.05;
+    seed 003 says the Dex1-1 ignores the gains)."""
     kd: float = 0.05
-    tau: float = 0.5
-    """Effort sent when a command gives none."""
+    tau: float = 0.0
+    """Effort sent when a command gives none: 0, as seed 003 ("unused, set to 0.0") and
+    Unitree's teleoperation (``tau = 0.0``) send it; the gripper is position controlled."""
     grip_error_rad: float = 0.3
     """Grip: the position lags a closing target by more than this ..."""
     grip_speed_rad_s: float = 0.2

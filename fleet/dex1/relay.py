@@ -284,7 +284,7 @@ class GripperDriver(DriverBase):
         return isinstance(command, GripperHold)
 
     def execute(self, command: Any, now_s: float, done: Done) -> DeviceReply | None:
-        """Check and write one command (3204 out of range, 3205 no state)."""
+        """Check and write one command (3204 out of range, 4002 no state)."""
         assert not isinstance(command, Release)  # the core serves releases
         with self._lock:
             self._counts["commands"] += 1

@@ -24,6 +24,10 @@ from fleet.dex1.config import GripperConfig
 
 log = logging.getLogger("fleet.sim.gripper")
 
+GRIP_TAU_MAX = 0.5
+"""The estimated effort of a full squeeze on an object (``tau_est``, Nm): the gripper's own,
+whatever effort a command carries (seed 003: ``tau`` is unused, ``tau_est`` is the grip)."""
+
 
 class GripperModel:
     """Position tracking with a speed limit and an optional blocking object. Pure."""
@@ -31,7 +35,8 @@ class GripperModel:
     def __init__(self, speed_rad_s: float, object_rad: float | None, q_rad: float = Q_OPEN_RAD):
         self.q_rad = q_rad
         self.target_rad = q_rad
-        self.tau = 0.5
+        self.tau = 0.0
+        """The commanded effort: kept, not used (seed 003: the Dex1-1 ignores it)."""
         self.speed_rad_s = speed_rad_s
         self.object_rad = object_rad
         self.dq_rad_s = 0.0
@@ -48,7 +53,7 @@ class GripperModel:
         self.dq_rad_s = (q - before) / dt_s if dt_s > 0 else 0.0
         blocked = self.object_rad is not None and abs(q - self.object_rad) < 1e-6
         squeeze = max(0.0, q - self.target_rad) if blocked else 0.0
-        self.tau_est = min(self.tau, squeeze * 2.0)
+        self.tau_est = min(GRIP_TAU_MAX, squeeze * 2.0)
 
 
 class SimGripper:

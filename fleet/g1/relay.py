@@ -159,7 +159,7 @@ class G1Driver(DriverBase):
     def _answer(self, call: _Pending, response: idl.Response_) -> DeviceReply:
         code = int(response.header.status.code)
         if response.header.identity.api_id != call.api_id:
-            code = 3105  # request and response do not match (seed 001)
+            code = m.ErrorCode.MISMATCH  # request and response do not match (seed 001)
         if code != 0:
             return DeviceReply(
                 ok=False,
@@ -273,7 +273,7 @@ class G1Driver(DriverBase):
             with self._lock:
                 if len(self._pending) >= MAX_PENDING:
                     raise self._refuse(
-                        m.ErrorCode.REJECTED,
+                        m.ErrorCode.BUSY,
                         f"g1 {self.device!r} is busy: {MAX_PENDING} calls await the robot's answer",
                     )
                 self._pending[request_id] = pending

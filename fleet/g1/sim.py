@@ -76,7 +76,7 @@ class G1Model:
         if not isinstance(fsm_id, int) or fsm_id not in loco.FSM_NAMES:
             return int(ErrorCode.PARAMETER)
         if fsm_id != loco.DAMP_FSM and self.fsm_mode(now_s) == loco.DYNAMIC:
-            return int(ErrorCode.REJECTED)
+            return int(ErrorCode.SERVER_REJECTED)
         self.fsm_id, self.moving_until_s, self.continuous = fsm_id, 0.0, False
         self.velocity = (0.0, 0.0, 0.0)
         return 0
@@ -85,7 +85,7 @@ class G1Model:
         if mode not in (0, 1):
             return int(ErrorCode.PARAMETER)
         if self.fsm_id not in loco.WALK_FSMS:
-            return int(ErrorCode.REJECTED)
+            return int(ErrorCode.SERVER_REJECTED)
         if self.continuous and mode == 0:  # it stops stepping once the velocity has ended
             self.moving_until_s = max(self.moving_until_s, now_s + self.settle_s)
         self.continuous = mode == 1
@@ -100,7 +100,7 @@ class G1Model:
         ):
             return int(ErrorCode.PARAMETER)
         if self.fsm_id not in loco.WALK_FSMS:
-            return int(ErrorCode.REJECTED)
+            return int(ErrorCode.SERVER_REJECTED)
         self.velocity = (float(velocity[0]), float(velocity[1]), float(velocity[2]))
         if any(self.velocity):
             self.moving_until_s = now_s + float(duration_s) + self.settle_s

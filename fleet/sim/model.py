@@ -30,6 +30,10 @@ from fleet.d1.limits import JOINT_COUNT, JOINT_RANGE_DEG, JointRanges
 from fleet.sim.obstacles import Obstacle, constrain
 
 PHYSICS_STEP_S = 0.01
+SAG_BELOW = 8000
+"""With ``enable_strength``, a funcode 5 ``mode`` below this (10 % of 80000) holds nothing."""
+SAG_JOINT, SAG_DEG_S = 1, 20.0
+"""The joint that sags in a limp arm, and how fast."""
 
 SMOOTHING = {mode: (d.lag_s, d.rate_deg_s) for mode, d in SIM_DEFAULT.items()}
 """(time constant s, speed limit deg/s) per smoothing mode of the default simulated arm."""
@@ -73,6 +77,15 @@ class SimArmModel:
     """What the arm accepts (its gripper's own range, from the inventory)."""
     rng: random.Random = field(default_factory=lambda: random.Random(0), repr=False)
     dynamics: SimDynamics = field(default_factory=SimDynamics)
+    enable_strength: bool = False
+    """Funcode 5 ``mode`` read as a 0..80000 strength (``sim_enable = "strength"``): below
+    ``SAG_BELOW`` the joints do not hold and the shoulder (joint 1) sags."""
+    limp: bool = False
+    exec_ack_on_arrival: bool = False
+    """The execute ack of a motion (1/1, 1/2, 1/7) comes once the joints reached their targets
+    ("executed" as "motion finished"), not at once (``sim_exec_ack``)."""
+    arrival_tolerance_deg: float = 0.5
+    _pending_exec: list[int] = field(default_factory=list, repr=False)
     # joint -> (stall angle, joint was at or below it when the stall was first met)
     _stall_side: dict[int, tuple[float, bool]] = field(default_factory=dict, repr=False)
     _joints: list[JointResponse] = field(default_factory=list, repr=False)
@@ -108,6 +121,8 @@ class SimArmModel:
         return self.angles_deg == self.target_deg and all(r.at_rest() for r in self._joints)
 
     def _tracking(self, joint: int) -> bool:
+        if self.limp:
+            return False
         return self.powered and self.enabled[joint] and joint not in self.faults.motors_offline
 
     def _step(self, dt: float, now_s: float) -> None:
@@ -141,6 +156,8 @@ class SimArmModel:
     def _dragged(self, joint: int, dt: float) -> None:
         """A hand drags an unloaded joint towards its drag angle at the drag speed."""
         drag = self.faults.drags.get(joint)
+        if drag is None and self.limp and joint == SAG_JOINT:
+            drag = (self.joint_ranges_deg[joint][0], SAG_DEG_S)  # gravity pulls it down
         if drag is None:
             return
         target, speed = drag
@@ -174,7 +191,25 @@ class SimArmModel:
         except (p.InvalidCommand, MalformedMessage) as exc:
             return self._acks(exc.seq, received=False, executed=None) if exc.seq is not None else []
         executed = self._execute(command)
+        motion = isinstance(command, (p.SetJointAngle, p.SetAllAngles, p.ReturnToZero))
+        if executed and motion and self.exec_ack_on_arrival and not self.faults.mute_acks:
+            self._pending_exec.append(seq)
+            return self._acks(seq, received=True, executed=None)
         return self._acks(seq, received=True, executed=executed)
+
+    def arrived_acks(self) -> list[p.ArmMessage]:
+        """The execute acks of motions that have now reached their targets (every motion
+        pending: the newest target is the one reached)."""
+        if not self._pending_exec:
+            return []
+        reached = all(
+            abs(a - t) <= self.arrival_tolerance_deg
+            for a, t in zip(self.angles_deg, self.target_deg, strict=True)
+        )
+        if not reached:
+            return []
+        seqs, self._pending_exec = self._pending_exec, []
+        return [p.ExecuteAck(seq, True) for seq in seqs]
 
     def _acks(self, seq: int, received: bool, executed: bool | None) -> list[p.ArmMessage]:
         if self.faults.mute_acks:
@@ -190,6 +225,7 @@ class SimArmModel:
             return True
         if isinstance(command, p.SetAllTorque):
             self.enabled = [command.mode > 0] * JOINT_COUNT
+            self.limp = self.enable_strength and 0 < command.mode < SAG_BELOW
             return self.powered
         if isinstance(command, p.SetJointTorque):
             self.enabled[command.joint] = command.enable

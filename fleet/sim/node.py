@@ -31,13 +31,20 @@ from cyclonedds.core import (
     ViewState,
     WaitSet,
 )
+from cyclonedds.domain import DomainParticipant
 from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 from cyclonedds.util import duration
 
 from fleet.d1 import dds
-from fleet.d1.protocol import ARM_REPORT_SEQ, encode_message
+from fleet.d1.protocol import (
+    ARM_REPORT_SEQ,
+    ArmMessage,
+    ExecuteAck,
+    ReceiveAck,
+    encode_message,
+)
 from fleet.guard import ThreadGuard
 from fleet.inventory import ArmConfig, Inventory
 from fleet.security.session import open_session
@@ -62,13 +69,22 @@ many arms; the real arm's period itself varies by 11 ms)."""
 _ANY = SampleState.Any | ViewState.Any | InstanceState.Any
 
 
+SERVICES = ("marm_communication", "marm_control", "marm_controller")
+"""The arm's driver services that publish ``rt/arm_Feedback`` (seed 000), one participant each
+in ``sim_feedback_writers = 3`` mode: the first (this process's own participant) sends the
+angles, the second the acks, the third the status and motor reports."""
+
+
 @dataclass
 class _SimArm:
     config: ArmConfig
     reader: DataReader
     condition: ReadCondition
     writer: DataWriter
+    """Angle reports (and everything, with one feedback writer)."""
     model: SimArmModel
+    ack_writer: DataWriter
+    status_writer: DataWriter
     reports: int = 0
 
 
@@ -80,8 +96,14 @@ class SimulatedArms:
         self._rng = random.Random(seed)
         self._stop = threading.Event()
         self._faults: queue.SimpleQueue[tuple[str, zenoh.Query, bytes]] = queue.SimpleQueue()
-        self._channel = dds.DdsChannel(*inventory.network_of(arm_ids))
+        network = inventory.network_of(arm_ids)
+        self._channel = dds.DdsChannel(*network)
         participant = self._channel.participant
+        # The other two services' participants, only when an arm runs three feedback writers.
+        # (The channel's Domain carries the config; more participants share it.)
+        self._services = [
+            DomainParticipant(self._channel.domain_id) for _ in SERVICES[1:] if _three_writers(arms)
+        ]
         self._guard = GuardCondition(participant)
         self._waitset = WaitSet(participant)
         self._waitset.attach(self._guard)
@@ -98,11 +120,25 @@ class SimulatedArms:
             condition = ReadCondition(reader, _ANY)
             self._waitset.attach(condition)
             writer = DataWriter(participant, fb_topic, qos=dds.FEEDBACK_WRITER_QOS)
+            ack_writer = status_writer = writer
+            if arm.sim_feedback_writers == 3:
+                ack_writer, status_writer = (
+                    DataWriter(
+                        service,
+                        Topic(service, dds.feedback_topic(arm.suffix), dds.ArmString_),
+                        qos=dds.FEEDBACK_WRITER_QOS,
+                    )
+                    for service in self._services
+                )
             model = SimArmModel(
                 time_s=now, joint_ranges_deg=arm.joint_ranges_deg, dynamics=arm.sim_dynamics
             )
             model.faults.abnormal_value = arm.sim_error_status
-            self._arms[arm.id] = _SimArm(arm, reader, condition, writer, model)
+            model.exec_ack_on_arrival = arm.sim_exec_ack == "on_arrival"
+            model.enable_strength = arm.sim_enable == "strength"
+            self._arms[arm.id] = _SimArm(
+                arm, reader, condition, writer, model, ack_writer, status_writer
+            )
             heapq.heappush(self._due, (now + self._period(model), arm.id))
         self._session: zenoh.Session | None = None
         self._queryables: list[zenoh.Queryable[None]] = []
@@ -179,11 +215,15 @@ class SimulatedArms:
                 text = getattr(sample, "data_", None)
                 if text is None:
                     continue  # an InvalidSample: a writer went away
-                for ack in arm.model.apply(text):
-                    if arm.config.sim_ack_seq == "fixed":
-                        # The spec's examples' reading: every ack carries the arm's own seq 10.
-                        ack = msgspec.structs.replace(ack, seq=ARM_REPORT_SEQ)
-                    arm.writer.write(dds.ArmString_(encode_message(ack)))
+                self._send_acks(arm, arm.model.apply(text))
+
+    @staticmethod
+    def _send_acks(arm: _SimArm, acks: list[ArmMessage]) -> None:
+        for ack in acks:
+            if arm.config.sim_ack_seq == "fixed" and isinstance(ack, (ReceiveAck, ExecuteAck)):
+                # The spec's examples' reading: every ack carries the arm's own seq 10.
+                ack = msgspec.structs.replace(ack, seq=ARM_REPORT_SEQ)
+            arm.ack_writer.write(dds.ArmString_(encode_message(ack)))
 
     def _publish_feedback(self, now: float) -> None:
         while self._due[0][0] <= now + BATCH_S:
@@ -199,9 +239,10 @@ class SimulatedArms:
             report = arm.model.joint_report()
             if report is not None:
                 arm.writer.write(dds.ArmString_(encode_message(report)))
+            self._send_acks(arm, arm.model.arrived_acks())
             if arm.reports % STATUS_EVERY == 0:
                 for status in arm.model.status_reports():
-                    arm.writer.write(dds.ArmString_(encode_message(status)))
+                    arm.status_writer.write(dds.ArmString_(encode_message(status)))
             arm.reports += 1
 
     def _serve_faults(self) -> None:
@@ -244,6 +285,9 @@ class SimulatedArms:
         if self._session is not None:
             self._session.close()
             self._session = None
+        for service in self._services:
+            service.__del__()  # as DdsChannel.close: deletes its entities in the DDS core
+        self._services.clear()
         self._channel.close()
 
     def __enter__(self) -> SimulatedArms:
@@ -251,3 +295,7 @@ class SimulatedArms:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _three_writers(arms: list[ArmConfig]) -> bool:
+    return any(arm.sim_feedback_writers == 3 for arm in arms)

@@ -47,25 +47,40 @@ MAX_ARMS_REPORTED = 4096
 
 
 class ErrorCode(enum.IntEnum):
-    """Command error codes, with the meaning of Unitree's SDK2 RPC codes (3001-3207)."""
+    """Command error codes: 3001-3207 mean what Unitree's SDK2 RPC table says (seed 001); the
+    fleet's own conditions, which that table has no code for, are 4001-4099. One table of all
+    of them, with who returns each: docs/error-codes.md."""
 
-    UNKNOWN = 3001
-    SEND_FAILED = 3102  # the DDS write failed
-    NOT_REGISTERED = 3103  # no agent serves this arm
-    TIMEOUT = 3104  # an acknowledgment (or the target) did not arrive in time
-    INVALID_RESPONSE = 3106  # the arm answered recv_status 0 / exec_status 0
-    CLIENT_LEASE_INVALID = 3107
-    INTERNAL = 3202
-    NOT_IMPLEMENTED = 3203  # unknown "op"
-    PARAMETER = 3204  # bad joint id, angle out of range, not finite, bad payload
-    REJECTED = 3205  # refused in this state: stopped, powered off, no feedback
-    LEASE_INVALID = 3206
-    LEASE_EXISTS = 3207
+    # Unitree SDK2's codes (3001-3207), with the meaning of its table.
+    UNKNOWN = 3001  # unknown error: an unreadable reply
+    SEND_FAILED = 3102  # request sending error: the DDS write failed
+    NOT_REGISTERED = 3103  # API not registered (client): never returned by the fleet
+    TIMEOUT = 3104  # request timeout: no ack from the arm / no answer from the robot in time
+    MISMATCH = 3105  # request and response data do not match (a G1 answer to another API)
+    INVALID_RESPONSE = 3106  # invalid response data: never returned by the fleet
+    CLIENT_LEASE_INVALID = 3107  # never returned by the fleet
+    SERVER_SEND_FAILED = 3201  # server side only, never returned
+    INTERNAL = 3202  # internal server error
+    NOT_IMPLEMENTED = 3203  # API not implemented: unknown "op"
+    PARAMETER = 3204  # API parameter error: bad joint id, angle out of range, not finite
+    SERVER_REJECTED = 3205  # request rejected *by the robot* (a G1's own answer, passed on)
+    LEASE_INVALID = 3206  # invalid lease: release by one who holds none
+    LEASE_EXISTS = 3207  # lease already exists: the arm is held by another owner
+    # The fleet's own conditions (4001-4099).
+    NO_AGENT = 4001  # no agent (or coordinator) answered: is it running?
+    REJECTED = 4002  # the fleet refuses in this state: stopped, powered off, no fresh feedback
+    BUSY = 4003  # too many commands queued or in flight: retry later
+    OUT_OF_ORDER = 4004  # overtaken by a newer command of the same owner (which was taken)
+    EXPIRED = 4005  # reached the agent past its lifetime: not executed
+    NOT_REACHED = 4006  # wait_reached: the target was not reached within timeout_s
+    ARM_REFUSED = 4007  # the arm answered recv_status 0 (could not parse or take it)
+    ARM_FAILED = 4008  # the arm answered exec_status 0 (it did not execute it)
 
 
 OVERTAKEN = "out of order"
 """How an agent's refusal of a command overtaken by a newer one of the same owner begins (code
-3104): the newer one was accepted, so a stream of targets loses nothing by it."""
+4004, ``OUT_OF_ORDER``): the newer one was accepted, so a stream of targets loses nothing by
+it."""
 
 
 class ErrorInfo(Struct, frozen=True):
@@ -138,12 +153,16 @@ class Diag(Struct, frozen=True):
     write_failures: Count = 0
     """DDS writes that failed (maybe sent)."""
     foreign_feedback: Count = 0
-    """Valid-looking feedback from a second DDS writer on the arm's topic (dropped)."""
+    """Valid-looking feedback the arm did not send (dropped): from a writer on another host,
+    or a second writer of a periodic report on the arm's host."""
     implausible_feedback: Count = 0
     """Angle reports implying an impossible speed (dropped: a sensor fault or a forgery)."""
     acks_unmatched: Count = 0
-    """Acks whose seq named no command written to the arm (an arm answering seq 10, as the
-    spec's examples do): credited to the arm's oldest command awaiting that kind of ack."""
+    """Acks with seq 10 (an arm answering as the spec's examples do): credited to the arm's
+    oldest command awaiting that kind of ack."""
+    acks_foreign: Count = 0
+    """Acks whose seq is neither a command we wrote lately nor 10 (another client commanding
+    the arm, or garbage): credited to no command."""
     acks_ignored: Count = 0
     """Acks credited to no command: late (after the ack timeout) or repeated, or none awaited."""
     contact_model: Text | None = None

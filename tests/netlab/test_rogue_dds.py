@@ -123,7 +123,7 @@ def test_a_rogue_participant_on_the_arm_network_neither_blinds_nor_crashes_the_a
     # Every command is answered by the agent: done, or refused because a stop latched (the
     # coordinator's contact policy stops the arm on the forged reports, see the docstring).
     command = run["command"]
-    assert command["ok"] or command["error"]["code"] == 3205, command
+    assert command["ok"] or command["error"]["code"] == 4002, command
     assert run["received_ms"] is not None and run["received_ms"] <= STOP_BOUND_MS, run["ack"]
     assert run["written_ms"] is not None and run["written_ms"] <= STOP_BOUND_MS, run["ack"]
     assert run["status"]["estopped"], run["status"]
