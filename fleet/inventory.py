@@ -335,9 +335,10 @@ def _network_name_problem(what: str, value: str) -> str | None:
     return None
 
 
-def _check_network(arm: ArmConfig, path: str, where: str) -> None:
-    problems = [_network_name_problem("interface", arm.interface) if arm.interface else None]
-    problems += [_network_name_problem("peer", peer) for peer in arm.peers or ()]
+def _check_network(unit: ArmConfig | DeviceBase, path: str, where: str) -> None:
+    """An arm's or a device's interface and peers (the same rules: one DDS network)."""
+    problems = [_network_name_problem("interface", unit.interface) if unit.interface else None]
+    problems += [_network_name_problem("peer", peer) for peer in unit.peers or ()]
     for problem in problems:
         if problem is not None:
             raise _fail(path, where, problem)
@@ -524,6 +525,7 @@ def _parse_devices(
             merged.setdefault("agent", mounted_on.agent if mounted_on else f"agent-{device_id}")
             device = _convert(merged, kind.config, path, where)
             _check_finite(device, path, where)
+            _check_network(device, path, where)
             problem = kind.check(device)
             mount = getattr(device, "mount", "")
             if problem is None and mount and mount not in arms:

@@ -256,6 +256,9 @@ def test_non_finite_coordinator_rate_is_refused() -> None:
         ('[arms.a1]\ninterface = "lola\\f"', "arms.a1: interface 'lola\\x0c' must be"),
         ('[defaults]\npeers = ["10.0.0.1", "\\u0001"]\n[arms.a1]', "arms.a1: peer '\\x01'"),
         ('[dds]\npeers = ["\\b"]\n[arms.a1]', "dds.peers: peer '\\x08' must be"),
+        # A device's network is checked as an arm's (a control character aborted its agent).
+        ('[arms.a1]\n[grippers.gl]\ninterface = "e\\u0001"', "grippers.gl: interface 'e\\x01'"),
+        ('[arms.a1]\n[g1.h1]\npeers = ["\\f"]', "g1.h1: peer '\\x0c' must be"),
     ],
 )
 def test_interface_and_peers_must_be_printable(line: str, fragment: str) -> None:
