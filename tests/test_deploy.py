@@ -18,6 +18,8 @@ from tests.harness import inventory_text
 def test_units_from_inventory_verify(tmp_path: Path) -> None:
     path = tmp_path / "inventory.toml"
     extra = '[arms.b1]\ninterface = "eth0"\nsuffix = "_9"\nsimulated = false\n'
+    # The devices of a card are served by its agent: a gripper on a1, a G1 on eth0.
+    extra += '[grippers.gl]\nmount = "a1"\n[g1.h1]\ninterface = "eth0"\n'
     path.write_text(inventory_text("lab", 7447, 0, 2, extra), encoding="utf-8")
     inventory = load_inventory(path)
     bin_dir = Path(sys.executable).parent
@@ -31,6 +33,8 @@ def test_units_from_inventory_verify(tmp_path: Path) -> None:
     }
     agent = rendered["d1-fleet-agent-lo.service"]
     assert f"ExecStart={bin_dir}/edge-agent --interface lo --inventory {path}" in agent
+    assert "Description=d1-fleet edge agent of a1, a2, gl (lo)" in agent, agent
+    assert "edge agent of b1, h1 (eth0)" in rendered["d1-fleet-agent-eth0.service"]
     assert "Restart=on-failure" in agent and "StandardOutput=journal" in agent
     assert "After=network-online.target d1-fleet-router.service" in agent
     out = tmp_path / "units"

@@ -167,3 +167,55 @@ def _through_a_package_init(circle: list[str]) -> bool:
     """``fleet`` re-exports ``fleet.api`` in its ``__init__``: a package and its own modules
     naming each other is how Python packages work, not a circle of responsibilities."""
     return any(_modules()[m].name == "__init__.py" for m in circle)
+
+
+KIND_PACKAGES = ("fleet.dex1", "fleet.g1")
+
+
+@cache
+def _loaded_by_name() -> dict[str, frozenset[str]]:
+    """What is imported by name at run time (importlib): the registry loads every kind's
+    ``kind.py``, and each ``DeviceKind`` names its driver and simulator modules."""
+    import importlib
+
+    from fleet.devices.registry import KIND_MODULES
+
+    edges = {"fleet.devices.registry": frozenset(KIND_MODULES)}
+    for name in KIND_MODULES:
+        kind = importlib.import_module(name).KIND
+        edges[name] = frozenset(entry.partition(":")[0] for entry in (kind.agent, kind.sim))
+    return edges
+
+
+def test_the_kinds_loaded_by_name_exist_and_close_no_circle() -> None:
+    """A kind is loaded by name; counting those loads as imports, nothing loops back (a kind
+    imports ``fleet.devices.kind``, never the registry that loads it)."""
+    loaded = _loaded_by_name()
+    modules = _modules()
+    assert all(target in modules for targets in loaded.values() for target in targets), loaded
+
+    def targets(module: str) -> frozenset[str]:
+        return imports_of(module) | loaded.get(module, frozenset())
+
+    circles = []
+    for start in modules:
+        stack, seen = [(start, [start])], set()
+        while stack:
+            module, path = stack.pop()
+            for target in sorted(targets(module)):
+                if target == start and not _through_a_package_init([*path, start]):
+                    circles.append(" -> ".join([*path, start]))
+                elif target not in seen:
+                    seen.add(target)
+                    stack.append((target, [*path, target]))
+    assert circles == []
+
+
+@pytest.mark.parametrize("kind", KIND_PACKAGES)
+def test_a_kind_never_imports_the_core_its_siblings_or_the_registry(kind: str) -> None:
+    """Kinds are siblings below the agent core (``edge_agent``): the core serves them through
+    the driver contract, they never reach up into it, into each other, or into the registry."""
+    siblings = tuple(k for k in KIND_PACKAGES if k != kind)
+    forbidden = ("edge_agent", "viewer", "fleet.coordinator", "fleet.devices.registry", *siblings)
+    assert _violations(kind, forbidden) == []
+    assert "fleet.devices.registry" not in imports_of(f"{kind}.kind")

@@ -8,6 +8,7 @@ undecodable stop still stops, and a flood on the command key does not delay a st
 
 from __future__ import annotations
 
+import json
 import random
 import signal
 import threading
@@ -21,8 +22,11 @@ from fleet.client import FleetClient
 from fleet.wire import keys
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, encode
+from fleet.wire.payloads import DIAG
 from tests.harness import FleetHarness, free_port, wait_until
+from tests.hostile import POISONS
 from tests.kinds import DEVICES, KIND_IDS, KINDS, Kind, LatchWatch, release, send, with_envelope
+from tests.test_end_to_end import Collector
 from tests.test_hostile_keyspace import FLOOD_BOUND_MS
 
 pytestmark = pytest.mark.xdist_group("kinds")
@@ -290,3 +294,35 @@ def test_one_process_serves_every_kind_with_metrics_and_info(fleet: FleetHarness
     agents = [r.info for r in infos if r.info.role == "agent"]
     assert len(agents) == 1, agents
     assert set(agents[0].arms) == {"a1", "gl", "h1"}, agents[0]
+
+
+@pytest.mark.parametrize("poison", sorted(POISONS))
+@pytest.mark.parametrize("kind", KINDS, ids=KIND_IDS)
+def test_poison_on_every_key_of_every_kind(client: FleetClient, kind: Kind, poison: str) -> None:
+    """What the hostile suite sends to arm keys, sent to each kind's: a poison reset and a
+    poison command change nothing (the command is refused with a reason), a poison stop still
+    stops, the agent counts them, and the unit still serves after a reset."""
+    watch = _ready(client, kind)
+    diags = Collector(client.session, client.unit_key(kind.unit, keys.DIAG), DIAG.decode)
+    wait_until(lambda: diags.latest() is not None, 5.0)
+    before = diags.latest()
+    assert before is not None
+    client.session.put(client.unit_key(kind.unit, keys.RESET), POISONS[poison])
+    cmd_key = client.unit_key(kind.unit, keys.CMD) + f"/{client.principal}"
+    replies = list(client.session.get(cmd_key, payload=POISONS[poison], timeout=3.0))
+    answers = [json.loads(r.ok.payload.to_bytes()) for r in replies if r.ok is not None]
+    assert len(answers) == 1 and answers[0]["ok"] is False, answers
+    assert answers[0]["error"]["code"] in (ErrorCode.PARAMETER, ErrorCode.NOT_IMPLEMENTED)
+    assert watch.estopped() is False
+    client.session.put(client.unit_key(kind.unit, keys.ESTOP), POISONS[poison])
+    wait_until(lambda: watch.estopped() is True, 5.0)
+    assert "undecodable" in watch.reason(), watch.reason()
+    wait_until(
+        lambda: (d := diags.latest()) is not None and d.bad_payloads >= before.bad_payloads + 2, 5.0
+    )
+    refused = send(client, kind, kind.moves())
+    assert not refused.ok and refused.code == ErrorCode.REJECTED, refused
+    client.reset(kind.unit)
+    wait_until(lambda: watch.estopped() is False, 5.0)
+    assert send(client, kind, kind.moves()).ok
+    diags.close()

@@ -3,7 +3,7 @@ table ``[grippers.<id>]``."""
 
 from __future__ import annotations
 
-from fleet.devices import DeviceKind
+from fleet.devices.kind import DeviceKind
 from fleet.dex1.config import GripperConfig, check_gripper
 from fleet.dex1.messages import GripperState
 from fleet.wire import keys

@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from fleet.devices import DeviceKind
+from fleet.devices.kind import DeviceKind
 from fleet.g1.config import G1Config, check_g1
 from fleet.g1.messages import G1State
 from fleet.wire import keys
