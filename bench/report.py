@@ -42,7 +42,11 @@ STOP_FANOUT_RATIO = 1.5
 ONE_ARM_CPU_PCT = 0.5
 """The agent of one arm at 10 Hz, % of a core (issue 12)."""
 GRIPPER_CPU_PCT = 3.0
-"""The devices agent serving one Dex1-1 at 500 Hz, % of a core (issue 14)."""
+"""The agent serving one Dex1-1 at 500 Hz, % of a core (issue 14)."""
+ONE_CORE_CPU_RATIO = 1.0
+"""One agent serving a D1 and its Dex1-1 uses no more CPU than two agent processes (issue 21)."""
+DEVICE_STOP_FLOOD_MS = 500.0
+"""A flood on a device's command key never delays its stop beyond this (issue 21)."""
 
 
 def goals(r: dict[str, Any]) -> list[dict[str, Any]]:
@@ -68,6 +72,14 @@ def goals(r: dict[str, Any]) -> list[dict[str, Any]]:
         grip = r["devices"]["gripper_500"]
         add("gripper relay, 1 gripper at 500 Hz (% of a core)", grip["agent_cpu_pct"],
             GRIPPER_CPU_PCT, "%")  # fmt: skip
+    if "onecore" in r:
+        core = r["onecore"]
+        ratio_ = core["arm_and_gripper"]["cpu_ratio_one_to_two"]
+        add("one agent for a D1 + its Dex1-1 at 500 Hz, CPU over two processes",
+            math.nan if ratio_ is None else ratio_, ONE_CORE_CPU_RATIO, "x")  # fmt: skip
+        flood = core["device_stop_under_flood"]["received"]
+        add("device stop under a command-key flood, p99 (ms)", flood.get("p99_ms", math.nan),
+            DEVICE_STOP_FLOOD_MS, "ms")  # fmt: skip
     return out
 
 
@@ -193,7 +205,30 @@ def rows(r: dict[str, Any]) -> list[Row]:
         table += _routers_rows(r["routers"])
     if "devices" in r:
         table += _devices_rows(r["devices"])
+    if "onecore" in r:
+        table += _onecore_rows(r["onecore"])
     return table
+
+
+def _onecore_rows(r: dict[str, Any]) -> list[Row]:
+    pair = r["arm_and_gripper"]
+    one, two, ratio_ = pair["one"], pair["two"], pair["cpu_ratio_one_to_two"]
+    flood = r["device_stop_under_flood"]
+    received, written = flood["received"], flood["written"]
+    ok_ratio = None if ratio_ is None else ratio_ <= ONE_CORE_CPU_RATIO
+    ok_flood = received.get("p99_ms", math.inf) <= DEVICE_STOP_FLOOD_MS
+    return [
+        ("D1 (10 Hz) + its Dex1-1 (500 Hz): agent CPU, one process / two",
+         f"{one['agent_cpu_pct']:g} % core", f"{two['agent_cpu_pct']:g} % core",
+         f"{ratio_} x; gripper {one['gripper_zenoh_rate_hz']:g} / "
+         f"{two['gripper_zenoh_rate_hz']:g} Hz on Zenoh",
+         f"<= {ONE_CORE_CPU_RATIO:g} x", _verdict(ok_ratio)),
+        (f"device stop under a command-key flood ({flood['flood_queries']} queries), "
+         f"stamp -> received (n={received.get('n', 0)})", _ms(received.get("p50_ms")),
+         _ms(received.get("p99_ms")),
+         f"DDS written p99 {_ms(written.get('p99_ms'))}",
+         f"<= {DEVICE_STOP_FLOOD_MS:g} ms", _verdict(ok_flood)),
+    ]  # fmt: skip
 
 
 def _devices_rows(r: dict[str, Any]) -> list[Row]:
