@@ -46,6 +46,7 @@ from edge_agent.serving import CommandService
 from edge_agent.slots import ArmSlot, DeviceSlot, Outbox, Unit
 from edge_agent.stops import SafetyLoop
 from edge_agent.tracker import ArmTracker
+from edge_agent.unit_stops import ArmStops, DeviceStops, UnitStops
 from edge_agent.writer import ArmWriter, transient_seq
 from fleet.d1 import protocol as p
 from fleet.devices import kind_of
@@ -130,13 +131,19 @@ class EdgeAgent:
         self.writer = ArmWriter(self.lock, self.slots, self.link, self.relay.mirror_command)
         self.writer.add_units(device_ids)
         self.latches = LatchStore(state_dir or default_state_dir(), inventory.fleet, self.guard)
+        arm_stops = ArmStops(
+            self.lock, self.slots, self.writer, self.relay, (self.cancel_in_flight, self.flush)
+        )
+        device_stops = DeviceStops(self.lock, self.writer, self.units)
+        stops: dict[str, UnitStops] = dict.fromkeys(self.slots, arm_stops)
+        stops |= dict.fromkeys(self.devices, device_stops)
         self.safety_loop = SafetyLoop(
             self.lock,
             self.units,
+            stops,
             self.relay,
-            self.writer,
             self.safety_inbox,
-            (self.cancel_in_flight, self.flush),
+            self.flush,
             self.stopping,
             self.guard,
             self.latches,

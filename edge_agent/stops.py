@@ -28,13 +28,11 @@ import time
 from collections.abc import Callable
 from itertools import count
 
-from edge_agent.holds import NO_FRESH_POSE, hold_command, stop_command
 from edge_agent.inbox import ResetEvent, SafetyInbox, StopEvent
 from edge_agent.latches import LatchStore
 from edge_agent.relay import ZenohRelay
-from edge_agent.slots import ArmSlot, DeviceSlot, Outbox, Unit
-from edge_agent.writer import ArmWriter, transient_seq
-from fleet.d1 import protocol as p
+from edge_agent.slots import Outbox, Unit
+from edge_agent.unit_stops import Later, UnitStops
 from fleet.guard import ThreadGuard
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, encode
@@ -47,7 +45,6 @@ HEARTBEAT_FORGET_S = 30.0
 MAX_HEARTBEAT_SOURCES = 256
 """Heartbeat sources remembered at once; the oldest that watches no arm is forgotten first."""
 
-CancelInFlight = Callable[[ArmSlot, float, str, Outbox], None]
 Flush = Callable[[Outbox], None]
 
 
@@ -58,10 +55,10 @@ class SafetyLoop:
         self,
         lock: threading.Lock,
         slots: dict[str, Unit],
+        stops: dict[str, UnitStops],
         relay: ZenohRelay,
-        writer: ArmWriter,
         inbox: SafetyInbox,
-        hooks: tuple[CancelInFlight, Flush],
+        flush: Flush,
         stopping: threading.Event,
         guard: ThreadGuard,
         latches: LatchStore,
@@ -72,10 +69,11 @@ class SafetyLoop:
         self._mounted = mounted or {}
         """Arm id -> the devices mounted on it that this agent serves (a stop of the arm
         stops them too; the arm may be served by another agent)."""
+        self._stops = stops
+        """How a stop acts on each unit (``unit_stops.py``): the only kind-specific part."""
         self._relay = relay
-        self._writer = writer
         self._inbox = inbox
-        self._cancel_in_flight, self._flush = hooks
+        self._flush = flush
         self._stopping = stopping
         self._latches = latches
         self.last_heartbeat_s: dict[str, float] = {}  # guarded by lock (read by commands)
@@ -171,16 +169,13 @@ class SafetyLoop:
                     request.stop_id, request.source, request.reason, now, now_ns, action
                 ):
                     continue
-                if isinstance(slot, ArmSlot):
-                    self._cancel_in_flight(slot, now, "a protective stop was latched", out)
+                self._stops[arm].latched(slot, now, out)
                 latched.append(arm)
         self._reack(repeats)
         if not latched:
             return
         for arm in latched:
-            slot = self._slots[arm]
-            if isinstance(slot, DeviceSlot):
-                slot.driver.stop_started(now)
+            self._stops[arm].started(self._slots[arm], now)
         later: list[Callable[[], None]] = []  # mirrors and observers, after every DDS write
         for arm in latched:
             self._write_stop(arm, request.stop_id, later)
@@ -191,9 +186,9 @@ class SafetyLoop:
                 ack = self._ack(arm, slot)
                 if ack is not None:
                     acks.puts.append((self._relay.stop_ack(arm), encode(ack)))
-                if isinstance(slot, ArmSlot):  # a device's state says it at its next put
-                    status = encode(slot.tracker.status(now, now_ns))
-                    out.puts.append((self._relay.publishers[arm].status, status))
+                status = self._stops[arm].status(arm, slot, now, now_ns)
+                if status is not None:
+                    out.puts.append(status)
         self._flush(acks)
         self._flush(out)
         for tell in later:
@@ -215,53 +210,11 @@ class SafetyLoop:
                     out.puts.append((self._relay.stop_ack(arm), encode(ack)))
         self._flush(out)
 
-    def _write_stop(
-        self, arm: str, stop_id: str | None, later: list[Callable[[], None]] | None = None
-    ) -> bool:
+    def _write_stop(self, arm: str, stop_id: str | None, later: Later | None = None) -> bool:
         """Write the stop action of the stop latched on ``arm`` (``stop_id``; None: whichever
-        is latched), composed at the moment of writing. True if it is this stop's first write
-        (a hold without a fresh pose is written by a later repeat)."""
-        if isinstance(self._slots[arm], DeviceSlot):
-            return self._write_device_stop(arm, stop_id)
-
-        def compose(slot: ArmSlot, now: float) -> tuple[p.Command, int] | None:
-            stop = slot.safety.stop
-            if stop is None or (stop_id is not None and stop.stop_id != stop_id):
-                return None  # reset meanwhile, or superseded (the newer stop writes its own)
-            stop.last_sent_s = now
-            command = stop_command(slot.tracker.config.stop_action, slot.tracker, now)
-            stop.detail = NO_FRESH_POSE if command is None else None
-            return None if command is None else (command, transient_seq(slot))
-
-        written = self._writer.write(arm, compose, later)
-        if written is None or not written.ok:
-            return False
-        with self._lock:
-            stop = self._slots[arm].safety.stop
-            if stop is not None and stop.dds_written_ns is None:
-                stop.dds_written_ns = written.written_ns
-                return True
-        return False
-
-    def _write_device_stop(self, unit: str, stop_id: str | None) -> bool:
-        """The device's stop action, under its write lock (nothing checked before the stop
-        is written after it); True if it is this stop's first write."""
-        slot = self._slots[unit]
-        assert isinstance(slot, DeviceSlot)
-        with self._writer.unit_lock(unit):
-            now = time.monotonic()
-            with self._lock:
-                stop = slot.safety.stop
-                if stop is None or (stop_id is not None and stop.stop_id != stop_id):
-                    return False  # reset meanwhile, or superseded
-                stop.last_sent_s = now
-            written, detail = slot.driver.write_stop(now)
-            with self._lock:
-                stop.detail = detail
-                if written and stop.dds_written_ns is None:
-                    stop.dds_written_ns = time.time_ns()
-                    return True
-        return False
+        is latched), composed at the moment of writing (``UnitStops.write``). True if it is
+        this stop's first write (a hold without a fresh pose is written by a later repeat)."""
+        return self._stops[arm].write(arm, stop_id, later)
 
     def _ack(self, arm: str, slot: Unit) -> m.StopAck | None:
         stop = slot.safety.stop
@@ -279,7 +232,8 @@ class SafetyLoop:
         )
 
     def reset(self, arm: str, source: str) -> None:
-        """Release the latch; the fresh measured pose becomes the target, so nothing moves."""
+        """Release the latch; nothing moves (``UnitStops.released``: an arm holds its fresh
+        measured pose, a device stays as the stop left it)."""
         now, now_ns = time.monotonic(), time.time_ns()
         with self._lock:
             slot = self._slots[arm]
@@ -288,22 +242,8 @@ class SafetyLoop:
                 return
             slot.safety.last_reason = f"reset by {source[:128]}"
         self._latches.forget(arm)
-        if isinstance(slot, DeviceSlot):  # it stays as the stop left it
-            slot.driver.stop_cleared()
-            log.warning("%s %s reset by %s", slot.kind, arm, source)
-            return
-        with self._lock:
-            status = encode(slot.tracker.status(now, now_ns))
-
-        def hold_unless_off(slot: ArmSlot, now: float) -> tuple[p.Command, int] | None:
-            if slot.safety.latched or slot.tracker.powered is False:
-                return None  # stopped again meanwhile, or nothing to hold
-            command = hold_command(slot.tracker, now)  # None without a fresh pose
-            return None if command is None else (command, transient_seq(slot))
-
-        self._writer.write(arm, hold_unless_off)
-        self._flush(Outbox(puts=[(self._relay.publishers[arm].status, status)]))
-        log.warning("arm %s reset by %s", arm, source)
+        self._stops[arm].released(arm, slot, now, now_ns)
+        log.warning("%s reset by %s", arm, source)
 
     # ------------------------------------------------------------------ periodic
 
