@@ -105,7 +105,9 @@ def main(argv: list[str] | None = None) -> int:
     units = [*arms, *devices]
     with agent:
         agent.start()
-        log.info("serving %s of fleet %r", ", ".join(units), inventory.fleet)
+        served = (("arms", arms), ("devices", devices))
+        what = [f"{name} {', '.join(ids)}" for name, ids in served if ids]
+        log.info("serving %s of fleet %r", " and ".join(what), inventory.fleet)
         collectors = lambda: agent_collectors(agent)  # noqa: E731
         with Observed(
             agent.relay.session, inventory, "agent", args.metrics_port, units, collectors

@@ -116,7 +116,7 @@ def test_model_walk_then_stop() -> None:
     model = G1Model(500, settle_s=0.3)
     assert _call(model, loco.SET_VELOCITY, 0.0, velocity=[0.3, 0, 0], duration=2.0) == 0
     assert model.fsm_mode(1.0) == loco.DYNAMIC
-    assert _call(model, loco.SET_FSM_ID, 1.0, data=4) == ErrorCode.REJECTED  # dynamic
+    assert _call(model, loco.SET_FSM_ID, 1.0, data=4) == ErrorCode.SERVER_REJECTED  # dynamic
     assert _call(model, loco.SET_VELOCITY, 1.0, velocity=[0, 0, 0], duration=1.0) == 0
     assert model.fsm_mode(1.29) == loco.DYNAMIC and model.fsm_mode(1.3) == loco.STATIC
     assert model.fsm_mode(2.29) == loco.STATIC  # the zero ended the 2 s velocity early
@@ -151,8 +151,9 @@ def test_model_damp_always_and_errors() -> None:
     _call(model, loco.SET_BALANCE_MODE, 0.0, data=1)
     assert _call(model, loco.SET_FSM_ID, 0.5, data=1) == 0  # damping, even while dynamic
     assert model.fsm_id == 1 and model.fsm_mode(0.5) == loco.STATIC
-    assert _call(model, loco.SET_BALANCE_MODE, 0.6, data=0) == ErrorCode.REJECTED  # no walking
-    assert _call(model, loco.SET_VELOCITY, 0.6, velocity=[0.1, 0, 0]) == ErrorCode.REJECTED
+    # no walking controller: the robot refuses
+    assert _call(model, loco.SET_BALANCE_MODE, 0.6, data=0) == ErrorCode.SERVER_REJECTED
+    assert _call(model, loco.SET_VELOCITY, 0.6, velocity=[0.1, 0, 0]) == ErrorCode.SERVER_REJECTED
     assert model.call(7999, "", 0.7)[0] == ErrorCode.NOT_IMPLEMENTED
     assert model.call(loco.SET_FSM_ID, "{", 0.7)[0] == ErrorCode.PARAMETER
     assert _call(model, loco.SET_FSM_ID, 0.7, data=12345) == ErrorCode.PARAMETER
