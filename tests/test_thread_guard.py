@@ -15,6 +15,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -27,10 +28,14 @@ from edge_agent.tracker import ArmTracker
 from fleet.cli import main as fleet_main
 from fleet.client import FleetClient
 from fleet.coordinator.service import Coordinator
+from fleet.dex1.messages import GripperHold
+from fleet.dex1.relay import GripperDriver
+from fleet.g1.relay import G1Driver
 from fleet.guard import EXIT_THREAD_FAILED, ThreadGuard
 from fleet.wire import keys
 from fleet.wire import messages as m
 from tests.harness import FleetHarness, wait_until
+from tests.kinds import DEVICES
 
 # ----------------------------------------------------------------------------- the guard
 
@@ -186,3 +191,53 @@ def test_a_failed_coordinator_thread_stops_the_heartbeat_and_exits_1(
     # fix, the heartbeat went on and kept every agent's watchdog satisfied).
     late = [t for t in seen.beats if t > stopped_at[0] + 0.2]
     assert not late, f"{len(late)} heartbeats after the coordinator's thread failed"
+
+
+DEVICE_INJECTIONS: dict[str, tuple[type, str, int]] = {
+    "gripper-driver": (GripperDriver, "tick", 40),
+    "g1-driver": (G1Driver, "on_data", 40),
+    "device-commands": (CommandService, "_handle_device", 1),
+}
+
+
+@pytest.mark.parametrize("thread", sorted(DEVICE_INJECTIONS))
+def test_a_failed_thread_latches_every_arm_and_device_of_the_agent(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, thread: str
+) -> None:
+    """One agent serving an arm, its gripper and a G1: a failure in a device's path (its
+    driver on the relay thread, its command) latches all three, and the agent exits 1."""
+    with FleetHarness(tmp_path, arms=1, extra=DEVICES) as h:
+        h.start_router()
+        h.start_sim()
+        client = h.client()
+        acks: dict[str, list[m.StopAck]] = {}
+        decode = __import__("msgspec").json.decode
+
+        def on_ack(sample: Any) -> None:
+            unit = str(sample.key_expr).split("/")[-3]
+            acks.setdefault(unit, []).append(decode(sample.payload.to_bytes(), type=m.StopAck))
+
+        sub = client.session.declare_subscriber(f"{client.keys.prefix}/*/*/estop/ack", on_ack)
+        owner, name, calls = DEVICE_INJECTIONS[thread]
+        monkeypatch.setattr(owner, name, _after(calls, getattr(owner, name)))
+        monkeypatch.setenv("D1_FLEET_STATE_DIR", str(h.tmp_path / "state"))
+
+        def trigger() -> None:  # the command thread fails on the first device command
+            if thread == "device-commands":
+                token = client.keys.device("gripper", "gl", keys.AGENT)
+                liveliness = client.session.liveliness()
+                wait_until(lambda: any(r.ok for r in liveliness.get(token, timeout=1.0)), 20.0)
+                client.device_command("gl", GripperHold(), timeout_s=1.0)  # never answered
+
+        threading.Thread(target=trigger, daemon=True).start()
+        argv = ["--inventory", str(h.inventory_path), "--interface", "lo"]
+        with _main_thread_signals(give_up_s=40.0):
+            code = agent_main.main(argv)
+        sub.undeclare()
+    assert code == EXIT_THREAD_FAILED
+    failed = {
+        unit
+        for unit, seen in acks.items()
+        if any(a.stop_id.startswith("agent-failure") for a in seen)
+    }
+    assert failed == {"a1", "gl", "h1"}, acks
