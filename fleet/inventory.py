@@ -26,6 +26,7 @@ from fleet.d1.limits import (
 )
 from fleet.devices import DeviceKind, kinds
 from fleet.devices.base import NETWORK_FIELDS, DeviceBase
+from fleet.ros2.config import Ros2Section, check_section
 from fleet.security.config import (
     DEFAULT_PRINCIPALS,
     ROLES,
@@ -184,6 +185,8 @@ class Inventory(Struct, frozen=True):
     devices: dict[str, DeviceBase] = {}
     """Devices beside the arms (``fleet/devices``: grippers, G1s), by id; ids are unique
     across arms and devices."""
+    ros2: Ros2Section = Ros2Section()
+    """``[ros2]``: the fleet on rmw_zenoh's wire (``fleet ros2``, README "ROS 2")."""
 
     def device(self, device_id: str) -> DeviceBase:
         """The device ``device_id``; raises InventoryError naming the known devices."""
@@ -414,6 +417,7 @@ def parse_inventory(text: str, path: str = DEFAULT_INVENTORY) -> Inventory:
         "groups",
         "security",
         "principals",
+        "ros2",
     }
     device_kinds = {kind.section: kind for kind in kinds().values()}
     known |= set(device_kinds)
@@ -479,6 +483,10 @@ def parse_inventory(text: str, path: str = DEFAULT_INVENTORY) -> Inventory:
     groups = _parse_groups(raw.get("groups", {}), arms, path)
     security = _parse_security(raw.get("security", {}), path)
     principals = _parse_principals(raw.get("principals", {}), arms, path, devices)
+    ros2 = _convert(raw.get("ros2", {}), Ros2Section, path, "ros2")
+    problem = check_section(ros2, fleet.name, {*arms, *devices}, set(principals))
+    if problem:
+        raise InventoryError(f"{path}: ros2: {problem}")
     return Inventory(
         path=path,
         fleet=fleet.name,
@@ -491,6 +499,7 @@ def parse_inventory(text: str, path: str = DEFAULT_INVENTORY) -> Inventory:
         security=security,
         principals=principals,
         devices=devices,
+        ros2=ros2,
     )
 
 
