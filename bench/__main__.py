@@ -15,7 +15,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from bench import contact, devices, fleet_runs, raw, relay, report, scale, viewer_cpu
+from bench import contact, devices, fleet_runs, raw, relay, report, ros2, scale, viewer_cpu
 from bench.proc import REPO
 
 
@@ -40,7 +40,7 @@ def _strip_samples(value: Any) -> Any:
     return value
 
 
-SECTIONS = ("raw", "relay", "fleet", "viewer", "contact", "devices", "scale", "routers")
+SECTIONS = ("raw", "relay", "fleet", "viewer", "contact", "devices", "ros2", "scale", "routers")
 """raw: hops and fan-outs; relay: latency and cost at 1-100 arms; fleet: command and stop;
 devices: one Dex1-1 at 500 Hz (issue 14); scale: 1000 arms; routers: two routers (issue 12)."""
 
@@ -52,6 +52,7 @@ _STEPS: tuple[tuple[str, str, Callable[[bool], Any]], ...] = (
     ("contact", "contact detection: labelled episodes (pure simulator + detector)",
      lambda _quick: contact.bench_contact()),
     ("devices", "one Dex1-1 at 500 Hz: devices agent CPU, latency DDS -> Zenoh", devices.run),
+    ("ros2", "fleet ros2: joint_states latency over the joints key, CPU at 10 arms", ros2.run),
     ("scale", "1000 arms at 10 Hz: 4 fleet sim, 4 agents, coordinator, viewer; stops",
      scale.run_thousand),
     ("routers", "two routers: raw hop and fan-out over them; relay and stops of 100 arms",

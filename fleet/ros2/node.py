@@ -117,6 +117,7 @@ class Ros2Node:
         self._inbox: collections.deque[tuple[str, bytes]] = collections.deque()
         self._requests: collections.deque[tuple[str | None, Any]] = collections.deque()
         self._wake = threading.Event()
+        self._data = threading.Event()
         self._stop = threading.Event()
         self._closed = False
         self._own_session = session is None
@@ -254,13 +255,16 @@ class Ros2Node:
         """Zenoh thread: hand off, never block."""
         if len(self._inbox) < INBOX_DEPTH:
             self._inbox.append((str(sample.key_expr), sample.payload.to_bytes()))
+            self._data.set()
         else:
             self.dropped += 1
 
     def _run(self) -> None:
         while not self._stop.is_set():
             if not self._inbox:
-                self._stop.wait(0.002)
+                # Woken by the callback (no polling: latency and idle CPU), or by close().
+                self._data.wait(0.1)
+                self._data.clear()
                 continue
             for _ in range(min(len(self._inbox), 256)):
                 self._publish(*self._inbox.popleft())
@@ -367,6 +371,7 @@ class Ros2Node:
         self._subscriber.undeclare()
         self._stop.set()
         self._wake.set()
+        self._data.set()
         for thread in self._threads:
             if thread.is_alive():
                 thread.join(timeout=STOP_TIMEOUT_S + 2.0)
