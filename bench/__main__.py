@@ -15,7 +15,18 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from bench import contact, devices, fleet_runs, one_core, raw, relay, report, scale, viewer_cpu
+from bench import (
+    contact,
+    devices,
+    fleet_runs,
+    one_core,
+    raw,
+    relay,
+    report,
+    ros2,
+    scale,
+    viewer_cpu,
+)
 from bench.proc import REPO
 
 
@@ -41,7 +52,8 @@ def _strip_samples(value: Any) -> Any:
 
 
 SECTIONS = (
-    "raw", "relay", "fleet", "viewer", "contact", "devices", "onecore", "scale", "routers"
+    "raw", "relay", "fleet", "viewer", "contact", "devices", "onecore", "ros2", "scale",
+    "routers",
 )  # fmt: skip
 """raw: hops and fan-outs; relay: latency and cost at 1-100 arms; fleet: command and stop;
 devices: one Dex1-1 at 500 Hz (issue 14); onecore: one agent for a D1 and its Dex1-1 vs two
@@ -57,6 +69,7 @@ _STEPS: tuple[tuple[str, str, Callable[[bool], Any]], ...] = (
      lambda _quick: contact.bench_contact()),
     ("devices", "one Dex1-1 at 500 Hz: devices agent CPU, latency DDS -> Zenoh", devices.run),
     ("onecore", "D1 + Dex1-1: one agent vs two; a device's stop under a flood", one_core.run),
+    ("ros2", "fleet ros2: joint_states latency over the joints key, CPU at 10 arms", ros2.run),
     ("scale", "1000 arms at 10 Hz: 4 fleet sim, 4 agents, coordinator, viewer; stops",
      scale.run_thousand),
     ("routers", "two routers: raw hop and fan-out over them; relay and stops of 100 arms",

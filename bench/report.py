@@ -207,6 +207,8 @@ def rows(r: dict[str, Any]) -> list[Row]:
         table += _devices_rows(r["devices"])
     if "onecore" in r:
         table += _onecore_rows(r["onecore"])
+    if "ros2" in r:
+        table += _ros2_rows(r["ros2"])
     return table
 
 
@@ -228,6 +230,18 @@ def _onecore_rows(r: dict[str, Any]) -> list[Row]:
          _ms(received.get("p99_ms")),
          f"DDS written p99 {_ms(written.get('p99_ms'))}",
          f"<= {DEVICE_STOP_FLOOD_MS:g} ms", _verdict(ok_flood)),
+    ]  # fmt: skip
+
+
+def _ros2_rows(r: dict[str, Any]) -> list[Row]:
+    """fleet ros2 (issue 27): joint_states over the joints key, and its CPU."""
+    p50, p95 = r["added_ms_p50"], r["added_ms_p95"]
+    ok = p50 is not None and p50 <= 2.0 and r["cpu_pct"] <= 3.0
+    return [
+        (f"ROS 2 joint_states added latency over joints, {r['arms']} arms at "
+         f"{r['rate_hz']:g} Hz (n={r['samples']}, lost {r['lost']})",
+         _ms(p50), _ms(p95), f"fleet ros2 {r['cpu_pct']:.1f} % core",
+         "p50 <= 2 ms, <= 3 % core", _verdict(ok)),
     ]  # fmt: skip
 
 

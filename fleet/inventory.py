@@ -26,6 +26,7 @@ from fleet.d1.limits import (
 )
 from fleet.devices import DeviceKind, kinds
 from fleet.devices.base import NETWORK_FIELDS, DeviceBase
+from fleet.ros2.config import Ros2Section, check_section
 from fleet.security.config import (
     DEFAULT_PRINCIPALS,
     ROLES,
@@ -184,6 +185,14 @@ class Inventory(Struct, frozen=True):
     devices: dict[str, DeviceBase] = {}
     """Devices beside the arms (``fleet/devices``: grippers, G1s), by id; ids are unique
     across arms and devices."""
+    ros2_section: Ros2Section | None = None
+    """``[ros2]`` as written (None: no such section; the router's access control then has no
+    ROS keys)."""
+
+    @property
+    def ros2(self) -> Ros2Section:
+        """``[ros2]``, or its defaults: the fleet on rmw_zenoh's wire (README "ROS 2")."""
+        return self.ros2_section if self.ros2_section is not None else Ros2Section()
 
     def device(self, device_id: str) -> DeviceBase:
         """The device ``device_id``; raises InventoryError naming the known devices."""
@@ -414,6 +423,7 @@ def parse_inventory(text: str, path: str = DEFAULT_INVENTORY) -> Inventory:
         "groups",
         "security",
         "principals",
+        "ros2",
     }
     device_kinds = {kind.section: kind for kind in kinds().values()}
     known |= set(device_kinds)
@@ -479,6 +489,10 @@ def parse_inventory(text: str, path: str = DEFAULT_INVENTORY) -> Inventory:
     groups = _parse_groups(raw.get("groups", {}), arms, path)
     security = _parse_security(raw.get("security", {}), path)
     principals = _parse_principals(raw.get("principals", {}), arms, path, devices)
+    ros2 = _convert(raw["ros2"], Ros2Section, path, "ros2") if "ros2" in raw else None
+    problem = ros2 and check_section(ros2, fleet.name, {*arms, *devices}, set(principals))
+    if problem:
+        raise InventoryError(f"{path}: ros2: {problem}")
     return Inventory(
         path=path,
         fleet=fleet.name,
@@ -491,6 +505,7 @@ def parse_inventory(text: str, path: str = DEFAULT_INVENTORY) -> Inventory:
         security=security,
         principals=principals,
         devices=devices,
+        ros2_section=ros2,
     )
 
 

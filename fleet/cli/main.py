@@ -20,6 +20,7 @@ from fleet.cli import (
     foxglove_cmd,
     processes,
     record_cmds,
+    ros2_cmd,
     safety_cmds,
     security_cmds,
     status,
@@ -54,6 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
         wire_tools,  # after processes: it adds `fleet sim fault`
         doctor_cmd,
         foxglove_cmd,
+        ros2_cmd,
         deploy_cmd,
     ):
         module.register(sub, add_inventory_options)

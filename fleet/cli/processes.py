@@ -93,6 +93,11 @@ def register(
         help="also serve the fleet to Foxglove on ws://127.0.0.1:PORT (default 8765)",
     )
     demo.add_argument(
+        "--ros2",
+        action="store_true",
+        help="also run `fleet ros2`: the fleet as ROS 2 nodes on rmw_zenoh's wire (README 'ROS 2')",
+    )
+    demo.add_argument(
         "--secure",
         action="store_true",
         help="mutual TLS and the inventory's access control (certificates made for the run)",
@@ -305,6 +310,8 @@ def _run_demo(args: argparse.Namespace, inventory: Inventory) -> int:
         if args.foxglove is not None:
             fox = ["-m", "fleet.cli.main", "foxglove", "--port", str(args.foxglove), *common]
             supervisor.start("foxglove", fox)
+        if args.ros2:
+            supervisor.start("ros2", ["-m", "fleet.cli.main", "ros2", *common])
         url = "not started (--no-viewer)"
         if not args.no_viewer:
             # The person running the demo operates their own simulated fleet: the viewer acts
@@ -322,6 +329,12 @@ def _run_demo(args: argparse.Namespace, inventory: Inventory) -> int:
                 ""
                 if args.foxglove is None
                 else f"foxglove: ws://127.0.0.1:{args.foxglove} (Open connection in Foxglove)\n"
+            )
+            + (
+                f"ros2: ROS_DOMAIN_ID={inventory.ros2.domain_id}, stop service "
+                f"/{inventory.fleet}/estop (rmw_zenoh, router {inventory.endpoints[0]})\n"
+                if args.ros2
+                else ""
             )
             + (
                 ""

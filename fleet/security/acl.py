@@ -140,10 +140,34 @@ def _grants(inventory: Inventory, principal: str, role: Role) -> _Grants:
         g.put = stops
         g.read = [f"{f}/**"]
         g.liveliness = agents
+    elif role == "ros2":  # `fleet ros2` (issue 27): the ROS keys of fleet/ros2/grants.py
+        from fleet.ros2 import grants
+
+        g.put = [*stops, *grants.data_keys(inventory), *grants.cache_keys(inventory)]
+        g.queryable = [*grants.service_keys(inventory), *grants.cache_keys(inventory)]
+        g.token = [*grants.graph_keys(inventory), *grants.cache_keys(inventory)]
+        g.read = [f"{f}/**"]
     elif role == "simulator":
         simulated = [a.id for a in inventory.arms.values() if a.simulated]
         g.queryable = [f"{f}/arm/{a}/sim/fault" for a in simulated]
+    if inventory.ros2_section is not None and role in ("operator", "maintainer", "observer"):
+        # ROS 2 clients (RViz, the ros2 CLI) of `fleet ros2`, when the inventory has [ros2]
+        _ros_reader(inventory, principal, g)
     return g
+
+
+def _ros_reader(inventory: Inventory, principal: str, g: _Grants) -> None:
+    """A person's ROS 2 tools on the fleet's router: read ``fleet ros2``'s topics and caches,
+    see and join the ROS graph; call the stop services only when ``[ros2] estop_callers``
+    names them."""
+    from fleet.ros2 import grants
+
+    g.read = [*g.read, *grants.data_keys(inventory), *grants.cache_keys(inventory)]
+    g.query = [*g.query, *grants.cache_keys(inventory)]
+    g.liveliness = [*g.liveliness, *grants.graph_keys(inventory), *grants.cache_keys(inventory)]
+    g.token = [*g.token, *grants.graph_keys(inventory)]
+    if principal in inventory.ros2.estop_callers:
+        g.query = [*g.query, *grants.service_keys(inventory)]
 
 
 def access_control(inventory: Inventory) -> dict[str, Any]:

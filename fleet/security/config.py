@@ -14,7 +14,9 @@ from typing import Literal
 from msgspec import Struct
 
 SecurityMode = Literal["none", "mtls", "password"]
-Role = Literal["agent", "coordinator", "operator", "observer", "maintainer", "simulator", "router"]
+Role = Literal[
+    "agent", "coordinator", "operator", "observer", "maintainer", "simulator", "router", "ros2"
+]
 ROLES: tuple[Role, ...] = (
     "agent",
     "coordinator",
@@ -23,6 +25,7 @@ ROLES: tuple[Role, ...] = (
     "maintainer",
     "simulator",
     "router",
+    "ros2",
 )
 
 DEFAULT_PRINCIPALS: dict[str, Role] = {
@@ -32,6 +35,7 @@ DEFAULT_PRINCIPALS: dict[str, Role] = {
     "maintainer": "maintainer",
     "sim": "simulator",
     "router": "router",
+    "ros2": "ros2",
 }
 """Principals every fleet has; ``[principals]`` adds to them (or changes their roles)."""
 
