@@ -26,11 +26,10 @@ from dataclasses import dataclass
 
 import zenoh
 
+from fleet.control import CONTROL_DEPTH, ControlFifo
 from fleet.wire import messages as m
 from fleet.wire import payloads
 
-CONTROL_DEPTH = 1024
-"""Stops and resets waiting for the safety thread (it serves one in well under a millisecond)."""
 MAX_BEAT_SOURCES = 64
 """Distinct heartbeat sources kept between two safety ticks (50 ms); sources that watch an
 arm are always kept."""
@@ -75,9 +74,12 @@ class SafetyInbox:
     def __init__(self, counters: InboxCounters) -> None:
         self.counters = counters
         self.wake = threading.Event()
-        self._lock = threading.Lock()
-        self._control: deque[ControlEvent] = deque()
-        self._flooded: dict[str | None, None] = {}  # targets of stops that found the FIFO full
+        self._lock = threading.Lock()  # guards the counters, the beats
+        # stops and resets: the fleet's one ordered intake (fleet.control)
+        self._control: ControlFifo[ControlEvent] = ControlFifo(
+            lambda arm: StopEvent(arm, None, "stop request dropped at a full queue (flood)"),
+            CONTROL_DEPTH,
+        )
         self._beats: dict[str, tuple[str, m.Heartbeat, float]] = {}
         self._keep: frozenset[str] = frozenset()
 
@@ -94,11 +96,7 @@ class SafetyInbox:
             with self._lock:
                 self.counters.bad_payloads += 1
                 self.counters.undecodable_stops += 1
-        with self._lock:
-            if len(self._control) < CONTROL_DEPTH:
-                self._control.append(event)
-            else:
-                self._flooded[arm] = None  # bounded: the agent's arms and None
+        self._control.push(event, arm, is_stop=True)  # bounded marks: the agent's arms, None
         self.wake.set()
 
     def on_reset(self, arm: str | None, data: bytes) -> None:
@@ -110,12 +108,10 @@ class SafetyInbox:
             with self._lock:
                 self.counters.bad_payloads += 1
             return
-        with self._lock:
-            if len(self._control) < CONTROL_DEPTH:
-                self._control.append(event)
-            else:
+        if not self._control.push(event):
+            with self._lock:
                 self.counters.dropped_events += 1
-                return
+            return
         self.wake.set()
 
     def on_heartbeat(self, principal: str | None, data: bytes) -> None:
@@ -149,14 +145,8 @@ class SafetyInbox:
     def take(self) -> tuple[list[ControlEvent], list[tuple[str, m.Heartbeat, float]]]:
         """Everything pending: stops and resets in arrival order (then the stops that found
         the FIFO full), and the newest heartbeat of each source (source, beat, arrival)."""
+        control = self._control.take()
         with self._lock:
-            control = list(self._control)
-            self._control.clear()
-            control += [
-                StopEvent(arm, None, "stop request dropped at a full queue (flood)")
-                for arm in self._flooded
-            ]
-            self._flooded.clear()
             beats = list(self._beats.values())
             self._beats.clear()
         return control, beats
