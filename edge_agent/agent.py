@@ -47,6 +47,7 @@ from edge_agent.slots import ArmSlot, DeviceSlot, Outbox, Unit
 from edge_agent.stops import SafetyLoop
 from edge_agent.tracker import ArmTracker
 from edge_agent.writer import ArmWriter, transient_seq
+from fleet.beat_limits import max_heartbeat_bytes
 from fleet.d1 import protocol as p
 from fleet.devices import kind_of
 from fleet.devices.base import DeviceReply
@@ -100,7 +101,8 @@ class EdgeAgent:
         # Seconds from each served command's arrival to its reply, for metrics (scraped and
         # drained by edge_agent/metrics.py; bounded, one append per reply).
         self.reply_latencies_s: collections.deque[float] = collections.deque(maxlen=10_000)
-        self.safety_inbox = SafetyInbox(self.counters)
+        units = len(inventory.arms) + len(inventory.devices)
+        self.safety_inbox = SafetyInbox(self.counters, max_heartbeat_bytes(units))
         self.command_inbox = CommandInbox(
             self.counters, lambda item: self.commands.busy(item), principal_of
         )

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import zenoh
 
+from fleet.beat_limits import BeatGate, max_heartbeat_bytes
 from fleet.control import CONTROL_DEPTH, ControlFifo
 from fleet.wire import messages as m
 from fleet.wire import payloads
@@ -71,8 +72,13 @@ class InboxCounters:
 class SafetyInbox:
     """Stops and resets (one ordered FIFO) and heartbeats (latest per source)."""
 
-    def __init__(self, counters: InboxCounters) -> None:
+    def __init__(
+        self, counters: InboxCounters, max_beat_bytes: int = max_heartbeat_bytes(1)
+    ) -> None:
         self.counters = counters
+        self.max_beat_bytes = max_beat_bytes
+        """Longer heartbeats are dropped unread (the fleet's bound: ``max_heartbeat_bytes``)."""
+        self._gate = BeatGate()  # guarded by _lock
         self.wake = threading.Event()
         self._lock = threading.Lock()  # guards the counters, the beats
         # stops and resets: the fleet's one ordered intake (fleet.control)
@@ -114,13 +120,21 @@ class SafetyInbox:
             return
         self.wake.set()
 
-    def on_heartbeat(self, principal: str | None, data: bytes) -> None:
+    def on_heartbeat(self, principal: str | None, data: bytes | zenoh.ZBytes) -> None:
         """A sample on ``heartbeat/<principal>`` (Zenoh thread): keep the newest per source.
         The source is ``<principal>/<coordinator>``: the principal comes from the key (the
-        router lets only it publish there), the payload only names one of its commanders."""
+        router lets only it publish there), the payload only names one of its commanders.
+        Bounded before it is copied or parsed (``fleet.beat_limits``): its size, then a rate
+        per principal; what does not pass is counted in ``dropped_events``."""
         arrived = time.monotonic()
+        with self._lock:
+            refused = len(data) > self.max_beat_bytes or not self._gate.admit(principal or "")
+            if refused:
+                self.counters.dropped_events += 1
+        if refused:
+            return
         try:
-            beat = payloads.HEARTBEAT.decode(data)
+            beat = payloads.HEARTBEAT.decode(data if isinstance(data, bytes) else data.to_bytes())
         except payloads.PayloadError:
             with self._lock:
                 self.counters.bad_payloads += 1

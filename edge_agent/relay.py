@@ -112,8 +112,8 @@ class ZenohRelay:
             sub(
                 self.keys.heartbeat,
                 wrap(
-                    lambda sample: safety.on_heartbeat(
-                        principal_of(sample.key_expr), sample.payload.to_bytes()
+                    lambda sample: safety.on_heartbeat(  # length checked before any copy
+                        principal_of(sample.key_expr), sample.payload
                     ),
                     "heartbeat",
                 ),

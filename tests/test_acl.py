@@ -90,8 +90,9 @@ def test_only_maintainers_inject_faults_into_simulated_arms(tmp_path: Path) -> N
 
 
 def test_payload_limits(tmp_path: Path) -> None:
-    small, everything = payload_limits(_inventory(tmp_path))
+    small, beats, everything = payload_limits(_inventory(tmp_path))
     assert small["size_limit"] == 4096 and "fleet/lab/estop" in small["key_exprs"]
+    assert beats["key_exprs"] == ["fleet/lab/heartbeat/*"] and beats["size_limit"] < 64 * 1024
     assert everything["size_limit"] == 1 << 20 and everything["key_exprs"] == ["**"]
 
 
