@@ -144,6 +144,12 @@ def _grants(inventory: Inventory, principal: str, role: Role) -> _Grants:
     elif role == "simulator":
         simulated = [a.id for a in inventory.arms.values() if a.simulated]
         g.queryable = [f"{f}/arm/{a}/sim/fault" for a in simulated]
+    if role != "router":
+        # Issue 28: every long-running process answers info/<role>/<instance> (fleet.observe),
+        # and fleet doctor, run as a person's principal, asks info/** for versions and clocks.
+        g.queryable = [*g.queryable, f"{f}/info/*/*"]
+        if role in ("operator", "maintainer", "observer"):
+            g.query = [*g.query, f"{f}/info/**"]
     return g
 
 
