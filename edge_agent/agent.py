@@ -48,9 +48,11 @@ from edge_agent.stops import SafetyLoop
 from edge_agent.tracker import ArmTracker
 from edge_agent.unit_stops import ArmStops, DeviceStops, UnitStops
 from edge_agent.writer import ArmWriter, transient_seq
+from fleet.beat_limits import max_heartbeat_bytes
 from fleet.d1 import protocol as p
 from fleet.devices import kind_of
 from fleet.devices.base import DeviceReply
+from fleet.files import FILE_TIMEOUT_S, FileWatcher
 from fleet.guard import ThreadGuard
 from fleet.inventory import Inventory
 from fleet.wire import keys
@@ -64,6 +66,8 @@ STATUS_PERIOD_S = 0.25
 """Status is re-published 4 times a second: late joiners learn it, and it is the agent's
 heartbeat (the coordinator calls an agent offline after 1 s of silence)."""
 DIAG_PERIOD_S = 1.0
+CALIBRATION_POLL_S = 1.0
+"""How often the ``files`` thread looks for a new calibration file (``fleet calibrate``)."""
 
 
 class EdgeAgent:
@@ -98,7 +102,8 @@ class EdgeAgent:
         # Seconds from each served command's arrival to its reply, for metrics (scraped and
         # drained by edge_agent/metrics.py; bounded, one append per reply).
         self.reply_latencies_s: collections.deque[float] = collections.deque(maxlen=10_000)
-        self.safety_inbox = SafetyInbox(self.counters)
+        units = len(inventory.arms) + len(inventory.devices)
+        self.safety_inbox = SafetyInbox(self.counters, max_heartbeat_bytes(units))
         self.command_inbox = CommandInbox(
             self.counters, lambda item: self.commands.busy(item), principal_of
         )
@@ -158,6 +163,10 @@ class EdgeAgent:
         paths = {a: inventory.calibration_path(a) for a in arm_ids}
         self.contact = ContactEdge(configs, self.relay, self.lock, self.writer, paths)
         self.writer.observers.append(self._on_written)
+        # Files are read on a thread of their own (fleet.files): never on the relay's.
+        self.calibrations = FileWatcher(
+            self.contact.read_calibrations, CALIBRATION_POLL_S, self.stopping
+        )
         self.scheduler = StartScheduler(self.guard, self.stopping)
         self.commands = CommandService(
             self.lock,
@@ -177,6 +186,7 @@ class EdgeAgent:
             self.guard.thread(self.commands.run, "commands"),
             self.scheduler.thread,
             self.latches.thread,
+            self.guard.thread(self.calibrations.run, "files"),
         ]
 
     def start(self) -> EdgeAgent:
@@ -321,7 +331,11 @@ class EdgeAgent:
         diag = now >= self._next_diag
         if diag:
             self._next_diag = now + DIAG_PERIOD_S
-            self.contact.poll_calibration(self.slots)  # reads files: outside the lock
+            self.contact.apply_calibrations(self.calibrations.take(), self.slots)
+            stuck_s = self.calibrations.stuck_s(now)
+            if stuck_s > FILE_TIMEOUT_S:  # a hung read: latch every arm and exit (the guard)
+                why = f"reading a calibration file has taken {stuck_s:.0f} s"
+                self.guard.fail("files", TimeoutError(why))
         out = Outbox()
         with self.lock:
             for arm, slot in self.slots.items():

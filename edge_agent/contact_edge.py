@@ -13,8 +13,10 @@ error past ``force_limit_deg``, the joint's target becomes its measured angle (`
 motor stops pushing; commands in flight that move that joint fail with 4002 (refused).
 
 Calibration: each arm's file (``Inventory.calibration_path``) is read at start and again when it
-changes (``poll_calibration``, from the periodic job, outside the lock): ``fleet calibrate``
-takes effect without a restart. The model's state goes into the arm's status and diag.
+changes (``read_calibrations``, on the agent's ``files`` thread: never on the relay or safety
+path, see ``fleet.files``), then applied on the relay thread (``apply_calibrations``):
+``fleet calibrate`` takes effect without a restart. The model's state goes into the arm's
+status and diag.
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ from fleet.contact.calibration import Calibration, CalibrationError, load_calibr
 from fleet.contact.detector import ContactChange, ContactDetector
 from fleet.contact.feed import feed_command
 from fleet.d1 import protocol as p
+from fleet.files import file_stamp
 from fleet.inventory import ArmConfig
 from fleet.wire import keys
 from fleet.wire import messages as m
@@ -71,8 +74,8 @@ class ContactEdge:
         self._lock = lock
         self._writer = writer
         self._paths = calibrations or {}
-        self._stamps: dict[str, tuple[float, int] | None] = {}  # arm -> file (mtime, size)
-        self._problems: dict[str, str] = {}
+        self._stamps: dict[str, tuple[float, int, int] | None] = {}  # files thread only
+        self._problems: dict[str, str] = {}  # guarded by lock
         self.detectors: dict[str, ContactDetector] = {}
         self.publishers: dict[str, zenoh.Publisher] = {}
         for arm, arm_config in configs.items():
@@ -92,32 +95,43 @@ class ContactEdge:
         self._pending: list[tuple[str, p.SetJointAngle]] = []  # guarded by lock
         writer.observers.append(self.on_sent)
 
-    def poll_calibration(self, slots: dict[str, ArmSlot]) -> None:
-        """Load each arm's calibration file when it appeared or changed (call without the lock:
-        this reads files); then tell the detector and the arm's tracker (under the lock)."""
-        loaded: dict[str, Calibration | None] = {}
+    def read_calibrations(self) -> dict[str, tuple[Calibration | None, str | None]] | None:
+        """Each arm's calibration file that appeared or changed, read (bounded: a regular file,
+        size-capped) and validated: arm -> (calibration or None, problem or None); None when
+        nothing changed. Runs on the agent's ``files`` thread, never on the relay's: a file
+        that blocks can freeze only that thread, which the relay's tick then fails safe."""
+        loaded: dict[str, tuple[Calibration | None, str | None]] = {}
         for arm in self.detectors:
             path = self._paths.get(arm)
-            try:
-                stat = None if path is None else path.stat()
-            except OSError:
-                stat = None
-            stamp = None if stat is None else (stat.st_mtime, stat.st_size)
+            stamp = file_stamp(path)
             if arm in self._stamps and self._stamps[arm] == stamp:
                 continue
             self._stamps[arm] = stamp
-            self._problems.pop(arm, None)
             try:
-                loaded[arm] = None if path is None or stamp is None else load_calibration(path)
+                calibration = None if path is None or stamp is None else load_calibration(path)
+                loaded[arm] = (calibration, None)
             except CalibrationError as exc:
-                loaded[arm] = None
-                self._problems[arm] = str(exc)
+                loaded[arm] = (None, str(exc))
                 log.error("arm %s: %s", arm, exc)
-            if loaded[arm] is not None:
+                continue
+            if calibration is not None:
                 log.info("arm %s: contact model calibrated from %s", arm, path)
+        return loaded or None
+
+    def apply_calibrations(
+        self,
+        loaded: dict[str, tuple[Calibration | None, str | None]] | None,
+        slots: dict[str, ArmSlot],
+    ) -> None:
+        """Hand what ``read_calibrations`` read to the detectors, and each detector's model
+        state to its arm's tracker (relay thread; takes the lock; reads no file)."""
         with self._lock:
-            for arm, calibration in loaded.items():
+            for arm, (calibration, problem) in (loaded or {}).items():
                 self.detectors[arm].set_calibration(calibration)
+                if problem is None:
+                    self._problems.pop(arm, None)
+                else:
+                    self._problems[arm] = problem
             for arm, detector in self.detectors.items():
                 self._tell(arm, slots[arm], detector)
 

@@ -26,11 +26,11 @@ from dataclasses import dataclass
 
 import zenoh
 
+from fleet.beat_limits import BeatGate, max_heartbeat_bytes
+from fleet.control import CONTROL_DEPTH, ControlFifo
 from fleet.wire import messages as m
 from fleet.wire import payloads
 
-CONTROL_DEPTH = 1024
-"""Stops and resets waiting for the safety thread (it serves one in well under a millisecond)."""
 MAX_BEAT_SOURCES = 64
 """Distinct heartbeat sources kept between two safety ticks (50 ms); sources that watch an
 arm are always kept."""
@@ -72,12 +72,20 @@ class InboxCounters:
 class SafetyInbox:
     """Stops and resets (one ordered FIFO) and heartbeats (latest per source)."""
 
-    def __init__(self, counters: InboxCounters) -> None:
+    def __init__(
+        self, counters: InboxCounters, max_beat_bytes: int = max_heartbeat_bytes(1)
+    ) -> None:
         self.counters = counters
+        self.max_beat_bytes = max_beat_bytes
+        """Longer heartbeats are dropped unread (the fleet's bound: ``max_heartbeat_bytes``)."""
+        self._gate = BeatGate()  # guarded by _lock
         self.wake = threading.Event()
-        self._lock = threading.Lock()
-        self._control: deque[ControlEvent] = deque()
-        self._flooded: dict[str | None, None] = {}  # targets of stops that found the FIFO full
+        self._lock = threading.Lock()  # guards the counters, the beats
+        # stops and resets: the fleet's one ordered intake (fleet.control)
+        self._control: ControlFifo[ControlEvent] = ControlFifo(
+            lambda arm: StopEvent(arm, None, "stop request dropped at a full queue (flood)"),
+            CONTROL_DEPTH,
+        )
         self._beats: dict[str, tuple[str, m.Heartbeat, float]] = {}
         self._keep: frozenset[str] = frozenset()
 
@@ -94,11 +102,7 @@ class SafetyInbox:
             with self._lock:
                 self.counters.bad_payloads += 1
                 self.counters.undecodable_stops += 1
-        with self._lock:
-            if len(self._control) < CONTROL_DEPTH:
-                self._control.append(event)
-            else:
-                self._flooded[arm] = None  # bounded: the agent's arms and None
+        self._control.push(event, arm, is_stop=True)  # bounded marks: the agent's arms, None
         self.wake.set()
 
     def on_reset(self, arm: str | None, data: bytes) -> None:
@@ -110,21 +114,27 @@ class SafetyInbox:
             with self._lock:
                 self.counters.bad_payloads += 1
             return
-        with self._lock:
-            if len(self._control) < CONTROL_DEPTH:
-                self._control.append(event)
-            else:
+        if not self._control.push(event):
+            with self._lock:
                 self.counters.dropped_events += 1
-                return
+            return
         self.wake.set()
 
-    def on_heartbeat(self, principal: str | None, data: bytes) -> None:
+    def on_heartbeat(self, principal: str | None, data: bytes | zenoh.ZBytes) -> None:
         """A sample on ``heartbeat/<principal>`` (Zenoh thread): keep the newest per source.
         The source is ``<principal>/<coordinator>``: the principal comes from the key (the
-        router lets only it publish there), the payload only names one of its commanders."""
+        router lets only it publish there), the payload only names one of its commanders.
+        Bounded before it is copied or parsed (``fleet.beat_limits``): its size, then a rate
+        per principal; what does not pass is counted in ``dropped_events``."""
         arrived = time.monotonic()
+        with self._lock:
+            refused = len(data) > self.max_beat_bytes or not self._gate.admit(principal or "")
+            if refused:
+                self.counters.dropped_events += 1
+        if refused:
+            return
         try:
-            beat = payloads.HEARTBEAT.decode(data)
+            beat = payloads.HEARTBEAT.decode(data if isinstance(data, bytes) else data.to_bytes())
         except payloads.PayloadError:
             with self._lock:
                 self.counters.bad_payloads += 1
@@ -149,14 +159,8 @@ class SafetyInbox:
     def take(self) -> tuple[list[ControlEvent], list[tuple[str, m.Heartbeat, float]]]:
         """Everything pending: stops and resets in arrival order (then the stops that found
         the FIFO full), and the newest heartbeat of each source (source, beat, arrival)."""
+        control = self._control.take()
         with self._lock:
-            control = list(self._control)
-            self._control.clear()
-            control += [
-                StopEvent(arm, None, "stop request dropped at a full queue (flood)")
-                for arm in self._flooded
-            ]
-            self._flooded.clear()
             beats = list(self._beats.values())
             self._beats.clear()
         return control, beats

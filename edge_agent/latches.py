@@ -23,6 +23,7 @@ import threading
 import time
 from pathlib import Path
 
+from fleet.files import FileReadError, read_regular
 from fleet.guard import ThreadGuard
 from fleet.wire import messages as m
 from fleet.wire import payloads
@@ -30,6 +31,8 @@ from fleet.wire import payloads
 log = logging.getLogger("edge_agent.latches")
 
 STATE_ENV = "D1_FLEET_STATE_DIR"
+MAX_LATCH_BYTES = 64 * 1024
+"""A latched stop is one small StopRequest: a bigger file is refused (and latches anyway)."""
 
 
 def default_state_dir() -> Path:
@@ -95,10 +98,10 @@ class LatchStore:
         """The stop latched on ``arm`` when its agent last ran, if any."""
         path = self._path(arm)
         try:
-            data = path.read_bytes()
+            data = read_regular(path, MAX_LATCH_BYTES, "latch file")
         except FileNotFoundError:
             return None
-        except OSError as exc:
+        except (FileReadError, OSError) as exc:
             return self._unreadable(arm, str(exc))
         try:
             return payloads.STOP.decode(data)

@@ -27,22 +27,17 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
 
 import zenoh
 
 from edge_agent.inbox import CommandInbox, SafetyInbox
+from fleet.control import direct
 from fleet.guard import ThreadGuard
 from fleet.inventory import Inventory
 from fleet.security.session import open_session
 from fleet.wire import keys
 
 JSON = zenoh.Encoding.APPLICATION_JSON
-
-
-def direct(callback: Callable[[Any], None]) -> zenoh.handlers.Callback[Any]:
-    """``callback`` run on the Zenoh thread that received the sample (it must not block)."""
-    return zenoh.handlers.Callback(callback, indirect=False)
 
 
 @dataclass
@@ -117,8 +112,8 @@ class ZenohRelay:
             sub(
                 self.keys.heartbeat,
                 wrap(
-                    lambda sample: safety.on_heartbeat(
-                        principal_of(sample.key_expr), sample.payload.to_bytes()
+                    lambda sample: safety.on_heartbeat(  # length checked before any copy
+                        principal_of(sample.key_expr), sample.payload
                     ),
                     "heartbeat",
                 ),

@@ -14,6 +14,8 @@ from typing import Any
 
 import msgspec
 
+from fleet.files import MAX_FILE_BYTES, FileReadError, read_regular
+
 
 class TomlError(ValueError):
     """A file that cannot be read as TOML text; the message says why (not the file name)."""
@@ -37,8 +39,10 @@ def decode_toml(text: str) -> dict[str, Any]:
 def read_text(path: str | Path, what: str = "it") -> str:
     """The file's text; TomlError for a missing or unreadable file or bytes that are not UTF-8
     (``what`` names the file in the message: "cannot read the inventory")."""
-    try:
-        return Path(path).read_text(encoding="utf-8")
+    try:  # a regular file, size-capped: a named pipe or /dev/zero must not hang or flood us
+        return read_regular(path, MAX_FILE_BYTES, what.removeprefix("the ")).decode("utf-8")
+    except FileReadError as exc:
+        raise TomlError(f"cannot read {what}: {str(exc).partition(': ')[2]}") from None
     except OSError as exc:
         raise TomlError(f"cannot read {what}: {exc.strerror or exc}") from None
     except UnicodeDecodeError as exc:

@@ -1,9 +1,10 @@
 """Fuzz target: the inventory parser (``fleet/inventory.py``, from TOML text).
 
 Property: any text gives an ``Inventory`` or ``InventoryError``, never another exception; an
-inventory that parses answers every question the processes ask it (each arm, its network, each
-group) without an error, holds the invariants the parser promises, and gives every arm a
-well-formed CycloneDDS configuration that names its interface and peers (an agent builds it
+inventory that parses (arms, devices, or both: a fleet of devices only is valid) answers every
+question the processes ask it (each arm and device, its network, each group) without an error,
+holds the invariants the parser promises, and gives every arm and device a well-formed
+CycloneDDS configuration that names its interface and peers (an agent builds it
 before its first DDS participant; malformed XML fails there, far from the file's line).
 """
 
@@ -16,6 +17,7 @@ from fuzz.common import instrumented, main, toml_text
 
 with instrumented():
     from fleet.d1.dds import cyclonedds_config
+    from fleet.devices import kind_of
     from fleet.inventory import InventoryError, parse_inventory
 
 
@@ -25,7 +27,18 @@ def check(data: bytes) -> None:
         inventory = parse_inventory(toml_text(data), "fuzz.toml")
     except InventoryError:
         return
-    assert inventory.arms, inventory
+    # an inventory of devices only is valid (issue 14); one with no robot at all is not
+    assert inventory.arms or inventory.devices, inventory
+    for device_id, device in inventory.devices.items():
+        assert inventory.device(device_id) is device and device.id == device_id, device
+        kind_of(device)  # every device has a kind the agents can load
+        assert inventory.agent_of(device_id), device
+        network = inventory.device_network([device_id])
+        assert 0 <= network.domain_id <= 232, device
+        assert device.link_stale_s > 0 and device.watchdog_s > 0 and device.lease_s > 0, device
+        mount = getattr(device, "mount", "")
+        assert not mount or mount in inventory.arms, (device, mount)
+        _check_dds_config(device.interface, network.peers, device.multicast)
     for arm_id, arm in inventory.arms.items():
         assert inventory.arm(arm_id) is arm
         assert 0 <= inventory.domain_of(arm) <= 232, arm
@@ -69,8 +82,15 @@ def seeds() -> list[bytes]:
         "joint_sign = [1, -1, 1, -1, 1, 1, 1]\n[arms.a1.contact.gripper]\nforce_limit_deg = 20\n"
         '[arms.a2]\nsuffix = "_2"\n[groups]\nleft = ["a1", "a2"]\n'
     )
+    devices = '[grippers.gl]\nmount = "a1"\nagent = "agent-lo"\n\n[g1.h1]\nagent = "agent-lo"\n'
+    devices_only = (
+        '[fleet]\nname = "lab"\n[defaults]\ninterface = "lo"\nsimulated = true\n'
+        '[grippers.gl]\nagent = "agent-lo"\n[g1.h1]\nagent = "agent-lo"\n'
+    )
     texts_ = [
         (REPO / "inventory.toml").read_text(encoding="utf-8"),
+        inventory_text("test", 7447, 5, arms=1, extra=devices),
+        devices_only,
         inventory_text("test", 7447, 5, arms=3),
         bad_files_inventory({}),
         every_field,

@@ -78,7 +78,41 @@ def seeds() -> list[bytes]:
         m.StopReport("s1", "cli", 1, {"a1": m.StopTiming(1.0, 1.5, None)}),
         m.ContactEvent(1, 6, "confirmed", "model", 4.5, 0.75, grip=True),
     ]
+    values += device_payloads()
     return [m.encode(v) for v in values] + list(POISONS.values())[:-1] + [b'{"op":"dance"}']
+
+
+def device_payloads() -> list[msgspec.Struct]:
+    """One valid payload of every device row of the channel table (issue 28: the devices'
+    payloads and commands, which the seeds had left out)."""
+    from fleet.dex1 import messages as dex1
+    from fleet.g1 import messages as g1
+
+    gripper = dex1.GripperState(
+        stamp_ns=1, q_rad=1.0, opening_pct=15.9, dq_rad_s=0.0, tau_est=0.1,
+        temperature_c=30.0, error=0, lost=0, link="ok", target_rad=None, gripping=False,
+        estopped=False, stop_reason=None, dds_samples=3, relayed=2, bad_samples=0,
+        dds_rate_hz=500.0, family="go", mount="a1",
+    )  # fmt: skip
+    robot = g1.G1State(
+        stamp_ns=1, fsm_id=500, fsm_name="walk", fsm_mode=0, mode="static", task_id=0,
+        task_time=0.0, link="ok", estopped=False, stop_reason=None, stop_action="stop_move",
+        dds_samples=1, bad_samples=0, dds_rate_hz=100.0, service="sport",
+        service_setting="auto", service_answered=True,
+    )  # fmt: skip
+    return [
+        gripper,
+        robot,
+        dex1.GripperMove(open_pct=40.0),
+        dex1.GripperHold(),
+        dex1.GripEvent(1, "gl", "grip", 0.5, 0.2, 0.3, 0.8),
+        g1.Damp(),
+        g1.StopMove(),
+        g1.SetVelocity(vx=0.1, duration_s=2.0),
+        g1.GetFsmId(),
+        m.DeviceReply(True, "h1", None, 5, "500"),
+        m.ProcessInfo("agent", "agent-lo", "host", 7, "1.0", 1, 2, ["a1"], 9100),
+    ]
 
 
 if __name__ == "__main__":

@@ -37,6 +37,10 @@ POISONS: dict[str, bytes] = {
     "empty": b"",
 }
 """Payloads that are not valid anything, in the shapes that broke the landed code."""
+ROUTER_DROPS = frozenset({"1MiB"})
+"""Poisons the router drops before any agent sees them: over the 4 KiB limit it puts on every
+command, stop and reset key (and on heartbeats, by the fleet's size), in every security mode.
+A stop is never legitimately that large; one that is stops nothing, and nothing else happens."""
 
 STOP_ACK_BOUND_MS = 500.0
 """A stop is acted on in 1-2 ms on a quiet host; 500 ms leaves room for a loaded 2-core CI host

@@ -60,7 +60,7 @@ def test_an_agent_publishes_and_serves_only_its_own_arms(tmp_path: Path) -> None
     assert "fleet/lab/arm/a2/joints" in puts and "fleet/lab/arm/a3/contact" in puts
     assert not any("/a1/" in key for key in puts)
     served = _allowed(acl, "agent-cell2", "declare_queryable", "ingress")
-    assert served == {"fleet/lab/arm/a2/cmd/*", "fleet/lab/arm/a3/cmd/*"}
+    assert served == {"fleet/lab/arm/a2/cmd/*", "fleet/lab/arm/a3/cmd/*", "fleet/lab/info/*/*"}
 
 
 def test_identity_keys_belong_to_their_principal(tmp_path: Path) -> None:
@@ -70,7 +70,19 @@ def test_identity_keys_belong_to_their_principal(tmp_path: Path) -> None:
     assert _allowed(acl, "ann", "query", "ingress") == {
         "fleet/lab/arm/*/cmd/ann",
         "fleet/lab/coordinator/cmd/ann",
+        "fleet/lab/info/**",
     }
+
+
+def test_fleet_doctor_may_ask_every_process_who_it_is(tmp_path: Path) -> None:
+    """Issue 28, finding 9: under mTLS info/** was answered to nobody."""
+    acl = access_control(_inventory(tmp_path))
+    for person in ("ann", "viewer"):  # an operator, an observer: who runs fleet doctor
+        assert "fleet/lab/info/**" in _allowed(acl, person, "query", "ingress")
+        assert "fleet/lab/info/**" in _allowed(acl, person, "reply", "egress")
+    for process in ("agent-cell2", "coordinator", "viewer"):
+        assert "fleet/lab/info/*/*" in _allowed(acl, process, "declare_queryable", "ingress")
+        assert "fleet/lab/info/*/*" in _allowed(acl, process, "query", "egress")
 
 
 def test_observers_stop_but_never_reset_or_command(tmp_path: Path) -> None:
@@ -78,7 +90,8 @@ def test_observers_stop_but_never_reset_or_command(tmp_path: Path) -> None:
     for observer in ("viewer", "kiosk"):
         puts = _allowed(acl, observer, "put", "ingress")
         assert puts == {"fleet/lab/estop", "fleet/lab/arm/*/estop"}
-        assert not _allowed(acl, observer, "query", "ingress")
+        # no command query: only "who are you" (fleet doctor, issue 28)
+        assert _allowed(acl, observer, "query", "ingress") == {"fleet/lab/info/**"}
 
 
 def test_only_maintainers_inject_faults_into_simulated_arms(tmp_path: Path) -> None:
@@ -86,12 +99,16 @@ def test_only_maintainers_inject_faults_into_simulated_arms(tmp_path: Path) -> N
     assert "fleet/lab/arm/*/sim/fault" in _allowed(acl, "maintainer", "query", "ingress")
     assert "fleet/lab/arm/*/sim/fault" not in _allowed(acl, "ann", "query", "ingress")
     served = _allowed(acl, "sim", "declare_queryable", "ingress")
-    assert served == {"fleet/lab/arm/a1/sim/fault", "fleet/lab/arm/a2/sim/fault"}  # a3: real
+    assert served - {"fleet/lab/info/*/*"} == {
+        "fleet/lab/arm/a1/sim/fault",
+        "fleet/lab/arm/a2/sim/fault",
+    }  # a3: real
 
 
 def test_payload_limits(tmp_path: Path) -> None:
-    small, everything = payload_limits(_inventory(tmp_path))
+    small, beats, everything = payload_limits(_inventory(tmp_path))
     assert small["size_limit"] == 4096 and "fleet/lab/estop" in small["key_exprs"]
+    assert beats["key_exprs"] == ["fleet/lab/heartbeat/*"] and beats["size_limit"] < 64 * 1024
     assert everything["size_limit"] == 1 << 20 and everything["key_exprs"] == ["**"]
 
 

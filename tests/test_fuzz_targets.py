@@ -15,7 +15,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from fuzz import TARGETS, agent_plan, d1_command, keyspace
+from fuzz import TARGETS, agent_plan, d1_command, keyspace, quick
+
+QUICK_SECONDS = 2.0
+"""Per target in ``make test`` (``make fuzz`` runs them for minutes, coverage-guided)."""
 
 QUICK = settings(
     max_examples=300, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow]
@@ -112,3 +115,36 @@ def test_plan_never_lets_an_out_of_range_command_through(
 ) -> None:
     payload = json.dumps({"op": op, **fields}).encode()
     agent_plan.check(bytes([state]) + measured + payload)
+
+
+@pytest.mark.parametrize("target", TARGETS)
+def test_every_target_survives_a_short_mutation_run(target: str) -> None:
+    """Issue 28: the targets run in ``make test`` (a few seconds each, no atheris), so an
+    invariant that the product outgrew fails CI, not the next ``make fuzz``."""
+    result = quick.run_target(target, QUICK_SECONDS)
+    assert result.failure is None, f"fuzz.{target}: {result.failure}"
+    assert result.inputs > 100, result
+
+
+def test_the_seeds_cover_every_kind_of_the_product() -> None:
+    """Every payload of the channel table decodes one keyspace seed (device rows included), and
+    the inventory seeds hold a devices-only inventory and one with arms and devices."""
+    from fleet.inventory import parse_inventory
+    from fleet.wire import payloads
+    from fuzz import inventory
+
+    seeds = keyspace.seeds()
+
+    def decodes(kind: payloads.PayloadKind) -> bool:  # type: ignore[type-arg]
+        for seed in seeds:
+            try:
+                kind.decode(seed)
+            except payloads.PayloadError:
+                continue
+            return True
+        return False
+
+    assert [c.kind for c in payloads.CHANNELS.values() if not decodes(c.payload)] == []
+    parsed = [parse_inventory(s.decode(), "seed.toml") for s in inventory.seeds()]
+    assert any(i.devices and not i.arms for i in parsed)
+    assert any(i.devices and i.arms for i in parsed)

@@ -22,6 +22,7 @@ import numpy as np
 import numpy.typing as npt
 import zenoh
 
+from fleet.control import direct
 from fleet.d1.limits import JOINT_COUNT
 from fleet.devices import DeviceKind
 from fleet.guard import ThreadGuard
@@ -150,12 +151,18 @@ class ViewerFleet:
             return callback if guard is None else guard.wrap(callback, "viewer-state")
 
         on_sample = wrap(self._on_sample)
+        # Stops and resets on the receiving Zenoh thread, so the event log shows them in
+        # arrival order (fleet.control); ingest only decodes and appends under a short lock.
+        ordered = direct(on_sample)
+        control = (keys.ESTOP, keys.RESET)
         self._handles = [
-            self._session.declare_subscriber(self.keys.all_arms(channel), on_sample)
+            self._session.declare_subscriber(
+                self.keys.all_arms(channel), ordered if channel in control else on_sample
+            )
             for channel in sorted(INGESTED)
         ]
         self._handles += [
-            self._session.declare_subscriber(key, on_sample)
+            self._session.declare_subscriber(key, ordered)
             for key in (self.keys.estop, self.keys.reset)
         ]
         self._handles += [

@@ -41,11 +41,40 @@ def register(
     systemd.set_defaults(run=run_systemd)
 
 
+_C_ESCAPES = {"\\": "\\\\", '"': '\\"', "\n": "\\n", "\t": "\\t", "\r": "\\r"}
+
+
+def specifiers(value: str) -> str:
+    """``value`` with systemd's specifier and variable expansion turned off (``%`` -> ``%%``,
+    ``$`` -> ``$$``; systemd.syntax(7), systemd.service(5) "Command lines")."""
+    return value.replace("%", "%%").replace("$", "$$")
+
+
+def exec_word(value: str) -> str:
+    """One argument of ``ExecStart=``, double-quoted and escaped: spaces stay one argument,
+    ``%h`` and ``$HOME`` stay literal, a quote or backslash cannot end it, a control character
+    is a C escape (never a new line of the unit)."""
+    out = []
+    for char in specifiers(value):
+        if char in _C_ESCAPES:
+            out.append(_C_ESCAPES[char])
+        elif ord(char) < 0x20 or ord(char) == 0x7F:
+            out.append(f"\\x{ord(char):02x}")
+        else:
+            out.append(char)
+    return '"' + "".join(out) + '"'
+
+
+def plain_value(value: str) -> str:
+    """A one-line setting (``Description=``): specifiers escaped, control characters spaces."""
+    return "".join(" " if ord(c) < 0x20 or ord(c) == 0x7F else c for c in specifiers(value))
+
+
 def _unit(description: str, exec_start: list[str], user: str | None, after_router: bool) -> str:
     order = f"After=network-online.target {PREFIX}-router.service\nWants=network-online.target\n"
     lines = [
         "[Unit]",
-        f"Description=d1-fleet {description}",
+        f"Description={plain_value(f'd1-fleet {description}')}",
         order.rstrip()
         if after_router
         else "After=network-online.target\nWants=network-online.target",
@@ -54,7 +83,7 @@ def _unit(description: str, exec_start: list[str], user: str | None, after_route
         "",
         "[Service]",
         "Type=simple",
-        f"ExecStart={' '.join(exec_start)}",
+        f"ExecStart={' '.join(exec_word(arg) for arg in exec_start)}",
         "Restart=on-failure",
         "RestartSec=2",
         "KillSignal=SIGTERM",
@@ -65,7 +94,7 @@ def _unit(description: str, exec_start: list[str], user: str | None, after_route
         "Environment=PYTHONUNBUFFERED=1",
     ]
     if user:
-        lines.append(f"User={user}")
+        lines.append(f"User={plain_value(user)}")
     lines += ["", "[Install]", "WantedBy=multi-user.target", ""]
     return "\n".join(lines)
 
@@ -90,7 +119,7 @@ def units(inventory: Inventory, bin_dir: Path, user: str | None = None) -> dict[
     shared_cards = {card for card, _p in groups if sum(c == card for c, _ in groups) > 1}
     for (card, principal), served in sorted(groups.items()):
         name = re.sub(r"[^A-Za-z0-9_.-]", "_", card) or "any"
-        argv = [agent, "--interface", card or '""', *inv]
+        argv = [agent, "--interface", card, *inv]  # "" (quoted): any card
         if card in shared_cards:  # several identities on this card: one process each
             name += f"-{principal}"
             argv += ["--principal", principal]

@@ -12,6 +12,7 @@ import msgspec
 from msgspec import Struct
 
 from fleet.contact.dynamics import ArmDynamics, ModeDynamics
+from fleet.files import FileReadError, plausible, read_regular
 
 VERSION = 1
 
@@ -63,26 +64,56 @@ class Calibration(Struct, frozen=True, forbid_unknown_fields=True):
         return all(self.joint(j) is not None for j in range(joints))
 
 
+MAX_CALIBRATION_BYTES = 64 * 1024
+"""A calibration of 7 joints is about 3 KB."""
+MAX_RMS_DEG = 20.0
+"""A fit worse than this is no model at all (good fits measure 0.1-2 deg)."""
+MAX_JITTER_S = 0.5
+
+
 def load_calibration(path: Path) -> Calibration | None:
-    """The calibration in ``path``; None when there is no such file."""
+    """The calibration in ``path``; None when there is no such file. Only a regular file of
+    at most ``MAX_CALIBRATION_BYTES`` is read (a named pipe would block its reader); every
+    figure must be finite and plausible (``rms_deg = 1e300`` switched the model method off)."""
     try:
-        data = path.read_bytes()
+        data = read_regular(path, MAX_CALIBRATION_BYTES, "calibration")
     except FileNotFoundError:
         return None
-    except OSError as exc:
-        raise CalibrationError(f"{path}: cannot read the calibration ({exc})") from None
+    except FileReadError as exc:
+        raise CalibrationError(f"{exc}; re-run fleet calibrate") from None
     try:
         calibration = msgspec.json.decode(data, type=Calibration)
     except (msgspec.DecodeError, RecursionError, UnicodeDecodeError) as exc:
         raise CalibrationError(
             f"{path}: not a calibration file ({exc}); re-run fleet calibrate"
         ) from None
+    problem = implausible(calibration)
+    if problem is not None:
+        raise CalibrationError(f"{path}: {problem}; re-run fleet calibrate")
+    return calibration
+
+
+def implausible(calibration: Calibration) -> str | None:
+    """What in ``calibration`` is not finite or out of its plausible range, or None."""
+    if not plausible(calibration.feedback_jitter_s, 0.0, MAX_JITTER_S):
+        return f"feedback_jitter_s must be finite, 0..{MAX_JITTER_S}"
+    seen = set()
     for joint in calibration.joints:
+        if not 0 <= joint.joint <= 6 or joint.joint in seen:
+            return f"joint {joint.joint}: joints are 0..6, each once"
+        seen.add(joint.joint)
         for name, mode in (("mode0", joint.mode0), ("mode1", joint.mode1)):
             problem = mode.problem()
             if problem is not None:
-                raise CalibrationError(f"{path}: joint {joint.joint} {name}: {problem}")
-    return calibration
+                return f"joint {joint.joint} {name}: {problem}"
+        timing = joint.timing_rms_deg
+        if not plausible(joint.rms_deg, 0.0, MAX_RMS_DEG) or not (
+            timing is None or plausible(timing, 0.0, MAX_RMS_DEG)
+        ):
+            return (
+                f"joint {joint.joint}: rms_deg and timing_rms_deg must be finite, 0..{MAX_RMS_DEG}"
+            )
+    return None
 
 
 def save_calibration(path: Path, calibration: Calibration) -> None:

@@ -19,11 +19,11 @@ from typing import Any, Literal
 
 import zenoh
 
+from fleet.control import CONTROL_DEPTH, ControlFifo
 from fleet.devices import DeviceKind
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
 
-CONTROL_DEPTH = 1024
 REPORT_DEPTH = 4096
 
 ControlKind = Literal["token", "stop", "reset"]
@@ -67,8 +67,12 @@ class CoordinatorIntake:
         self._space = space
         self._arms = arms
         self._lock = threading.Lock()
-        self._control: deque[Control] = deque()
-        self._flooded: dict[str | None, None] = {}
+        # tokens, stops and resets: the fleet's one ordered intake (fleet.control); its
+        # subscribers' callbacks run on the receiving Zenoh thread (service.py), in order
+        self._control: ControlFifo[Control] = ControlFifo(
+            lambda arm: Control("stop", arm, why="stop request dropped at a full queue (flood)"),
+            CONTROL_DEPTH,
+        )
         self._status: dict[str, m.ArmStatus] = {}
         self._reports: deque[Report] = deque()
         self._device_states: dict[str, tuple[DeviceKind, Any]] = {}
@@ -222,12 +226,10 @@ class CoordinatorIntake:
         return states
 
     def _push_control(self, event: Control) -> None:
-        with self._lock:
-            if len(self._control) < CONTROL_DEPTH:
-                self._control.append(event)
-            elif event.kind == "stop":
-                self._flooded[event.arm] = None  # bounded: the inventory's arms and None
-            else:
+        # a stop that finds the FIFO full marks its target (bounded: the inventory and None)
+        is_stop = event.kind == "stop"
+        if not self._control.push(event, event.arm, is_stop=is_stop) and not is_stop:
+            with self._lock:
                 self.counters.dropped_events += 1
         self.wake.set()
 
@@ -235,14 +237,8 @@ class CoordinatorIntake:
 
     def take(self) -> tuple[list[Control], dict[str, m.ArmStatus], list[Report]]:
         """Everything pending, control first (stops that found the FIFO full at its end)."""
+        control = self._control.take()
         with self._lock:
-            control = list(self._control)
-            self._control.clear()
-            control += [
-                Control("stop", arm, why="stop request dropped at a full queue (flood)")
-                for arm in self._flooded
-            ]
-            self._flooded.clear()
             status, self._status = self._status, {}
             reports = list(self._reports)
             self._reports.clear()

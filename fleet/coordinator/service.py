@@ -22,6 +22,7 @@ import msgspec
 import zenoh
 
 from fleet.client import STOP_QOS, FleetClient, start_at_ns
+from fleet.control import direct
 from fleet.coordinator.contact_actions import perform
 from fleet.coordinator.contact_policy import Action, ContactPolicy
 from fleet.coordinator.desk import RequestDesk, error_reply
@@ -103,10 +104,11 @@ class Coordinator:
                 self.keys.all_arms(keys.AGENT), wrap(intake.on_token, "token"), history=True
             ),
             sub(self.keys.all_arms(keys.STATUS), wrap(intake.on_status, "status")),
-            sub(self.keys.estop, wrap(intake.on_stop(True), "estop")),
-            sub(self.keys.all_arms(keys.ESTOP), wrap(intake.on_stop(False), "estop")),
-            sub(self.keys.reset, wrap(intake.on_reset(True), "reset")),
-            sub(self.keys.all_arms(keys.RESET), wrap(intake.on_reset(False), "reset")),
+            # stops and resets on the receiving thread, in arrival order (fleet.control)
+            sub(self.keys.estop, direct(wrap(intake.on_stop(True), "estop"))),
+            sub(self.keys.all_arms(keys.ESTOP), direct(wrap(intake.on_stop(False), "estop"))),
+            sub(self.keys.reset, direct(wrap(intake.on_reset(True), "reset"))),
+            sub(self.keys.all_arms(keys.RESET), direct(wrap(intake.on_reset(False), "reset"))),
             sub(self.keys.all_arms(keys.ESTOP_ACK), wrap(intake.on_report, "estop-ack")),
             sub(self.keys.all_arms(keys.CONTACT), wrap(intake.on_report, "contact")),
             self.session.declare_queryable(

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from fleet.beat_limits import max_heartbeat_bytes
 from fleet.devices import kind_of
 from fleet.inventory import Inventory
 from fleet.security.config import Role
@@ -153,6 +154,12 @@ def _grants(inventory: Inventory, principal: str, role: Role) -> _Grants:
     if inventory.ros2_section is not None and role in ("operator", "maintainer", "observer"):
         # ROS 2 clients (RViz, the ros2 CLI) of `fleet ros2`, when the inventory has [ros2]
         _ros_reader(inventory, principal, g)
+    if role != "router":
+        # Every long-running process answers info/<role>/<instance> (fleet.observe),
+        # and fleet doctor, run as a person's principal, asks info/** for versions and clocks.
+        g.queryable = [*g.queryable, f"{f}/info/*/*"]
+        if role in ("operator", "maintainer", "observer"):
+            g.query = [*g.query, f"{f}/info/**"]
     return g
 
 
@@ -193,8 +200,9 @@ def access_control(inventory: Inventory) -> dict[str, Any]:
 
 
 def payload_limits(inventory: Inventory) -> list[dict[str, Any]]:
-    """The router's ``low_pass_filter``: small messages on command, stop and reset keys, and
-    ``max_payload_bytes`` on everything else."""
+    """The router's ``low_pass_filter`` (in every security mode): small messages on command,
+    stop and reset keys, heartbeats bounded by the fleet's size, and ``max_payload_bytes`` on
+    everything else."""
     f = f"fleet/{inventory.fleet}"
     small = [
         f"{f}/arm/*/cmd/**",
@@ -212,12 +220,19 @@ def payload_limits(inventory: Inventory) -> list[dict[str, Any]]:
     # messages over a limit, so these keys cannot stop small traffic (tests/test_router_limits.py
     # and the secure demo pass with them; the break reported with 4319b77 did not reproduce).
     messages = ["put", "delete", "query", "reply"]
+    beat = max_heartbeat_bytes(len(inventory.arms) + len(inventory.devices))
     return [
         {
             "id": "commands",
             "messages": messages,
             "key_exprs": small,
             "size_limit": SMALL_PAYLOAD_BYTES,
+        },
+        {  # a heartbeat repeats at most every unit's stop (fleet.beat_limits, issue 28)
+            "id": "heartbeats",
+            "messages": messages,
+            "key_exprs": [f"{f}/heartbeat/*"],
+            "size_limit": beat,
         },
         {
             "id": "everything",

@@ -34,8 +34,16 @@ def _write_key(path: Path, key: ec.EllipticCurvePrivateKey) -> None:
     data = key.private_bytes(
         serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()
     )
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    _write_secret(path, data)
+
+
+def _write_secret(path: Path, data: bytes) -> None:
+    """Write a key or the password file with mode 0600, also over an existing file (issue 28:
+    ``fleet certs --force`` kept a 0644 key 0644): the mode is set on the open descriptor
+    before a byte is written."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_NOFOLLOW, 0o600)
     with os.fdopen(fd, "wb") as out:
+        os.fchmod(out.fileno(), 0o600)
         out.write(data)
 
 
@@ -157,7 +165,5 @@ def make_certs(
     lines = [
         f"{p}:{known.get(p) or secrets.token_urlsafe(18)}" for p in sorted(inventory.principals)
     ]
-    fd = os.open(passwords, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-    with os.fdopen(fd, "w") as file:
-        file.write("\n".join(lines) + "\n")
+    _write_secret(passwords, ("\n".join(lines) + "\n").encode())
     return written

@@ -96,9 +96,10 @@ def router_config(
         connect=connect or [],
         credentials=credentials(inventory, ROUTER_PRINCIPAL, router=True),
     )
+    # Payload limits in every mode: an open fleet's heartbeat flood must not reach the agents.
+    config.insert_json5("low_pass_filter", json.dumps(payload_limits(inventory)))
     if inventory.security.enabled:
         config.insert_json5("access_control", json.dumps(access_control(inventory)))
-        config.insert_json5("low_pass_filter", json.dumps(payload_limits(inventory)))
         max_message = str(inventory.security.max_payload_bytes * 2)
         config.insert_json5("transport/link/rx/max_message_size", max_message)
     return config
