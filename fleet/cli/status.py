@@ -27,7 +27,7 @@ def register(
     """Add ``status`` and ``schema``."""
     status = sub.add_parser(
         "status",
-        help="one line per arm: agent, link, power, contact, calibration (calib NONE: run "
+        help="one line per arm: agent, link, power, contact, calibration (calib NONE or PART: run "
         "fleet calibrate), angles",
     )
     add_common(status)
@@ -53,7 +53,13 @@ def _contact(state: m.FleetState | None, arm: str) -> str:
     return "YES" if summary.contact else "no"
 
 
-MODEL = {"calibrated": "ok", "uncalibrated": "NONE", "untrusted": "OFF", None: "-"}
+MODEL = {
+    "calibrated": "ok",
+    "partial": "PART",
+    "uncalibrated": "NONE",
+    "untrusted": "OFF",
+    None: "-",
+}
 """The ``calib`` column: the contact detector's model of the arm (``fleet calibrate``)."""
 
 
