@@ -28,7 +28,7 @@ import pytest
 from fleet.client import FleetClient
 from fleet.inventory import load_inventory
 from tests.harness import free_port, unique_domain, wait_until
-from tests.test_demo import REPO, _alive, _children_of, _cmdline
+from tests.test_demo import REPO, _alive, _children_of, _cmdline, stop_demo
 
 ANSI = re.compile(r"\x1b\[[0-9;?]*[A-Za-z]")
 HEADER = "arm      agent"
@@ -78,13 +78,7 @@ class Terminal:
         return [ANSI.sub("", line).rstrip("\r") for line in text.split("\n")]
 
     def close(self) -> None:
-        if self.process.poll() is None:
-            self.process.send_signal(signal.SIGINT)
-            try:
-                self.process.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                self.process.kill()
-                self.process.wait(timeout=5)
+        stop_demo(self.process)
         os.close(self._master)
 
 
@@ -129,9 +123,7 @@ def test_the_demos_screen_keeps_its_block_once_and_its_log_lines_whole(
 
     wait_until(all_up, 90.0)
     player = wait_until(
-        lambda: next(
-            (p for p in _children_of(term.process.pid) if " play " in _cmdline(p)), None
-        ),
+        lambda: next((p for p in _children_of(term.process.pid) if " play " in _cmdline(p)), None),
         30.0,
     )
     acks = client.estop(reason="screen test", timeout_s=5.0)

@@ -9,7 +9,6 @@ own puts to itself locally, whatever the router decides).
 
 from __future__ import annotations
 
-import signal
 import subprocess
 import sys
 import threading
@@ -29,6 +28,7 @@ from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode
 from fleet.wire.session import Credentials, RouterUnreachable, open_client
 from tests.harness import FleetHarness, free_port, unique_domain, wait_until
+from tests.test_demo import stop_demo
 
 
 @pytest.fixture(scope="module")
@@ -275,9 +275,4 @@ def test_the_secure_demo_runs_end_to_end_and_its_printed_cli_command_works(
         rows = [line.split() for line in last.splitlines()[1:4]]
         assert [r[:3] for r in rows] == [["a1", "up", "ok"], ["a2", "up", "ok"], ["a3", "up", "ok"]]
     finally:
-        demo.send_signal(signal.SIGINT)
-        try:
-            demo.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            demo.kill()
-            demo.wait(timeout=5)
+        stop_demo(demo)
