@@ -109,7 +109,17 @@ def run_router(args: argparse.Namespace) -> int:
     if args.audit:
         zenoh.init_log_from_env_or(f"{ACL_LOG}=trace,error")
     listen, connect = args.listen or inventory.endpoints, args.connect or []
-    session = zenoh.open(router_config(inventory, listen, connect))
+    busy = [e for e in listen if not _port_free(e)]
+    if busy:
+        print(busy_message("fleet router", busy), file=sys.stderr)
+        return 3
+    try:
+        session = zenoh.open(router_config(inventory, listen, connect))
+    except zenoh.ZError as exc:  # taken between the check and the bind, or another reason
+        if "in use" not in str(exc):
+            raise
+        print(busy_message("fleet router", listen), file=sys.stderr)
+        return 3
     joined = f", joined to {', '.join(connect)}" if connect else ""
     log.info("Zenoh router listening on %s%s", ", ".join(listen), joined)
     try:
@@ -211,8 +221,21 @@ def run_coordinator(args: argparse.Namespace) -> int:
 # ----------------------------------------------------------------------------- demo
 
 
+def busy_message(command: str, endpoints: list[str]) -> str:
+    """One line for a port that is taken (no traceback): what, and what to do."""
+    return (
+        f"{command}: {', '.join(endpoints)} is in use (another router or demo?); "
+        "stop it or pass --endpoint tcp/127.0.0.1:<port>"
+    )
+
+
 def _port_free(endpoint: str) -> bool:
+    """True when ``endpoint``'s (``tcp/host:port``) port can be listened on now; an endpoint
+    of another shape (no port) is not checked here."""
     host, _, port = endpoint.split("/", 1)[-1].rpartition(":")
+    if not port.isdigit():
+        return True
+    host = host.strip("[]")
     with socket.socket() as probe:
         # As the router binds: a port whose last connections linger in TIME-WAIT (the previous
         # demo's) is free to listen on, and must not read as "in use" for a minute.
@@ -297,11 +320,7 @@ def run_demo(args: argparse.Namespace) -> int:
 def _run_demo(args: argparse.Namespace, inventory: Inventory) -> int:
     busy = [e for e in inventory.endpoints if not _port_free(e)]
     if busy:
-        print(
-            f"fleet demo: {', '.join(busy)} is in use (another router or demo?); "
-            "stop it or pass --endpoint tcp/127.0.0.1:<port>",
-            file=sys.stderr,
-        )
+        print(busy_message("fleet demo", busy), file=sys.stderr)
         return 3
     stop = shutdown_event()
     common = _common_argv(args, inventory)

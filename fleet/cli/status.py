@@ -160,7 +160,7 @@ def _as_json(snapshot: Snapshot, alive: set[str], devices: dict[str, Any] | None
 def run_status(args: argparse.Namespace) -> int:
     """Print the fleet's status; exit 3 when any arm's agent is down or its link is not ok."""
     inventory = inventory_from_args(args)
-    stop = shutdown_event()
+    stop = shutdown_event(quiet=True)
     healthy = True
     screen = Screen(sys.stdout, tty=args.watch and sys.stdout.isatty())
     with FleetClient(inventory, connect_timeout_s=args.connect_timeout) as client:
