@@ -238,3 +238,10 @@ def test_a_partly_calibrated_arm_does_not_read_calibrated() -> None:
 
     status = m.ArmStatus(stamp_ns=1, link="ok", contact_model="partial")
     assert _model_text(status).startswith("partly calibrated")
+
+
+def test_the_legend_explains_the_red_ball() -> None:
+    """The Legend lacked "red ball = error" (issue 26)."""
+    from viewer.scene import legend_html
+
+    assert "red ball" in legend_html() and "error" in legend_html()
