@@ -34,6 +34,7 @@ from fleet.contact.calibration import Calibration, CalibrationError, load_calibr
 from fleet.contact.detector import ContactChange, ContactDetector
 from fleet.contact.feed import feed_command
 from fleet.d1 import protocol as p
+from fleet.d1.limits import JOINT_COUNT
 from fleet.files import file_stamp
 from fleet.inventory import ArmConfig
 from fleet.wire import keys
@@ -76,6 +77,9 @@ class ContactEdge:
         self._paths = calibrations or {}
         self._stamps: dict[str, tuple[float, int, int] | None] = {}  # files thread only
         self._problems: dict[str, str] = {}  # guarded by lock
+        # The wire joints a loaded calibration lacks (fleet calibrate --joint J calibrates one):
+        # such an arm's model is "partial", not "calibrated" (guarded by lock).
+        self._missing: dict[str, tuple[int, ...]] = {}
         self.detectors: dict[str, ContactDetector] = {}
         self.publishers: dict[str, zenoh.Publisher] = {}
         for arm, arm_config in configs.items():
@@ -128,6 +132,11 @@ class ContactEdge:
         with self._lock:
             for arm, (calibration, problem) in (loaded or {}).items():
                 self.detectors[arm].set_calibration(calibration)
+                self._missing[arm] = (
+                    ()
+                    if calibration is None
+                    else tuple(j for j in range(JOINT_COUNT) if calibration.joint(j) is None)
+                )
                 if problem is None:
                     self._problems.pop(arm, None)
                 else:
@@ -139,15 +148,22 @@ class ContactEdge:
         """The detector's model state into the arm's tracker (caller holds the lock)."""
         sanity = detector.sanity
         tracker = slot.tracker
+        missing = self._missing.get(arm, ())
         tracker.contact_model = (
             "uncalibrated"
             if not sanity.calibrated
-            else "calibrated"
-            if sanity.trusted
             else "untrusted"
+            if not sanity.trusted
+            else "partial"
+            if missing
+            else "calibrated"
         )
+        note = sanity.note()
+        if sanity.calibrated and missing:
+            joints = " ".join(f"j{j}" for j in missing)
+            note += f"; joints {joints} not calibrated (fleet calibrate {arm})"
         problem = self._problems.get(arm)
-        tracker.contact_note = sanity.note() if problem is None else f"{sanity.note()}; {problem}"
+        tracker.contact_note = note if problem is None else f"{note}; {problem}"
         tracker.contact_free_moves = sanity.free_moves
         tracker.contact_model_error_deg = sanity.last_error_deg
 

@@ -142,13 +142,16 @@ def setup_logging_from_args(args: argparse.Namespace, role: str) -> None:
     )
 
 
-def shutdown_event() -> threading.Event:
+def shutdown_event(quiet: bool = False) -> threading.Event:
     """An Event set by SIGINT, SIGTERM or SIGHUP (its terminal closed): call from the main
-    thread."""
+    thread. A service logs the signal; ``quiet``: a command a user ends with Ctrl-C (``status
+    --watch``, ``hz``, ``echo``, ``diag``) just ends, no log line."""
     stop = threading.Event()
 
     def handler(signum: int, _frame: FrameType | None) -> None:
-        logging.getLogger("fleet").info("received %s, shutting down", signal.Signals(signum).name)
+        if not quiet:
+            name = signal.Signals(signum).name
+            logging.getLogger("fleet").info("received %s, shutting down", name)
         stop.set()
 
     signal.signal(signal.SIGINT, handler)

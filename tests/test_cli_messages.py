@@ -3,6 +3,7 @@ what to type (issue 15's first-use defects)."""
 
 from __future__ import annotations
 
+import argparse
 import fcntl
 import os
 import subprocess
@@ -78,3 +79,31 @@ def test_a_closed_pipe_is_no_traceback() -> None:
     _out, err = child.communicate(timeout=30)
     assert b"Traceback" not in err and b"BrokenPipeError" not in err, err.decode()
     assert child.returncode == 0
+
+
+def _subcommand(name: str) -> argparse.ArgumentParser:
+    parser = build_parser()
+    action = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    return action.choices[name]
+
+
+def test_the_readme_names_every_option_of_the_demo_and_replay_says_where_it_goes() -> None:
+    """The CLI table missed `--port`, `--dance`, `--foxglove` of `fleet demo`; `fleet replay`'s
+    help said "into the viewer" though it publishes on `<fleet>-replay`."""
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8")
+    row = next(line for line in readme.splitlines() if line.startswith("| `fleet demo ["))
+    shown = row.split("|")[1]
+    common = {"--inventory", "--endpoint", "--domain", "--log-level", "--log-file", "--log-format"}
+    common |= {"--help", "--connect-timeout", "--principal"}
+    options = {
+        option
+        for action in _subcommand("demo")._actions
+        for option in action.option_strings
+        if option.startswith("--")
+    }
+    missing = sorted(o for o in options - common if o not in shown)
+    assert missing == [], f"README's fleet demo row lacks {missing}"
+    parser = build_parser()
+    action = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    help_text = next(c.help for c in action._choices_actions if c.dest == "replay")
+    assert "into the viewer" not in help_text and "-replay" in help_text, help_text

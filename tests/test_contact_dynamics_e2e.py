@@ -18,7 +18,7 @@ from fleet.client import FleetClient
 from fleet.d1.limits import JOINT_RANGE_DEG
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
-from tests.harness import FleetHarness, wait_until
+from tests.harness import FleetHarness, next_diag, wait_until
 
 DYNAMICS = """
 [arms.a1.sim_dynamics]
@@ -103,7 +103,11 @@ def test_unlike_arms_move_freely_and_calibration_recovers_their_constants(
     for mode in ("mode0", "mode1"):
         assert joint[mode]["rate_deg_s"] == pytest.approx(60.0, rel=0.1), h.log("calibrate")
         assert joint[mode]["lag_s"] < 0.03 and joint[mode]["dead_s"] < 0.05
-    wait_until(lambda: client.snapshot()["a1"][0].contact_model == "calibrated", 5.0)
+    # Joint 0 only: the model is partial, never "calibrated" (it read calibrated, issue 26),
+    # and the agent's diag names the joints that are not.
+    wait_until(lambda: client.snapshot()["a1"][0].contact_model == "partial", 5.0)
+    note = next_diag(client, h.inventory.fleet, "a1").contact_model or ""
+    assert "joints j1 j2 j3 j4 j5 j6 not calibrated" in note, note
     assert _alarms(events) == []
     for sub in subs:
         sub.undeclare()

@@ -34,6 +34,17 @@ def _children_of(pid: int) -> list[int]:
     return found
 
 
+def stop_demo(process: subprocess.Popen[bytes]) -> None:
+    """Ctrl-C the demo (it stops its children), SIGKILL if it does not exit within 20 s."""
+    if process.poll() is None:
+        process.send_signal(signal.SIGINT)
+        try:
+            process.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait(timeout=5)
+
+
 def _alive(pid: int) -> bool:
     try:
         state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
@@ -66,13 +77,7 @@ def demo(tmp_path: Path) -> Iterator[tuple[subprocess.Popen[bytes], FleetClient]
         finally:
             client.close()
     finally:
-        if process.poll() is None:
-            process.send_signal(signal.SIGINT)
-            try:
-                process.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                process.wait(timeout=5)
+        stop_demo(process)
         for pid in children:
             if _alive(pid):
                 os.kill(pid, signal.SIGKILL)

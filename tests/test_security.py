@@ -21,12 +21,14 @@ import zenoh
 
 from fleet.client import FleetClient
 from fleet.heartbeat import Liveness
+from fleet.inventory import load_inventory
 from fleet.security.certs import make_certs
 from fleet.wire import keys
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode
 from fleet.wire.session import Credentials, RouterUnreachable, open_client
 from tests.harness import FleetHarness, free_port, unique_domain, wait_until
+from tests.test_demo import stop_demo
 
 
 @pytest.fixture(scope="module")
@@ -222,20 +224,55 @@ def test_password_mode_authenticates_users(tmp_path: Path) -> None:
             open_client([h.endpoint], connect_timeout_s=2.0, credentials=wrong)
 
 
-def test_the_secure_demo_runs_end_to_end(tmp_path: Path) -> None:
+def test_the_secure_demo_runs_end_to_end_and_its_printed_cli_command_works(
+    tmp_path: Path,
+) -> None:
+    """The secure demo prints its temporary inventory and a CLI command with it, and that
+    command connects (it failed with "no Zenoh router answered": no certificate); the arms'
+    calibration files are found from the temporary copy (``calib NONE`` before)."""
     port, domain = free_port(), unique_domain()
-    demo = subprocess.run(
-        [sys.executable, "-m", "fleet.cli.main", "demo", "--secure", "--no-viewer"]
-        + ["--for-s", "12", "--domain", str(domain), "--endpoint", f"tcp/127.0.0.1:{port}"]
-        + ["--inventory", str(Path(__file__).parent.parent / "inventory.toml")],
-        capture_output=True,
-        text=True,
-        timeout=90,
+    inventory = tmp_path / "inventory.toml"
+    inventory.write_text(
+        (Path(__file__).parent.parent / "inventory.toml").read_text(encoding="utf-8")
     )
-    assert demo.returncode == 0, demo.stdout[-2000:] + demo.stderr[-2000:]
-    assert f"tls/127.0.0.1:{port}" in demo.stdout
-    last = demo.stdout.rsplit("arm      agent", 1)[-1]
-    rows = [line.split() for line in last.splitlines()[1:4]]
-    assert [r[:3] for r in rows] == [["a1", "up", "ok"], ["a2", "up", "ok"], ["a3", "up", "ok"]], (
-        last
-    )
+    (tmp_path / "calibration").mkdir()
+    (tmp_path / "calibration" / "a1.json").write_text("{}")
+    out = tmp_path / "demo.out"
+    with open(out, "wb") as sink:
+        demo = subprocess.Popen(
+            [sys.executable, "-m", "fleet.cli.main", "demo", "--secure", "--no-viewer"]
+            + ["--for-s", "40", "--domain", str(domain), "--endpoint", f"tcp/127.0.0.1:{port}"]
+            + ["--inventory", str(inventory)],
+            stdout=sink,
+            stderr=subprocess.STDOUT,
+            cwd=Path(__file__).parent.parent,
+        )
+    try:
+        text = lambda: out.read_text(errors="replace")  # noqa: E731
+        try_line = wait_until(
+            lambda: next((ln for ln in text().splitlines() if ln.startswith("try: ")), None),
+            30.0,
+        )
+        assert f"tls/127.0.0.1:{port}" in try_line, text()
+        argv = try_line.removeprefix("try: ").split()
+        assert argv[0].endswith("fleet") and argv[1] == "status", try_line
+        secure = Path(argv[argv.index("--inventory") + 1])
+        assert f"{secure}" in text()  # "inventory with the certificates ...: <path>"
+        assert load_inventory(secure).calibration_path("a1").resolve() == (
+            tmp_path / "calibration" / "a1.json"
+        )
+
+        def status_ok() -> str | None:
+            run = subprocess.run(
+                [sys.executable, "-m", "fleet.cli.main", *argv[1:]],
+                capture_output=True,
+                text=True,
+                timeout=30,
+            )
+            return run.stdout if run.returncode == 0 else None
+
+        last = wait_until(status_ok, 40.0, interval_s=1.0)
+        rows = [line.split() for line in last.splitlines()[1:4]]
+        assert [r[:3] for r in rows] == [["a1", "up", "ok"], ["a2", "up", "ok"], ["a3", "up", "ok"]]
+    finally:
+        stop_demo(demo)

@@ -229,3 +229,19 @@ def test_the_legend_explains_every_colour_of_the_scene() -> None:
                       (CONTACT_RGB, "contact")):  # fmt: skip
         swatch = "#" + "".join(f"{int(c):02x}" for c in rgb)
         assert swatch in legend and f"<b>{word}</b>" in legend, (word, legend)
+
+
+def test_a_partly_calibrated_arm_does_not_read_calibrated() -> None:
+    """After ``fleet calibrate a1 --joint 0`` the arm's folder said "calibrated" (issue 26)."""
+    from fleet.wire import messages as m
+    from viewer.arm_panel import _model_text
+
+    status = m.ArmStatus(stamp_ns=1, link="ok", contact_model="partial")
+    assert _model_text(status).startswith("partly calibrated")
+
+
+def test_the_legend_explains_the_red_ball() -> None:
+    """The Legend lacked "red ball = error" (issue 26)."""
+    from viewer.scene import legend_html
+
+    assert "red ball" in legend_html() and "error" in legend_html()

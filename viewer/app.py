@@ -125,7 +125,9 @@ class Viewer:
             self.state.events,
             self.scene.fit,
             self.timeline,
-            devices=inventory is not None and bool(inventory.devices),
+            devices=None
+            if inventory is None
+            else {d: kind_of(c).key for d, c in inventory.devices.items()},
         )
         self._framed: set[int] = set()
         self.server.on_client_connect(self._on_connect)

@@ -111,6 +111,8 @@ def _model_text(status: m.ArmStatus | None) -> str:
     model = None if status is None else status.contact_model
     if model == "uncalibrated":
         return "uncalibrated (run fleet calibrate)"
+    if model == "partial":
+        return "partly calibrated: some joints are not (run fleet calibrate)"
     return model or "-"
 
 

@@ -1,18 +1,21 @@
-"""What the viewer sends: STOP ALL or one arm's stop, resets, and jog (``move_joint``) commands.
+"""What the viewer sends: STOP ALL or one arm's or device's stop, resets, jog (``move_joint``)
+commands, and device commands (the gripper's opening, the G1's damp and stop move).
 
-Jogs go through ``FleetClient.command`` on the viewer's own ``viewer-jog`` thread: a slider
-callback only records the newest target per (arm, joint) and returns (latest wins: dragging a
-slider never queues up a backlog of moves). A stop is put at once, from the caller's thread (a
-viser callback thread, never a Zenoh one), with congestion control BLOCK and priority
-REAL_TIME; the ``viewer-stop`` thread then hands it to ``FleetClient.estop``, which re-puts it
-(same ``stop_id``: agents ignore repeats) until every arm acknowledged and was seen still, and
-the operator is told which arms did not confirm.
+Jogs and device commands go through ``FleetClient.command`` / ``device_command`` on the
+viewer's own ``viewer-jog`` thread: a GUI callback only records the newest target per (arm,
+joint) or per device and returns (latest wins: dragging a slider never queues up a backlog of
+moves). Both carry the viewer's ``owner``, so they take the arm's or device's lease.
+
+A stop is put at once, from the caller's thread (a viser callback thread, never a Zenoh one), with
+congestion control BLOCK and priority REAL_TIME; the ``viewer-stop`` thread then hands it to
+``FleetClient.estop``, which re-puts it (same ``stop_id``: agents ignore repeats) until every arm
+acknowledged and was seen still, and the operator is told which arms did not confirm.
 
 Every command leaves through one ``FleetClient`` built on the viewer's inventory, so it acts as
 the viewer's principal (``inventory.principal``: ``viewer`` unless ``--principal`` says
 otherwise; jogs go to ``arm/<arm>/cmd/<principal>``). A *read-only* viewer (``--read-only``, or
 a principal whose role may not command: the default ``viewer`` is an ``observer``) may only
-stop: ``jog`` and ``reset_all`` refuse here, whatever the browser sends.
+stop: ``jog``, ``device`` and ``reset`` refuse here, whatever the browser sends.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ import threading
 import time
 from collections.abc import Callable
 
+import msgspec
 import zenoh
 
 from fleet.client import FleetClient
@@ -75,6 +79,15 @@ def jog_target(
     return clamp_to_limits(joint, measured_deg + step, ranges)
 
 
+DEVICE = -1
+"""The slot of a device's pending command (an arm's slots are its joints)."""
+
+
+def device_op(command: m.DeviceCommand) -> str:
+    """The ``op`` of a device command (``move``, ``damp``, ...)."""
+    return str(type(command).__struct_config__.tag)
+
+
 class Commander:
     """The viewer's outgoing side on the key space. A context manager; ``close()`` idempotent."""
 
@@ -93,7 +106,8 @@ class Commander:
         self.refusals = Refusals(log)
         self._notify = notify
         self._lock = threading.Lock()  # guards _pending only
-        self._pending: dict[tuple[str, int], float] = {}
+        # (arm, joint) -> its jog target; (device, DEVICE) -> the device's newest command
+        self._pending: dict[tuple[str, int], m.MoveJoint | m.DeviceCommand] = {}
         self._last_jog_s: dict[str, float] = {}
         # The viewer moves arms as an owner like any other: its jogs take the arm's lease, so a
         # script cannot move the arm under the operator's hand (nor the viewer under a script's).
@@ -115,20 +129,26 @@ class Commander:
 
     def stop(self, arm: str | None = None, reason: str = "") -> m.StopRequest:
         """Put a StopRequest for ``arm`` (None: every arm) now; its repeats and confirmation
-        follow on the ``viewer-stop`` thread. Drops pending jogs (of that arm)."""
-        where = "every arm" if arm is None else arm
+        follow on the ``viewer-stop`` thread. Drops pending jogs and device commands (of that arm
+        or device, and of the devices mounted on that arm)."""
+        where = "every arm and device" if arm is None else arm
         reason = reason or f"{'STOP ALL' if arm is None else 'stop ' + arm} pressed in the viewer"
+        devices = self.client.inventory.devices
+        # An arm's stop stops what is mounted on it: its pending commands go too.
+        mounted = {d for d, c in devices.items() if getattr(c, "mount", "") == arm}
         with self._lock:
-            for key in [k for k in self._pending if arm is None or k[0] == arm]:
+            for key in [k for k in self._pending if arm is None or k[0] in {arm, *mounted}]:
                 del self._pending[key]
         request = self.client.stop_request(reason, source="viewer")
+        # estop/put_stop take an arm or a device id (a device's stop: its own key only)
         self.client.put_stop(request, arm)
         self._stops.put((request, arm))
         log.warning("stop of %s sent (stop_id %s)", where, request.stop_id)
         return request
 
     def reset(self, arm: str | None = None) -> bool:
-        """Put a ResetRequest for ``arm`` (None: every arm; the operator confirmed it); False,
+        """Put a ResetRequest for ``arm`` (an arm or a device id; None: every arm and device;
+        the operator confirmed it); False,
         sending nothing, when the viewer is read-only."""
         if self._refused("reset"):
             return False
@@ -162,7 +182,7 @@ class Commander:
                     True,
                 )
             else:
-                every = "every arm" if arm is None else arm
+                every = "every arm and device" if arm is None else arm
                 self._notify(title, f"{every} acknowledged and is still", False)
 
     # ------------------------------------------------------------------ jog
@@ -177,9 +197,24 @@ class Commander:
         viewer is read-only."""
         if self._refused("jog"):
             return False
+        ranges = self.joint_ranges(arm)
+        target = jog_target(joint, angle_deg, measured_deg, ranges)
         with self._lock:
-            ranges = self.joint_ranges(arm)
-            self._pending[(arm, joint)] = jog_target(joint, angle_deg, measured_deg, ranges)
+            self._pending[(arm, joint)] = m.MoveJoint(
+                joint=joint, angle_deg=target, owner=self.owner
+            )
+        self._wake.set()
+        return True
+
+    def device(self, device: str, command: m.DeviceCommand) -> bool:
+        """Send ``command`` (a kind's command Struct) to ``device`` under the viewer's lease
+        (its ``owner``); returns at once, the newest command per device wins. False, sending
+        nothing, when the viewer is read-only."""
+        if self._refused(device_op(command)):
+            return False
+        self.client.inventory.device(device)  # unknown device: InventoryError, now
+        with self._lock:
+            self._pending[(device, DEVICE)] = msgspec.structs.replace(command, owner=self.owner)
         self._wake.set()
         return True
 
@@ -195,25 +230,42 @@ class Commander:
                     del self._pending[key]
                 if self._pending:
                     self._wake.set()  # the rest when their arm's interval has passed
-            for (arm, joint), angle in due.items():
+            for (unit, _slot), command in due.items():
                 if self._closing.is_set():
                     return
-                self._last_jog_s[arm] = now
-                self._send_jog(arm, joint, angle)
+                with self._lock:
+                    self._last_jog_s[unit] = now
+                if isinstance(command, m.MoveJoint):
+                    self._send_jog(unit, command)
+                else:
+                    self._send_device(unit, command)
             if self._pending:
                 time.sleep(JOG_INTERVAL_S / 5)
+
+    def sent_to(self, unit: str) -> bool:
+        """True once a jog or device command left for ``unit`` (arm or device)."""
+        with self._lock:
+            return unit in self._last_jog_s
 
     def _jog_due(self, arm: str, now: float) -> bool:
         return now - self._last_jog_s.get(arm, -JOG_INTERVAL_S) >= JOG_INTERVAL_S
 
-    def _send_jog(self, arm: str, joint: int, angle_deg: float) -> None:
-        command = m.MoveJoint(joint=joint, angle_deg=angle_deg, owner=self.owner)
+    def _send_jog(self, arm: str, command: m.MoveJoint) -> None:
         reply = self.client.command(arm, command)
         if reply.ok:
             return
         why = reply.error.message if reply.error else "refused"
+        joint, angle_deg = command.joint, command.angle_deg
         log.warning("jog of %s joint %d to %.1f deg failed: %s", arm, joint, angle_deg, why)
         self._notify(f"{arm}: move_joint {joint} failed", why, True)
+
+    def _send_device(self, device: str, command: m.DeviceCommand) -> None:
+        reply = self.client.device_command(device, command)
+        if reply.ok:
+            return
+        why = reply.error.message if reply.error else "refused"
+        log.warning("%s of %s failed: %s", device_op(command), device, why)
+        self._notify(f"{device}: {device_op(command)} failed", why, True)
 
     # ------------------------------------------------------------------ lifecycle
 

@@ -1,23 +1,24 @@
 """The GUI panels: STOP ALL, reset (confirmed), "Fit view", the fleet table, the event log, the
-legend, and one folder per arm (viewer/arm_panel.py); in a replay, the timeline instead of every
-command control (viewer/replay_panel.py).
+legend, one folder per arm (viewer/arm_panel.py) and one per device in the Devices folder
+(viewer/device_panel.py); in a replay, the timeline instead of every command control
+(viewer/replay_panel.py).
 
 ``update(snapshot)`` runs on the viewer thread at the panel rate and only sends what changed.
 GUI callbacks run on viser's threads: they call ``Commander`` methods, which return at once.
 
-A read-only viewer (``commander.read_only``) shows STOP ALL and each arm's stop, the table and
-the readouts, and builds no reset button and no sliders; the commander refuses resets and jogs
-anyway. A reset (fleet or one arm) needs both steps on the server (viewer/confirm.py), not only
-the browser's dialog. A replay (no commander) builds no command control at all. The share
-button (a public tunnel) is hidden; viewer/server.py refuses the request behind it.
-"""
+A read-only viewer (``commander.read_only``) shows STOP ALL and each arm's and device's stop, the
+tables and the readouts, and builds no reset button, no sliders and no device controls; the
+commander refuses resets, jogs and device commands anyway. A reset (fleet or one arm) needs both
+steps on the server (viewer/confirm.py), not only the browser's dialog. A replay (no commander)
+builds no command control at all. The share button (a public tunnel) is hidden; viewer/server.py
+refuses the request behind it."""
 
 from __future__ import annotations
 
 import html
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 
 import numpy as np
 import viser
@@ -34,6 +35,7 @@ from viewer.arm_panel import (
 )
 from viewer.commands import Commander
 from viewer.confirm import FLEET, Confirmations
+from viewer.device_panel import DevicePanel
 from viewer.events import EventLog
 from viewer.refusals import Refusals
 from viewer.replay import ReplayTimeline
@@ -172,7 +174,8 @@ class FleetTable:
 class FleetPanels:
     """Every GUI element of the viewer (shared by all browsers). ``commander`` None: a replay
     (``timeline`` drives it); ``fit(client)`` frames the fleet in that browser; ``devices``:
-    the fleet has devices beside its arms (a "Devices" table)."""
+    device id -> its kind's key, the devices beside the arms (a "Devices" table and folder
+    each)."""
 
     def __init__(
         self,
@@ -182,7 +185,7 @@ class FleetPanels:
         events: EventLog,
         fit: Callable[[viser.ClientHandle], None] | None = None,
         timeline: ReplayTimeline | None = None,
-        devices: bool = False,
+        devices: Mapping[str, str] | None = None,
     ) -> None:
         self.server = server
         self.commander = commander
@@ -202,7 +205,7 @@ class FleetPanels:
                 "STOP ALL",
                 color="red",
                 icon=viser.Icon.HAND_STOP,
-                hint="protective stop, every arm",
+                hint="protective stop, every arm and device",
             )
             self.stop_button.on_click(lambda _e: self._on_stop(None))
             if self.read_only:
@@ -226,15 +229,20 @@ class FleetPanels:
             self.table = gui.add_html("")
         self.devices_table = None
         self.devices_text = ""
+        self.device_panels: dict[str, DevicePanel] = {}
+        controls = ArmControls.for_viewer(commander)
         if devices:
             with gui.add_folder("Devices"):
                 self.devices_table = gui.add_html("")
+                for device, kind in devices.items():
+                    self.device_panels[device] = DevicePanel(
+                        gui, device, kind, commander, controls, self._on_stop, self._on_reset
+                    )
         with gui.add_folder("Events"):
             self.event_log = gui.add_html(events.html())
         with gui.add_folder("Legend", expand_by_default=False):
             gui.add_html(legend_html())
         plot_on = len(self.arms) <= PLOTS_ON_BY_DEFAULT_UP_TO
-        controls = ArmControls.for_viewer(commander)
         self.arm_panels = [
             ArmPanel(gui, arm, commander, plot_on, controls, self._on_stop, self._on_reset)
             for arm in self.arms
@@ -258,15 +266,18 @@ class FleetPanels:
         target = FLEET if arm is None else arm
         nonce = self.confirmations.request(client.client_id, target)
         title = "Reset the fleet's stop?" if arm is None else f"Reset the stop of {arm}?"
-        whose = "of **every** arm" if arm is None else f"of **{arm}** only"
+        whose = "of **every** arm and device" if arm is None else f"of **{arm}** only"
+        if arm is not None and arm not in self.device_panels:
+            whose += " (and of what is mounted on it)"
         with client.gui.add_modal(title) as modal:
             client.gui.add_markdown(
                 f"Releases the latched stop {whose}. It does not move anything: each arm holds "
-                "its measured pose until someone commands it (the demo's dance does not start "
-                "again by itself). Check the cell is clear first."
+                "its measured pose and each device stays where it is until someone commands it "
+                "(the demo's dance does not start again by itself). Check the cell is clear "
+                "first."
             )
             confirm = client.gui.add_button(
-                "Reset every arm" if arm is None else f"Reset {arm}", color="red"
+                "Reset every arm and device" if arm is None else f"Reset {arm}", color="red"
             )
             cancel = client.gui.add_button("Cancel")
 
@@ -326,6 +337,10 @@ class FleetPanels:
             if text != self.devices_text:
                 self.devices_text = text
                 self.devices_table.content = text
+            for view in snapshot.devices:
+                panel = self.device_panels.get(view.device)
+                if panel is not None:
+                    panel.update(view)
         if self.events.version != self.events_version:
             self.events_version = self.events.version
             self.event_log.content = self.events.html()

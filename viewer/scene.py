@@ -71,11 +71,15 @@ def tinted(rgb: tuple[int, int, int], code: npt.NDArray[np.int8]) -> npt.NDArray
     return np.clip(out, 0, 255).astype(np.uint8)
 
 
+ERROR_RGB = (230, 20, 20)
+"""The ball above an arm in error."""
+
 LEGEND = (
     (STALE_RGB, "stale", f"no joints for {STALE_S:g} s, or the agent reports the link not ok"),
     (OFFLINE_RGB, "OFFLINE", "the arm's agent is gone (its liveliness token vanished)"),
     (STOP_RGB, "STOPPED", "a protective stop is latched: only a reset releases it"),
     (CONTACT_RGB, "contact", "that link's joint is in confirmed contact (amber, any look)"),
+    (ERROR_RGB, "red ball", "above an arm: the arm reports an error (its label says ERROR)"),
 )
 
 
@@ -178,7 +182,7 @@ class FleetScene:
             batched_wxyzs=np.tile([1.0, 0.0, 0.0, 0.0], (n, 1)),
             batched_positions=top,
             batched_scales=np.zeros(n),
-            batched_colors=(230, 20, 20),
+            batched_colors=ERROR_RGB,
             lod="off",
         )
         self._labels = [

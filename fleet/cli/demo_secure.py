@@ -3,6 +3,9 @@
 The demo's inventory is copied into a temporary directory with a ``[security]`` section added
 (mode ``mtls``, certificates in that directory, made by ``fleet certs``), and every process
 connects on ``tls/`` endpoints. The directory, keys included, is removed when the demo ends.
+The demo prints the copy's path: the CLI needs it (``--inventory``) to connect with a
+certificate. The arms' calibration files, relative to the inventory's folder, are reached
+through links in the directory to the original folder's (``fleet calibrate`` writes there too).
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ def secure_demo_inventory(
     else:
         certs = workdir / "certs"
         secure_text = f'{text}\n[security]\nmode = "mtls"\ncerts = "{certs}"\n'
+    _link_calibrations(inventory, workdir)
     path = workdir / "inventory.toml"
     path.write_text(secure_text, encoding="utf-8")
     args.inventory = str(path)
@@ -35,3 +39,19 @@ def secure_demo_inventory(
     secure = load_inventory(path).with_domain(inventory.domain_id).with_endpoints(args.endpoint)
     make_certs(secure, secure.security.certs, days=2)
     return secure.with_principal(inventory.principal)
+
+
+def _link_calibrations(inventory: Inventory, workdir: Path) -> None:
+    """Link each folder (or file) holding an arm's calibration, relative to the inventory's
+    folder, from ``workdir`` to the original (made if missing, as ``fleet calibrate`` would)."""
+    origin = Path(inventory.path).parent.resolve()
+    for arm in inventory.arms:
+        relative = Path(inventory.arm(arm).calibration or f"calibration/{arm}.json")
+        if relative.is_absolute():
+            continue
+        top = relative.parts[0]
+        link, target = workdir / top, origin / top
+        if len(relative.parts) > 1:
+            target.mkdir(parents=True, exist_ok=True)
+        if not link.exists() and not link.is_symlink():
+            link.symlink_to(target)

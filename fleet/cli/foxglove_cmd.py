@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import sys
 from collections.abc import Callable
 from typing import Any
 
@@ -30,9 +31,17 @@ def register(
 
 def run_foxglove(args: argparse.Namespace) -> int:
     """Bridge the fleet to Foxglove until SIGINT/SIGTERM."""
+    from fleet.cli.processes import _port_free
     from viewer.foxglove_bridge import FoxgloveBridge  # foxglove-sdk loads only here
 
     inventory = inventory_from_args(args, "viewer")
+    if not _port_free(f"tcp/{args.host}:{args.port}"):
+        print(
+            f"fleet foxglove: port {args.port} on {args.host} is in use (another fleet "
+            "foxglove, or a demo's --foxglove?); stop it or pass --port <another>",
+            file=sys.stderr,
+        )
+        return 3
     stop = shutdown_event()
     with FoxgloveBridge(inventory, args.host, args.port) as bridge:
         print(

@@ -7,6 +7,7 @@ import ctypes
 import logging
 import os
 import random
+import shutil
 import signal
 import socket
 import subprocess
@@ -22,6 +23,7 @@ from typing import Any
 import zenoh
 
 from fleet.cli.demo_secure import secure_demo_inventory
+from fleet.cli.screen import LogStream, Screen
 from fleet.cli.supervise import Supervisor
 from fleet.client import FleetClient
 from fleet.guard import EXIT_THREAD_FAILED, ThreadGuard
@@ -112,7 +114,17 @@ def run_router(args: argparse.Namespace) -> int:
     if args.audit:
         zenoh.init_log_from_env_or(f"{ACL_LOG}=trace,error")
     listen, connect = args.listen or inventory.endpoints, args.connect or []
-    session = zenoh.open(router_config(inventory, listen, connect))
+    busy = [e for e in listen if not _port_free(e)]
+    if busy:
+        print(busy_message("fleet router", busy), file=sys.stderr)
+        return 3
+    try:
+        session = zenoh.open(router_config(inventory, listen, connect))
+    except zenoh.ZError as exc:  # taken between the check and the bind, or another reason
+        if "in use" not in str(exc):
+            raise
+        print(busy_message("fleet router", listen), file=sys.stderr)
+        return 3
     joined = f", joined to {', '.join(connect)}" if connect else ""
     log.info("Zenoh router listening on %s%s", ", ".join(listen), joined)
     try:
@@ -214,8 +226,21 @@ def run_coordinator(args: argparse.Namespace) -> int:
 # ----------------------------------------------------------------------------- demo
 
 
+def busy_message(command: str, endpoints: list[str]) -> str:
+    """One line for a port that is taken (no traceback): what, and what to do."""
+    return (
+        f"{command}: {', '.join(endpoints)} is in use (another router or demo?); "
+        "stop it or pass --endpoint tcp/127.0.0.1:<port>"
+    )
+
+
 def _port_free(endpoint: str) -> bool:
+    """True when ``endpoint``'s (``tcp/host:port``) port can be listened on now; an endpoint
+    of another shape (no port) is not checked here."""
     host, _, port = endpoint.split("/", 1)[-1].rpartition(":")
+    if not port.isdigit():
+        return True
+    host = host.strip("[]")
     with socket.socket() as probe:
         # As the router binds: a port whose last connections linger in TIME-WAIT (the previous
         # demo's) is free to listen on, and must not read as "in use" for a minute.
@@ -246,6 +271,27 @@ def _spawn(argv: list[str], **options: Any) -> subprocess.Popen[Any]:
     return subprocess.Popen(
         [sys.executable, *argv], preexec_fn=_die_with_parent(os.getpid()), **options
     )
+
+
+class _Children:
+    """Spawns the demo's children with their output (stdout and stderr, line by line) piped
+    through the demo's screen, above the status block; remembers the viewer's URL line."""
+
+    def __init__(self, screen: Screen) -> None:
+        self.screen = screen
+        self.urls: list[str] = []
+
+    def spawn(self, argv: list[str], **_options: Any) -> subprocess.Popen[Any]:
+        process = _spawn(
+            argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, errors="replace"
+        )
+        self.screen.follow(process, self._look_for_url)
+        return process
+
+    def _look_for_url(self, line: str) -> None:
+        # The viewer's own line (viser prints its token-less address first).
+        if "d1-fleet viewer: http://" in line:
+            self.urls.append(line.split("d1-fleet viewer: ", 1)[1].split()[0])
 
 
 def _common_argv(args: argparse.Namespace, inventory: Inventory) -> list[str]:
@@ -279,15 +325,13 @@ def run_demo(args: argparse.Namespace) -> int:
 def _run_demo(args: argparse.Namespace, inventory: Inventory) -> int:
     busy = [e for e in inventory.endpoints if not _port_free(e)]
     if busy:
-        print(
-            f"fleet demo: {', '.join(busy)} is in use (another router or demo?); "
-            "stop it or pass --endpoint tcp/127.0.0.1:<port>",
-            file=sys.stderr,
-        )
+        print(busy_message("fleet demo", busy), file=sys.stderr)
         return 3
     stop = shutdown_event()
     common = _common_argv(args, inventory)
-    supervisor = Supervisor(_spawn)
+    screen = Screen(sys.stdout)
+    spawner = _Children(screen)
+    supervisor = Supervisor(spawner.spawn, say=screen.log)
     supervisor.start("router", ["-m", "fleet.cli.main", "router", *common])
     children: list[subprocess.Popen[Any]] = []
     gave_up = None
@@ -306,7 +350,7 @@ def _run_demo(args: argparse.Namespace, inventory: Inventory) -> int:
             # operator does, with the command printed below). Not watched like the others: the
             # fleet is fine without it.
             dance = ["play", args.dance, "--loops", "0", "--quiet", "--ready-s", "30"]
-            children.append(_spawn(["-m", "fleet.cli.main", *dance, *common]))
+            children.append(spawner.spawn(["-m", "fleet.cli.main", *dance, *common]))
         if args.foxglove is not None:
             fox = ["-m", "fleet.cli.main", "foxglove", "--port", str(args.foxglove), *common]
             supervisor.start("foxglove", fox)
@@ -319,33 +363,11 @@ def _run_demo(args: argparse.Namespace, inventory: Inventory) -> int:
             viewer_argv = ["-m", "fleet.cli.main", "viewer", "--port", str(args.port)]
             viewer_argv += ["--principal", "operator", *common]
             # (A restarted viewer prints its new URL on the demo's own output.)
-            viewer = supervisor.start("viewer", viewer_argv, stdout=subprocess.PIPE, text=True)
-            url = _viewer_url(viewer)
-        print(
-            f"d1-fleet demo: fleet {inventory.fleet!r}, DDS domain {inventory.domain_id}, "
-            f"Zenoh router on {', '.join(inventory.endpoints)}\n"
-            f"viewer: {url}\n"
-            + (
-                ""
-                if args.foxglove is None
-                else f"foxglove: ws://127.0.0.1:{args.foxglove} (Open connection in Foxglove)\n"
-            )
-            + (
-                f"ros2: ROS_DOMAIN_ID={inventory.ros2.domain_id}, stop service "
-                f"/{inventory.fleet}/estop (rmw_zenoh, router {inventory.endpoints[0]})\n"
-                if args.ros2
-                else ""
-            )
-            + (
-                ""
-                if args.no_dance
-                else "a stop ends the dance; after the reset, start it again with: fleet play "
-                f"{args.dance} --loops 0 --endpoint {inventory.endpoints[0]}\n"
-            )
-            + "Ctrl-C stops the demo",
-            flush=True,
-        )
-        gave_up = _print_status_until(stop, inventory, args.for_s, supervisor)
+            viewer = supervisor.start("viewer", viewer_argv)
+            url = _viewer_url(viewer, spawner.urls)
+        for line in _intro(args, inventory, url):
+            screen.log(line)
+        gave_up = _print_status_until(stop, inventory, args.for_s, supervisor, screen, children)
     finally:
         _stop_children([*supervisor.processes(), *children])
     if gave_up is not None:
@@ -354,47 +376,90 @@ def _run_demo(args: argparse.Namespace, inventory: Inventory) -> int:
     return 0
 
 
-def _viewer_url(viewer: subprocess.Popen[str], timeout_s: float = 30.0) -> str:
+def fleet_command() -> str:
+    """How to type ``fleet`` in this shell: ``fleet`` when it is on PATH (the same one),
+    else the path of the one beside this Python (``.venv/bin/fleet`` after ``make demo``)."""
+    beside = Path(sys.executable).parent / "fleet"
+    found = shutil.which("fleet")
+    if not beside.exists() or (found is not None and Path(found).resolve() == beside.resolve()):
+        return "fleet"
+    try:
+        return str(beside.relative_to(Path.cwd()))
+    except ValueError:
+        return str(beside)
+
+
+def _intro(args: argparse.Namespace, inventory: Inventory, url: str) -> list[str]:
+    """What the demo prints once, above its status block: where things are, how to use them."""
+    fleet = fleet_command()
+    # The CLI needs the demo's inventory when it is not the one the CLI finds by default (the
+    # secure demo's temporary copy names the certificates), and its router's endpoint.
+    common = f"--inventory {args.inventory} --endpoint {inventory.endpoints[0]}"
+    lines = [
+        f"d1-fleet demo: fleet {inventory.fleet!r}, DDS domain {inventory.domain_id}, "
+        f"Zenoh router on {', '.join(inventory.endpoints)}",
+        f"viewer: {url}",
+    ]
+    if args.foxglove is not None:
+        lines.append(f"foxglove: ws://127.0.0.1:{args.foxglove} (Open connection in Foxglove)")
+    if args.ros2:
+        lines.append(
+            f"ros2: ROS_DOMAIN_ID={inventory.ros2.domain_id}, stop service "
+            f"/{inventory.fleet}/estop (rmw_zenoh, router {inventory.endpoints[0]})"
+        )
+    if args.secure:
+        lines.append(
+            f"inventory with the certificates (removed when the demo ends): {args.inventory}"
+        )
+    lines.append(f"try: {fleet} status {common}")
+    if not args.no_dance:
+        lines.append(
+            f"a stop ends the dance; after the reset, start it again with: {fleet} play "
+            f"{args.dance} --loops 0 {common}"
+        )
+    lines.append("Ctrl-C stops the demo")
+    return lines
+
+
+def _viewer_url(viewer: subprocess.Popen[Any], urls: list[str], timeout_s: float = 30.0) -> str:
     """The URL the viewer prints once it serves (it may move to another port if busy)."""
-    found: list[str] = []
-
-    def read() -> None:
-        assert viewer.stdout is not None
-        for line in viewer.stdout:
-            # The viewer's own line (viser prints its token-less address first).
-            if "d1-fleet viewer: http://" in line and not found:
-                found.append(line.split("d1-fleet viewer: ", 1)[1].split()[0])
-            # keep draining so the viewer never blocks on a full pipe
-
-    threading.Thread(target=read, name="viewer-stdout", daemon=True).start()
     deadline = time.monotonic() + timeout_s
-    while not found and time.monotonic() < deadline and viewer.poll() is None:
+    while not urls and time.monotonic() < deadline and viewer.poll() is None:
         time.sleep(0.1)
-    return found[0] if found else "did not start (see its log above)"
+    return urls[0] if urls else "did not start (see its log above)"
 
 
 def _print_status_until(
-    stop: threading.Event, inventory: Inventory, for_s: float | None, supervisor: Supervisor
+    stop: threading.Event,
+    inventory: Inventory,
+    for_s: float | None,
+    supervisor: Supervisor,
+    screen: Screen,
+    children: list[subprocess.Popen[Any]],
 ) -> str | None:
-    """Print the status block once a second and keep the children running; why the demo gave
-    up on a child, or None."""
+    """Draw the status block once a second (log lines above it) and keep the children running;
+    why the demo gave up on a child, or None."""
     from fleet.cli.status import device_lines, status_lines
 
     deadline = None if for_s is None else time.monotonic() + for_s
-    printed = 0
-    with FleetClient(inventory) as client:
-        while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
-            gave_up = supervisor.check(time.monotonic())
-            if gave_up is not None:
-                return gave_up
-            snapshot, alive = client.snapshot(wait_s=1.0), client.agents_alive()
-            lines = status_lines(inventory, snapshot, alive, client.fleet_state(wait_s=0.3))
-            lines += device_lines(inventory, client.device_snapshot(wait_s=0.3))
-            if printed and sys.stdout.isatty():
-                print(f"\033[{printed}F", end="")  # redraw the block in place
-            print("\n".join(lines), flush=True)
-            printed = len(lines)
-            stop.wait(1.0)
+    # The demo's own logging goes above the block too (its handler writes to sys.stderr).
+    stderr, sys.stderr = sys.stderr, LogStream(screen)
+    try:
+        with FleetClient(inventory) as client:
+            while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
+                gave_up = supervisor.check(time.monotonic())
+                if gave_up is not None:
+                    return gave_up
+                for child in children:
+                    child.poll()  # reap a player that ended (a stop ends the dance): no zombie
+                snapshot, alive = client.snapshot(wait_s=1.0), client.agents_alive()
+                state = client.fleet_state(wait_s=0.3)
+                lines = status_lines(inventory, snapshot, alive, state, screen.width())
+                lines += device_lines(inventory, client.device_snapshot(wait_s=0.3))
+                screen.draw(lines)
+                stop.wait(1.0)
+    finally:
+        sys.stderr = stderr
     return None
 
 

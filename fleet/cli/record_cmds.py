@@ -28,7 +28,11 @@ def register(
     record.add_argument("--for-s", type=float, default=None, help="stop after this many seconds")
     record.set_defaults(run=run_record)
 
-    replay = sub.add_parser("replay", help="play a recording into the viewer, or onto an arm")
+    replay = sub.add_parser(
+        "replay",
+        help="publish a recording on the read-only fleet <fleet>-replay (`fleet viewer --replay "
+        "FILE` shows a file in the viewer), or drive one arm with it (--onto)",
+    )
     add_common(replay)
     replay.add_argument("file", help="an MCAP file written by `fleet record`")
     replay.add_argument(

@@ -10,6 +10,7 @@ from typing import Any
 
 import msgspec
 
+from fleet.cli.screen import Screen
 from fleet.client import FleetClient
 from fleet.devices import kinds
 from fleet.inventory import Inventory
@@ -26,7 +27,7 @@ def register(
     """Add ``status`` and ``schema``."""
     status = sub.add_parser(
         "status",
-        help="one line per arm: agent, link, power, contact, calibration (calib NONE: run "
+        help="one line per arm: agent, link, power, contact, calibration (calib NONE or PART: run "
         "fleet calibrate), angles",
     )
     add_common(status)
@@ -52,38 +53,71 @@ def _contact(state: m.FleetState | None, arm: str) -> str:
     return "YES" if summary.contact else "no"
 
 
-MODEL = {"calibrated": "ok", "uncalibrated": "NONE", "untrusted": "OFF", None: "-"}
+MODEL = {
+    "calibrated": "ok",
+    "partial": "PART",
+    "uncalibrated": "NONE",
+    "untrusted": "OFF",
+    None: "-",
+}
 """The ``calib`` column: the contact detector's model of the arm (``fleet calibrate``)."""
 
 
 def status_lines(
-    inventory: Inventory, snapshot: Snapshot, alive: set[str], state: m.FleetState | None = None
+    inventory: Inventory,
+    snapshot: Snapshot,
+    alive: set[str],
+    state: m.FleetState | None = None,
+    width: int | None = None,
 ) -> list[str]:
-    """A header and one fixed-width line per arm (the stop's reason under a stopped arm)."""
-    lines = [
+    """A header and one fixed-width line per arm (the stop's reason under a stopped arm). With
+    ``width`` (a terminal's) narrower than a whole line, each arm's angles fold onto a line of
+    their own below it."""
+    head = (
         f"{'arm':<8} {'agent':<7} {'link':<6} {'power':<6} {'torque':<7} {'error':<6} "
-        f"{'stop':<5} {'contact':<7} {'calib':<5} {'age_s':>6}  angles_deg"
-    ]
+        f"{'stop':<5} {'contact':<7} {'calib':<5} {'age_s':>6}"
+    )
+    rows: list[tuple[str, str]] = []
+    reasons: dict[str, str] = {}
     for arm in inventory.arms:
         status, joints = snapshot.get(arm, (None, None))
         agent = "up" if arm in alive else "DOWN"
         contact = _contact(state, arm)
         if status is None:
-            lines.append(
-                f"{arm:<8} {agent:<7} {'-':<6} {'-':<6} {'-':<7} {'-':<6} {'-':<5} "
-                f"{contact:<7} {'-':<5} {'-':>6}  -"
+            rows.append(
+                (
+                    arm,
+                    f"{arm:<8} {agent:<7} {'-':<6} {'-':<6} {'-':<7} {'-':<6} {'-':<5} "
+                    f"{contact:<7} {'-':<5} {'-':>6}",
+                )
             )
             continue
         age = "-" if status.feedback_age_s is None else f"{status.feedback_age_s:.2f}"
-        angles = "-" if joints is None else " ".join(f"{a:7.1f}" for a in joints.angles_deg)
-        lines.append(
-            f"{arm:<8} {agent:<7} {status.link:<6} {_flag(status.powered, 'on', 'off'):<6} "
-            f"{_flag(status.enabled, 'on', 'free'):<7} {_flag(status.error, 'ERROR', 'ok'):<6} "
-            f"{'YES' if status.estopped else 'no':<5} {contact:<7} "
-            f"{MODEL[status.contact_model]:<5} {age:>6}  {angles}"
+        rows.append(
+            (
+                arm,
+                f"{arm:<8} {agent:<7} {status.link:<6} {_flag(status.powered, 'on', 'off'):<6} "
+                f"{_flag(status.enabled, 'on', 'free'):<7} {_flag(status.error, 'ERROR', 'ok'):<6} "
+                f"{'YES' if status.estopped else 'no':<5} {contact:<7} "
+                f"{MODEL[status.contact_model]:<5} {age:>6}",
+            )
         )
         if status.estopped and status.stop_reason:
-            lines.append(f"{'':<8} {status.stop_reason[:110]}")
+            reasons[arm] = f"{'':<8} {status.stop_reason}"
+    wide = " ".join(["-000.0"] * 7)
+    fold = width is not None and len(head) + 2 + len(wide) + 1 >= width
+    lines = [head if fold else f"{head}  angles_deg"]
+    for arm, row in rows:
+        joints = snapshot.get(arm, (None, None))[1]
+        if fold:
+            lines.append(row)
+            if joints is not None:
+                lines.append(f"{'':<8} " + " ".join(f"{a:.1f}" for a in joints.angles_deg))
+        else:
+            angles = "-" if joints is None else " ".join(f"{a:7.1f}" for a in joints.angles_deg)
+            lines.append(f"{row}  {angles}")
+        if arm in reasons:
+            lines.append(reasons[arm])
     return lines
 
 
@@ -100,7 +134,7 @@ def device_lines(inventory: Inventory, states: dict[str, Any]) -> list[str]:
         stop = "YES" if state.estopped else "no"
         lines.append(f"{label:<16} {state.link:<6} {stop:<5} {kind.summary(state)}")
         if state.estopped and state.stop_reason:
-            lines.append(f"{'':<16} {state.stop_reason[:110]}")
+            lines.append(f"{'':<16} {state.stop_reason}")
     return lines
 
 
@@ -126,10 +160,10 @@ def _as_json(snapshot: Snapshot, alive: set[str], devices: dict[str, Any] | None
 def run_status(args: argparse.Namespace) -> int:
     """Print the fleet's status; exit 3 when any arm's agent is down or its link is not ok."""
     inventory = inventory_from_args(args)
-    stop = shutdown_event()
+    stop = shutdown_event(quiet=True)
     healthy = True
+    screen = Screen(sys.stdout, tty=args.watch and sys.stdout.isatty())
     with FleetClient(inventory, connect_timeout_s=args.connect_timeout) as client:
-        printed = 0
         while True:
             snapshot = client.snapshot()
             alive = client.agents_alive()
@@ -142,12 +176,11 @@ def run_status(args: argparse.Namespace) -> int:
             if args.json:
                 print(_as_json(snapshot, alive, devices), flush=True)
             else:
-                lines = status_lines(inventory, snapshot, alive, state)
+                # --watch redraws in place, laid out and cut to the terminal's width
+                width = screen.width() if screen.tty else None
+                lines = status_lines(inventory, snapshot, alive, state, width)
                 lines += device_lines(inventory, devices)
-                if printed and sys.stdout.isatty():
-                    print(f"\033[{printed}F", end="")  # redraw in place
-                print("\n".join(lines), flush=True)
-                printed = len(lines)
+                screen.draw(lines)
             if not args.watch or stop.wait(1.0):
                 break
     return 0 if healthy else 3

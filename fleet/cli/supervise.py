@@ -44,8 +44,9 @@ class Child:
 class Supervisor:
     """Restarts the demo's children; ``check`` once a second from the demo's loop."""
 
-    def __init__(self, spawn: Spawn) -> None:
+    def __init__(self, spawn: Spawn, say: Callable[[str], None] | None = None) -> None:
         self._spawn = spawn
+        self._say = say
         self.children: list[Child] = []
 
     def start(self, name: str, argv: list[str], **options: Any) -> subprocess.Popen[Any]:
@@ -62,7 +63,7 @@ class Supervisor:
                     child.due_s = None
                     child.restarts.append(now)
                     child.process = self._spawn(child.argv)
-                    print(f"fleet demo: {child.name} restarted (PID {child.process.pid})")
+                    self._report(f"fleet demo: {child.name} restarted (PID {child.process.pid})")
                 continue
             code = child.process.poll()
             if code is None:
@@ -76,13 +77,18 @@ class Supervisor:
                 )
             wait_s = BACKOFF_S[min(len(recent), len(BACKOFF_S) - 1)]
             child.due_s = now + wait_s
-            print(
+            self._report(
                 f"fleet demo: {child.name} (PID {child.process.pid}) {ended}; "
-                f"restarting it in {wait_s:g} s",
-                file=sys.stderr,
-                flush=True,
+                f"restarting it in {wait_s:g} s"
             )
         return None
+
+    def _report(self, text: str) -> None:
+        """To the demo's screen (above its status block), else stderr."""
+        if self._say is not None:
+            self._say(text)
+        else:
+            print(text, file=sys.stderr, flush=True)
 
     def processes(self) -> list[subprocess.Popen[Any]]:
         """Every child's current process, in start order."""

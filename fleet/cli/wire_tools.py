@@ -100,7 +100,7 @@ def _loop(
     inventory = inventory_from_args(args)
     keyspace = keys.KeySpace(inventory.fleet)
     expr = tap.key_expr(keyspace, args.key_expr)
-    stop = shutdown_event()
+    stop = shutdown_event(quiet=True)
     inbox = _Inbox()
     deadline = None if args.for_s is None else time.monotonic() + args.for_s
     seen = 0
@@ -271,7 +271,7 @@ def run_diag(args: argparse.Namespace) -> int:
     one is missing (its agent down, or a device agent that publishes none)."""
     inventory = inventory_from_args(args)
     units = diag_units(inventory, args.arm)
-    stop = shutdown_event()
+    stop = shutdown_event(quiet=True)
     complete = False
     with FleetClient(inventory, connect_timeout_s=args.connect_timeout) as client:
         printed = 0

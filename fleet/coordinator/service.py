@@ -220,11 +220,12 @@ class Coordinator:
             request = event.stop
             if self.stops.on_stop(event.arm or FLEET, request):
                 log.warning(
-                    "stop %s by %s on %s: %s",
+                    "stop %s by %s on %s%s",
                     request.stop_id[:24],
                     request.source,
                     event.arm or "all",
-                    request.reason[:200],
+                    # no reason given: no dangling colon
+                    f": {request.reason[:200]}" if request.reason else " (no reason given)",
                 )
         elif event.kind == "reset":
             self.stops.on_reset(event.arm or FLEET)

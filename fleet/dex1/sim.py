@@ -29,6 +29,10 @@ GRIP_TAU_MAX = 0.5
 whatever effort a command carries (seed 003: ``tau`` is unused, ``tau_est`` is the grip)."""
 
 
+FLOAT32_MARGIN_RAD = 1e-6
+"""How far above 2*pi a fully open target may arrive (float32 rounding on the wire)."""
+
+
 class GripperModel:
     """Position tracking with a speed limit and an optional blocking object. Pure."""
 
@@ -69,7 +73,9 @@ class SimGripper:
         self._writer = DataWriter(participant, state_topic, qos=ddx.STATE_WRITER_QOS)
         self.readers = [self._reader]
         self.model = GripperModel(config.sim_speed_rad_s, config.sim_object_rad)
-        self._limits = Limits(0.0, Q_OPEN_RAD, math.inf, math.inf, math.inf)
+        # q travels as a float32: 2*pi arrives as 6.2831855, above 2*pi in float64. Without
+        # the margin every fully open command (open_pct 100) was ignored here.
+        self._limits = Limits(0.0, Q_OPEN_RAD + FLOAT32_MARGIN_RAD, math.inf, math.inf, math.inf)
         self.period_s = 1.0 / config.sim_rate_hz
         self.next_s = now_s
         self._last_s = now_s
@@ -85,7 +91,8 @@ class SimGripper:
             if target is None or target_problem(target, self._limits) is not None:
                 self.ignored += 1
                 continue
-            self.model.target_rad, self.model.tau = target.q_rad, target.tau
+            self.model.target_rad = min(target.q_rad, Q_OPEN_RAD)
+            self.model.tau = target.tau
 
     def step(self, now_s: float) -> float:
         """Advance the model and publish one state sample; the next time it is due."""

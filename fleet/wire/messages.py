@@ -14,7 +14,8 @@ import msgspec
 from msgspec import Meta, Struct
 
 LinkState = Literal["ok", "stale", "lost"]
-ContactModel = Literal["calibrated", "uncalibrated", "untrusted"]
+ContactModel = Literal["calibrated", "partial", "uncalibrated", "untrusted"]
+"""``partial``: a calibration file that lacks some joints (``fleet calibrate --joint J``)."""
 
 # Bounded numbers: a peer's absurd value (a 400-digit stamp, a lead of 1e300 s) is refused at
 # decode time with a path, instead of overflowing later in arithmetic on a worker thread.
