@@ -98,7 +98,7 @@ def run_client(args: argparse.Namespace) -> int:
     out["static_after_continuous_off_s"] = watch.wait(lambda s: s.fsm_mode == 0, 3.0)
     out["damp"] = client.SetFsmId(1)  # Damp() returns nothing
     out["damped_s"] = watch.wait(lambda s: s.fsm_id == 1, 3.0)
-    out["set_task_id"] = client.SetTaskId(1)  # registered by the client, not served by ours
+    out["set_task_id"] = client.SetTaskId(1)  # WaveHand(turn_flag=True), from damping: 3205
     print(json.dumps(out), flush=True)
     return 0
 

@@ -29,6 +29,8 @@ class G1Config(DeviceBase, frozen=True, forbid_unknown_fields=True, kw_only=True
     max_omega: float = 0.5
     max_duration_s: float = 3.0
     """SetVelocity's duration is bounded (LocoClient's Move(continous) would send 864000 s)."""
+    allow_continuous_move: bool = False
+    """``move`` with ``continuous`` (Unitree's 864000 s velocity) is refused unless this is set."""
     link_stale_s: float = 0.5
     sim_rate_hz: float = 100.0
     """Simulator only: rt/sportmodestate rate."""

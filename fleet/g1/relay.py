@@ -36,13 +36,20 @@ from fleet.g1 import idl, loco
 from fleet.g1.config import G1Config
 from fleet.g1.messages import (
     OPS,
+    READS,
     BalanceStand,
     ContinuousGait,
     Damp,
     G1State,
-    GetFsmId,
+    Move,
+    SetFsmId,
+    SetSpeedMode,
+    SetStandHeight,
+    SetTaskId,
     SetVelocity,
+    ShakeHand,
     StopMove,
+    WaveHand,
 )
 from fleet.g1.probe import ServiceProbe
 from fleet.wire import keys
@@ -170,7 +177,7 @@ class G1Driver(DriverBase):
                 written_ns=call.written_ns,
             )
         result = None
-        if call.op == "get_fsm_id":
+        if call.op in ("get_fsm_id", "get_fsm_mode", "get_balance_mode"):
             value = loco.parse_data(response.data)
             result = None if value is None else str(value)
         return DeviceReply(ok=True, device=self.device, written_ns=call.written_ns, result=result)
@@ -304,12 +311,49 @@ class G1Driver(DriverBase):
 
     def moves(self, command: Any) -> bool:
         """Velocity and mode changes set the robot moving."""
-        return not isinstance(command, (Damp, StopMove, BalanceStand, GetFsmId, Release))
+        return not isinstance(command, (Damp, StopMove, BalanceStand, Release, *READS))
 
     def allowed_while_latched(self, command: Any) -> bool:
         """Damping, stopping (continuous gait's way out, BalanceStand, too) and asking are ways
         to a safe state: allowed under a stop."""
-        return isinstance(command, (Damp, StopMove, BalanceStand, GetFsmId))
+        return isinstance(command, (Damp, StopMove, BalanceStand, *READS))
+
+    def _call(self, op: str, command: Any) -> loco.Call:
+        """The LocoClient call of ``command``, its parameters checked first (3204)."""
+        problem = None
+        if isinstance(command, SetVelocity):
+            c = command
+            problem = loco.velocity_problem(c.vx, c.vy, c.omega, c.duration_s, self._limits)
+            call = loco.call_for(op, c.vx, c.vy, c.omega, c.duration_s)
+        elif isinstance(command, Move):
+            c = command
+            duration = loco.CONTINUOUS_MOVE_S if c.continuous else 1.0
+            problem = loco.velocity_problem(c.vx, c.vy, c.vyaw, 1.0, self._limits)
+            if c.continuous and not self.config.allow_continuous_move:
+                problem = (
+                    "move with continuous=true walks until stopped (Unitree's 864000 s); "
+                    "set allow_continuous_move = true in its inventory entry to allow it, or "
+                    "use set_velocity with a bounded duration_s"
+                )
+            call = loco.call_for(op, c.vx, c.vy, c.vyaw, duration)
+        elif isinstance(command, ContinuousGait):
+            call = loco.call_for(op, on=command.on)
+        elif isinstance(command, SetFsmId):
+            if command.fsm_id not in loco.FSM_NAMES:
+                problem = f"fsm_id {command.fsm_id} is not in seed 004's table"
+            call = loco.call_for(op, value=command.fsm_id)
+        else:
+            value = {
+                SetStandHeight: lambda c: c.height,
+                SetSpeedMode: lambda c: c.mode,
+                SetTaskId: lambda c: c.task_id,
+                WaveHand: lambda c: int(c.turn),
+                ShakeHand: lambda c: c.stage,
+            }.get(type(command), lambda c: 0)(command)
+            call = loco.call_for(op, value=value)
+        if problem is not None:
+            raise self._refuse(m.ErrorCode.PARAMETER, f"g1 {self.device!r}: {problem}")
+        return call
 
     def execute(self, command: Any, now_s: float, done: Done) -> DeviceReply | None:
         """Check and call the robot; ``done`` gets its answer (or 3104 past the timeout)."""
@@ -317,17 +361,7 @@ class G1Driver(DriverBase):
         with self._lock:
             self._counts["commands"] += 1
         op = OPS[type(command)]
-        if isinstance(command, SetVelocity):
-            problem = loco.velocity_problem(
-                command.vx, command.vy, command.omega, command.duration_s, self._limits
-            )
-            if problem is not None:
-                raise self._refuse(m.ErrorCode.PARAMETER, f"g1 {self.device!r}: {problem}")
-            call = loco.call_for(op, command.vx, command.vy, command.omega, command.duration_s)
-        elif isinstance(command, ContinuousGait):
-            call = loco.call_for(op, on=command.on)
-        else:
-            call = loco.call_for(op)
+        call = self._call(op, command)
         with self._lock:
             service = self._probe.service
         if service is None:
@@ -337,7 +371,7 @@ class G1Driver(DriverBase):
                 "running? (`service` in the inventory names it: sport, loco or auto)",
             )
         state = self._fresh_state(now_s)
-        if state is None and not isinstance(command, (Damp, GetFsmId)):
+        if state is None and not isinstance(command, (Damp, *READS)):
             raise self._refuse(
                 m.ErrorCode.REJECTED,
                 f"g1 {self.device!r}: no fresh {loco.STATE_TOPIC} (within "

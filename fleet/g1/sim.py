@@ -45,6 +45,14 @@ class G1Model:
         self.moving_until_s = 0.0
         self.continuous = False
         self.velocity = (0.0, 0.0, 0.0)
+        self.stand_height = float(loco.HIGH_STAND)
+        self.speed_mode = 0
+        self.task_id = 0
+        self.task_since_s: float | None = None
+
+    def task_time(self, now_s: float) -> float:
+        """Seconds since the arm task started (0 without one)."""
+        return 0.0 if self.task_since_s is None else now_s - self.task_since_s
 
     def fsm_mode(self, now_s: float) -> int:
         """1 (dynamic) while stepping, else 0."""
@@ -70,6 +78,8 @@ class G1Model:
             return self._set_fsm(params.get("data"), now_s), ""
         if api_id == loco.SET_BALANCE_MODE:
             return self._balance(params.get("data"), now_s), ""
+        if api_id in (loco.SET_STAND_HEIGHT, loco.SET_SPEED_MODE, loco.SET_ARM_TASK):
+            return self._standing_call(api_id, params.get("data"), now_s), ""
         return self._velocity(params, now_s), ""
 
     def _set_fsm(self, fsm_id: Any, now_s: float) -> int:
@@ -78,7 +88,30 @@ class G1Model:
         if fsm_id != loco.DAMP_FSM and self.fsm_mode(now_s) == loco.DYNAMIC:
             return int(ErrorCode.SERVER_REJECTED)
         self.fsm_id, self.moving_until_s, self.continuous = fsm_id, 0.0, False
+        self.task_since_s = None
         self.velocity = (0.0, 0.0, 0.0)
+        return 0
+
+    def _standing_call(self, api_id: int, data: Any, now_s: float) -> int:
+        """SetStandHeight (0..UINT32_MAX), SetSpeedMode (0-3), SetTaskId (0-3): a standing
+        controller only (else 3205)."""
+        if not isinstance(data, int | float) or isinstance(data, bool):
+            return int(ErrorCode.PARAMETER)
+        ranges = {
+            loco.SET_STAND_HEIGHT: loco.HIGH_STAND,
+            loco.SET_SPEED_MODE: max(loco.SPEED_MODES),
+            loco.SET_ARM_TASK: max(loco.ARM_TASKS),
+        }
+        if not 0 <= data <= ranges[api_id]:
+            return int(ErrorCode.PARAMETER)
+        if self.fsm_id not in loco.TASK_FSMS:
+            return int(ErrorCode.SERVER_REJECTED)
+        if api_id == loco.SET_STAND_HEIGHT:
+            self.stand_height = float(data)
+        elif api_id == loco.SET_SPEED_MODE:
+            self.speed_mode = int(data)
+        else:
+            self.task_id, self.task_since_s = int(data), now_s
         return 0
 
     def _balance(self, mode: Any, now_s: float) -> int:
@@ -148,6 +181,9 @@ class SimG1:
         """Publish one sportmodestate; the next time it is due."""
         mode = self.model.fsm_mode(now_s)
         if self.publish_state:
-            self._state.write(idl.SportModeState_(fsm_id=self.model.fsm_id, fsm_mode=mode))
+            model = self.model
+            task_time = model.task_time(now_s)
+            sample = idl.SportModeState_(model.fsm_id, mode, model.task_id, task_time)
+            self._state.write(sample)
         self.next_s = max(self.next_s + self.period_s, now_s)
         return self.next_s
