@@ -5,12 +5,12 @@ Topics ``rt/api/<service>/request`` / ``rt/api/<service>/response``. The service
 firmware seed 004 describes) and ``loco`` before 8.2: a per-device setting (``G1Config.service``).
 API ids from unitree_sdk2's ``g1_loco_api``: 7001 GetFsmId, 7002 GetFsmMode, 7003
 GetBalanceMode, 7101 SetFsmId, 7102 SetBalanceMode, 7104 SetStandHeight, 7105 SetVelocity,
-7106 SetTaskId (WaveHand, ShakeHand), 7107 SetSpeedMode. The client's calls map onto them as Unitree's SDK does
-(unitree_sdk2 ``g1_loco_client.hpp``): Damp = SetFsmId(1), Start = SetFsmId(500), StandUp =
-SetFsmId(4) (lock standing), BalanceStand = SetBalanceMode(0), ContinuousGait(flag) =
-SetBalanceMode(flag ? 1 : 0), StopMove = SetVelocity(0, 0, 0, 1 s). Parameters are JSON
-(``{"data": x}``; SetVelocity ``{"velocity": [vx, vy, omega], "duration": d}``); GetFsmId
-answers ``{"data": id}``.
+7106 SetTaskId (WaveHand, ShakeHand), 7107 SetSpeedMode. The client's calls map onto them as
+Unitree's SDK does (unitree_sdk2 ``g1_loco_client.hpp``): Damp = SetFsmId(1), Start =
+SetFsmId(500), StandUp = SetFsmId(4) (lock standing), BalanceStand = SetBalanceMode(0),
+ContinuousGait(flag) = SetBalanceMode(flag ? 1 : 0), StopMove = SetVelocity(0, 0, 0, 1 s).
+Parameters are JSON (``{"data": x}``; SetVelocity ``{"velocity": [vx, vy, omega], "duration": d}``);
+GetFsmId answers ``{"data": id}``.
 
 SetBalanceMode is no FSM switch (the walking controller stays, fsm_id unchanged): it is allowed
 in the dynamic state, and SetBalanceMode(0) is the only way out of continuous gait, where the

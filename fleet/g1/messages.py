@@ -39,6 +39,24 @@ class G1State(Struct, frozen=True):
     """The service answered GetFsmId (someone serves ``rt/api/<service>``)."""
     stop_detail: Text | None = None
     """The latched stop's state when not confirmed (``unconfirmed: no state``)."""
+    arm_phase: Literal["off", "engaging", "on", "releasing"] = "off"
+    """The rt/arm_sdk stream (``fleet/g1/arms.py``)."""
+    arm_weight: float = 0.0
+    """The weight of the newest rt/arm_sdk message (0: the robot's own controller has the arms)."""
+    arm_released: Text | None = None
+    """Why the arms were last released (a stop, the lease, an FSM that forbids it)."""
+
+
+class G1LowState(Struct, frozen=True):
+    """``g1/<id>/lowstate``: the newest valid ``rt/lowstate`` (CRC and values checked) at
+    ``relay_hz``: the 29 joints' positions (rad, Unitree's motor order) and the IMU."""
+
+    stamp_ns: StampNs
+    q_rad: list[float]
+    imu_rpy: list[float]
+    imu_quaternion: list[float]
+    tick: int
+    bad_samples: Count
 
 
 class _G1Command(DeviceCommand, kw_only=True):
@@ -171,6 +189,22 @@ class ShakeHand(_G1Command, tag="shake_hand", kw_only=True):
     stage: Annotated[int, Meta(ge=0, le=1)] = 0
 
 
+JointQ = Annotated[float, Meta(ge=-10.0, le=10.0)]
+
+
+class ArmTarget(_G1Command, tag="arm_target", kw_only=True):
+    """The waist and arms (motors 12-28, rad) as a target of the rt/arm_sdk stream: the agent
+    engages (weight 0 -> 1), then moves the commanded pose towards it at ``speed_rad_s`` (the
+    inventory's ``arm_speed_rad_s`` when None). Renew it within the lease, else released."""
+
+    q_rad: Annotated[list[JointQ], Meta(min_length=17, max_length=17)]
+    speed_rad_s: Annotated[float, Meta(gt=0.0, le=10.0)] | None = None
+
+
+class ArmRelease(_G1Command, tag="arm_release", kw_only=True):
+    """Give the arms back to the robot's own controller (weight 1 -> 0 over ``arm_release_s``)."""
+
+
 G1Command = (
     Damp
     | Start
@@ -197,11 +231,10 @@ G1Command = (
     | SetTaskId
     | WaveHand
     | ShakeHand
+    | ArmTarget
+    | ArmRelease
     | Release
 )
-OPS: dict[type, str] = {
-    cls: cls.__struct_config__.tag  # type: ignore[misc]
-    for cls in G1Command.__args__  # type: ignore[attr-defined]
-}
+OPS: dict[type, str] = {cls: cls.__struct_config__.tag for cls in G1Command.__args__}
 READS = (GetFsmId, GetFsmMode, GetBalanceMode)
 """Calls that only ask (allowed under a stop, never set the robot moving)."""
