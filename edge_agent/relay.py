@@ -36,6 +36,7 @@ from fleet.guard import ThreadGuard
 from fleet.inventory import Inventory
 from fleet.security.session import open_session
 from fleet.wire import keys
+from fleet.wire.payloads import DEVICE_PAYLOADS
 
 JSON = zenoh.Encoding.APPLICATION_JSON
 
@@ -149,8 +150,11 @@ class ZenohRelay:
             self._tokens.append(self.session.liveliness().declare_token(token))
 
     def _declare_device_publishers(self, kind: str, device: str) -> dict[str, zenoh.Publisher]:
-        """state and diag: DROP (they repeat); contact and estop/ack: BLOCK (events)."""
+        """state, lowstate (a G1's) and diag: DROP (they repeat); contact and estop/ack: BLOCK
+        (events)."""
         drop, block = zenoh.CongestionControl.DROP, zenoh.CongestionControl.BLOCK
+        lowstate = keys.LOWSTATE in DEVICE_PAYLOADS.get(kind, {})
+        extra = ((keys.LOWSTATE, drop, zenoh.Priority.DATA),) if lowstate else ()
         return {
             channel: self.session.declare_publisher(
                 self.keys.device(kind, device, channel),
@@ -163,6 +167,7 @@ class ZenohRelay:
                 (keys.CONTACT, block, zenoh.Priority.DATA_HIGH),
                 (keys.ESTOP_ACK, block, zenoh.Priority.REAL_TIME),
                 (keys.DIAG, drop, zenoh.Priority.DATA),
+                *extra,
             )
         }
 

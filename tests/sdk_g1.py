@@ -6,7 +6,10 @@ process-wide singleton bound to one domain):
   gait and damp; prints one JSON object of what each call returned and what state followed.
 - ``server``: a fake G1 built on its RPC ``Server`` (handlers for the LocoClient API ids) that
   publishes ``rt/sportmodestate`` with its ``ChannelPublisher`` (``--no-state``: firmware
-  before 1.5.1, none); prints one JSON line per call it handled.
+  before 1.5.1, none); prints one JSON line per call it handled. With ``--arms`` it also
+  publishes ``rt/lowstate`` (the SDK's ``LowState_``, sealed with the SDK's ``CRC``) and prints
+  one line per ``rt/arm_sdk`` message its ``ChannelSubscriber`` took: the weight, whether the
+  SDK's CRC agrees, the waist yaw.
 
 The SDK chooses the service name from ``LOCO_SERVICE_NAME`` (``sport`` in its ``g1_loco_api``),
 which ``LocoClient.__init__`` reads from its own module: ``--service loco`` sets that module's
@@ -98,7 +101,7 @@ def run_client(args: argparse.Namespace) -> int:
     out["static_after_continuous_off_s"] = watch.wait(lambda s: s.fsm_mode == 0, 3.0)
     out["damp"] = client.SetFsmId(1)  # Damp() returns nothing
     out["damped_s"] = watch.wait(lambda s: s.fsm_id == 1, 3.0)
-    out["set_task_id"] = client.SetTaskId(1)  # registered by the client, not served by ours
+    out["set_task_id"] = client.SetTaskId(1)  # WaveHand(turn_flag=True), from damping: 3205
     print(json.dumps(out), flush=True)
     return 0
 
@@ -132,6 +135,7 @@ def run_server(args: argparse.Namespace) -> int:
     server.Start()
     publisher = ChannelPublisher(STATE_TOPIC, hg.SportModeState_)
     publisher.Init()
+    lowstate = _arms(lock, model) if args.arms else None
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     print(json.dumps({"ready": args.service, "state": not args.no_state}), flush=True)
     while not stop.wait(0.01):  # 100 Hz, the G1's sportmodestate rate is not in the seeds
@@ -141,7 +145,48 @@ def run_server(args: argparse.Namespace) -> int:
             now = time.monotonic()
             sample = hg.SportModeState_(model.fsm_id, model.fsm_mode(now), 0, 0.0)
         publisher.Write(sample)
+        if lowstate is not None:
+            lowstate()
     return 0
+
+
+def _arms(lock: threading.Lock, model: Any) -> Any:
+    """rt/arm_sdk watched (one JSON line a message), rt/lowstate published: returns the
+    function that publishes one (the pose blends the arm_sdk targets by their weight)."""
+    from unitree_sdk2py.core.channel import ChannelPublisher, ChannelSubscriber
+    from unitree_sdk2py.idl.default import unitree_hg_msg_dds__LowState_
+    from unitree_sdk2py.idl.unitree_hg.msg.dds_ import LowCmd_, LowState_
+    from unitree_sdk2py.utils.crc import CRC
+
+    crc = CRC()
+    pose = [0.0] * 29
+
+    def on_cmd(cmd: Any) -> None:
+        weight = float(cmd.motor_cmd[29].q)
+        ok = cmd.crc == crc.Crc(cmd)
+        line = {"arm": round(weight, 4), "crc_ok": ok, "t": time.monotonic()}
+        line["q12"] = round(float(cmd.motor_cmd[12].q), 4)
+        print(json.dumps(line), flush=True)
+        with lock:
+            if ok and model.fsm_id in (4, 500, 501):
+                for i in range(12, 29):
+                    pose[i] = weight * float(cmd.motor_cmd[i].q)
+
+    subscriber = ChannelSubscriber("rt/arm_sdk", LowCmd_)
+    subscriber.Init(on_cmd, 10)
+    writer = ChannelPublisher("rt/lowstate", LowState_)
+    writer.Init()
+
+    def publish() -> None:
+        state = unitree_hg_msg_dds__LowState_()
+        with lock:
+            for i, q in enumerate(pose):
+                state.motor_state[i].q = q
+        state.crc = crc.Crc(state)
+        writer.Write(state)
+
+    publish.keep = (subscriber, writer)  # type: ignore[attr-defined]
+    return publish
 
 
 def main() -> int:
@@ -152,6 +197,7 @@ def main() -> int:
     parser.add_argument("--service", choices=("sport", "loco"), default="sport")
     parser.add_argument("--settle", type=float, default=0.3)
     parser.add_argument("--no-state", action="store_true")
+    parser.add_argument("--arms", action="store_true")
     args = parser.parse_args()
     return run_client(args) if args.role == "client" else run_server(args)
 

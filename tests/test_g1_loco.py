@@ -201,3 +201,61 @@ def test_doctor_and_status_name_the_service() -> None:
     assert summary(_state("loco", "auto", True)).endswith("service loco (auto)")
     assert "service sport (no answer to GetFsmId)" in summary(_state("sport", "sport", False))
     assert "service auto: asking sport, loco" in summary(_state(None, "auto", False))
+
+
+@pytest.mark.parametrize(
+    ("op", "value", "api_id", "parameter", "switches"),
+    [
+        ("squat", 0, 7101, {"data": 2}, True),
+        ("sit", 0, 7101, {"data": 3}, True),
+        ("zero_torque", 0, 7101, {"data": 0}, True),
+        ("squat2standup", 0, 7101, {"data": 706}, True),
+        ("standup2squat", 0, 7101, {"data": 706}, True),
+        ("lie2standup", 0, 7101, {"data": 702}, True),
+        ("set_fsm_id", 1, 7101, {"data": 1}, False),
+        ("set_fsm_id", 501, 7101, {"data": 501}, True),
+        ("high_stand", 0, 7104, {"data": 4294967295}, False),
+        ("low_stand", 0, 7104, {"data": 0}, False),
+        ("set_stand_height", 0.5, 7104, {"data": 0.5}, False),
+        ("set_speed_mode", 2, 7107, {"data": 2}, False),
+        ("get_fsm_mode", 0, 7002, {}, False),
+        ("get_balance_mode", 0, 7003, {}, False),
+        ("set_task_id", 3, 7106, {"data": 3}, False),
+        ("wave_hand", 0, 7106, {"data": 0}, False),
+        ("wave_hand", 1, 7106, {"data": 1}, False),
+        ("shake_hand", 0, 7106, {"data": 2}, False),
+        ("shake_hand", 1, 7106, {"data": 3}, False),
+    ],
+)
+def test_every_loco_client_call(
+    op: str, value: float, api_id: int, parameter: dict, switches: bool
+) -> None:
+    """Each as Unitree's LocoClient (unitree_sdk2py g1_loco_client) sends it."""
+    call = loco.call_for(op, value=value)
+    assert (call.api_id, json.loads(call.parameter), call.switches_mode) == (
+        api_id,
+        parameter,
+        switches,
+    )
+
+
+def test_static_rules_of_the_extra_calls() -> None:
+    zero = loco.call_for("zero_torque")
+    assert "only from damping" in str(loco.refusal("zero_torque", zero, 500, loco.STATIC))
+    assert loco.refusal("zero_torque", zero, loco.DAMP_FSM, loco.STATIC) is None
+    wave = loco.call_for("wave_hand")
+    assert "standing controller" in str(loco.refusal("wave_hand", wave, 1, loco.STATIC))
+    assert loco.refusal("wave_hand", wave, 500, loco.DYNAMIC) is None  # not a mode switch
+    sit = loco.call_for("sit")
+    assert "dynamic state" in str(loco.refusal("sit", sit, 500, loco.DYNAMIC))
+
+
+def test_model_arm_task_and_stand_height() -> None:
+    model = G1Model(500, settle_s=0.3)
+    assert _call(model, loco.SET_ARM_TASK, 1.0, data=1) == 0
+    assert model.task_id == 1 and model.task_time(1.5) == pytest.approx(0.5)
+    assert _call(model, loco.SET_ARM_TASK, 1.0, data=9) == ErrorCode.PARAMETER
+    assert _call(model, loco.SET_STAND_HEIGHT, 1.0, data=0) == 0 and model.stand_height == 0
+    assert _call(model, loco.SET_SPEED_MODE, 1.0, data=3) == 0 and model.speed_mode == 3
+    assert _call(model, loco.SET_FSM_ID, 1.0, data=1) == 0  # damped: no standing controller
+    assert _call(model, loco.SET_ARM_TASK, 1.0, data=0) == ErrorCode.SERVER_REJECTED

@@ -17,13 +17,42 @@ import subprocess
 import sys
 import time
 from collections.abc import Iterator
+from typing import Any
 
 import pytest
 import unitree_sdk2py  # noqa: F401 - `make` installs it (--no-deps): a missing SDK fails, never skips
 
 from fleet.g1.kind import KIND
-from fleet.g1.messages import ContinuousGait, Damp, G1State, SetVelocity, StandUp
+from fleet.g1.messages import (
+    BalanceStand,
+    ContinuousGait,
+    Damp,
+    G1State,
+    GetBalanceMode,
+    GetFsmId,
+    GetFsmMode,
+    HighStand,
+    Lie2StandUp,
+    LowStand,
+    Move,
+    SetFsmId,
+    SetSpeedMode,
+    SetStandHeight,
+    SetTaskId,
+    SetVelocity,
+    ShakeHand,
+    Sit,
+    Squat,
+    Squat2StandUp,
+    StandUp,
+    StandUp2Squat,
+    Start,
+    StopMove,
+    WaveHand,
+    ZeroTorque,
+)
 from fleet.wire import keys
+from fleet.wire.messages import ErrorCode
 from tests.harness import FleetHarness, wait_until
 from tests.test_dex1_end_to_end import agent_token
 from tests.test_end_to_end import Collector
@@ -69,7 +98,7 @@ def test_unitree_loco_client_drives_our_simulator(tmp_path, service: str) -> Non
     assert out["continuous_off"] == 0  # allowed while dynamic: the way out
     assert out["static_after_continuous_off_s"] is not None, out
     assert out["damp"] == 0 and out["damped_s"] is not None
-    assert out["set_task_id"] == 3203  # an API our simulator does not implement
+    assert out["set_task_id"] == 3205  # an arm task needs a standing controller
     print(f"LocoClient on {service!r}: {out}")
 
 
@@ -180,3 +209,88 @@ def test_damp_reaches_a_g1_without_state(tmp_path, closing: list[FleetHarness]) 
     after = damps()
     with pytest.raises(AssertionError):  # three repeat periods without one (one in flight)
         wait_until(lambda: damps() > after + 1, 0.6)
+
+
+def test_every_loco_client_call_reaches_unitrees_server(  # type: ignore[no-untyped-def]
+    tmp_path, closing: list[FleetHarness]
+) -> None:
+    """Issue 23: every LocoClient call of seed 004 and Unitree's SDK, sent as fleet commands
+    through the agent (under its lease, its checks) to a fake G1 on the SDK's RPC ``Server``:
+    each reaches it as the SDK's own client sends it, reads answer with the value, and the
+    static/dynamic rules refuse before anything is written."""
+    harness = _fleet(tmp_path, "sport", "sport", "stop_move")
+    closing.append(harness)
+    client = harness.client()
+    key = keys.KeySpace(harness.inventory.fleet).device("g1", "h1", keys.STATE)
+    states: Collector[G1State] = Collector(client.session, key, STATE.decode)
+
+    def fsm_is(fsm_id: int) -> bool:
+        return (s := states.latest()) is not None and s.fsm_id == fsm_id and s.mode == "static"
+
+    try:
+        wait_until(lambda: (s := states.latest()) is not None and s.service_answered, 30.0)
+        wait_until(lambda: agent_token(client, "g1", "h1"), 30.0)
+        before = len(_calls(harness, "fake-g1"))
+        reads = [(GetFsmId(), "500"), (GetFsmMode(), "0"), (GetBalanceMode(), "0")]
+        for command, result in reads:
+            reply = client.device_command("h1", command)
+            assert reply.ok and reply.result == result, (command, reply)
+        expected: list[tuple[int, dict]] = [(7001, {}), (7002, {}), (7003, {})]
+        sequence: list[tuple[Any, int, dict, int | None]] = [
+            (SetSpeedMode(mode=1), 7107, {"data": 1}, None),
+            (HighStand(), 7104, {"data": 4294967295}, None),
+            (LowStand(), 7104, {"data": 0}, None),
+            (SetStandHeight(height=0.5), 7104, {"data": 0.5}, None),
+            (WaveHand(), 7106, {"data": 0}, None),
+            (WaveHand(turn=True), 7106, {"data": 1}, None),
+            (ShakeHand(stage=0), 7106, {"data": 2}, None),
+            (ShakeHand(stage=1), 7106, {"data": 3}, None),
+            (SetTaskId(task_id=0), 7106, {"data": 0}, None),
+            (Move(vx=0.2), 7105, {"velocity": [0.2, 0.0, 0.0], "duration": 1.0}, -1),
+            (StopMove(), 7105, {"velocity": [0.0, 0.0, 0.0], "duration": 1.0}, 500),
+            (Squat(), 7101, {"data": 2}, 2),
+            (Squat2StandUp(), 7101, {"data": 706}, 706),
+            (StandUp2Squat(), 7101, {"data": 706}, 706),
+            (SetFsmId(fsm_id=501), 7101, {"data": 501}, 501),
+            (StandUp(), 7101, {"data": 4}, 4),
+            (Sit(), 7101, {"data": 3}, 3),
+            (Lie2StandUp(), 7101, {"data": 702}, 702),
+            (Damp(), 7101, {"data": 1}, 1),
+            (ZeroTorque(), 7101, {"data": 0}, 0),
+            (Damp(), 7101, {"data": 1}, 1),
+            (Start(), 7101, {"data": 500}, 500),
+            (BalanceStand(), 7102, {"data": 0}, 500),
+        ]
+        for command, api_id, parameter, fsm in sequence:
+            reply = client.device_command("h1", command)
+            assert reply.ok, (command, reply, harness.log("fake-g1")[-1500:])
+            expected.append((api_id, parameter))
+            if fsm == -1:  # walking: then StopMove, and the state must show it static again
+                wait_until(lambda: (s := states.latest()) is not None and s.mode == "dynamic", 3.0)
+            elif fsm is not None:  # the agent checks the next call against the state it sees
+                wait_until(lambda fsm=fsm: fsm_is(fsm), 5.0)
+        calls = [
+            (c["api_id"], json.loads(c["parameter"]), c["code"]) for c in _calls(harness, "fake-g1")
+        ]
+        got = [(a, p) for a, p, code in calls[before:] if a != 7001 or not p]
+        assert got == expected, got
+        assert all(code == 0 for _, _, code in calls[before:]), calls
+        # Refused by the agent, nothing written: an unbounded move, an id not in the seed's
+        # table, zero torque while standing, a mode switch while walking.
+        refused = [
+            (Move(vx=0.2, continuous=True), ErrorCode.PARAMETER, "allow_continuous_move"),
+            (SetFsmId(fsm_id=123), ErrorCode.PARAMETER, "not in seed 004's table"),
+            (ZeroTorque(), ErrorCode.REJECTED, "only from damping"),
+        ]
+        written = len(_calls(harness, "fake-g1"))
+        for command, code, why in refused:
+            reply = client.device_command("h1", command)
+            assert reply.error is not None and reply.error.code == code, (command, reply)
+            assert why in reply.error.message, reply.error.message
+        assert client.device_command("h1", SetVelocity(vx=0.3, duration_s=2.0)).ok
+        wait_until(lambda: (s := states.latest()) is not None and s.mode == "dynamic", 3.0)
+        reply = client.device_command("h1", Sit())
+        assert reply.error is not None and "dynamic state" in reply.error.message, reply
+        assert len(_calls(harness, "fake-g1")) == written + 1  # only the velocity
+    finally:
+        states.close()

@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Literal
 
 from fleet.devices.base import DeviceBase
+from fleet.g1.arms import COUNT, DEFAULT_KD, DEFAULT_KP, ArmLimits
 
 G1StopAction = Literal["stop_move", "damp"]
 G1Service = Literal["sport", "loco", "auto"]
@@ -29,6 +30,22 @@ class G1Config(DeviceBase, frozen=True, forbid_unknown_fields=True, kw_only=True
     max_omega: float = 0.5
     max_duration_s: float = 3.0
     """SetVelocity's duration is bounded (LocoClient's Move(continous) would send 864000 s)."""
+    allow_continuous_move: bool = False
+    """``move`` with ``continuous`` (Unitree's 864000 s velocity) is refused unless this is set."""
+    arm_engage_s: float = 1.0
+    """rt/arm_sdk: the weight's ramp 0 -> 1 when control starts (>= 0.4 s: steps <= 0.05)."""
+    arm_release_s: float = 1.0
+    """rt/arm_sdk: the weight's ramp 1 -> 0 on a release, lease loss, watchdog or stop (>= 1 s)."""
+    arm_speed_rad_s: float = 0.5
+    """The commanded pose's default top speed towards an arm target (every joint)."""
+    arm_max_speed_rad_s: float = 1.5
+    """A target asking a higher ``speed_rad_s`` is refused (too fast)."""
+    arm_max_jump_rad: float = 0.6
+    """A target this far from the measured pose on any joint is refused."""
+    arm_kp: list[float] | None = None
+    """17 stiffnesses (motors 12-28); None: Unitree's example's 60."""
+    arm_kd: list[float] | None = None
+    """17 dampings; None: Unitree's example's 1.5."""
     link_stale_s: float = 0.5
     sim_rate_hz: float = 100.0
     """Simulator only: rt/sportmodestate rate."""
@@ -40,6 +57,20 @@ class G1Config(DeviceBase, frozen=True, forbid_unknown_fields=True, kw_only=True
     """Simulator only: the name it serves the LocoClient API on."""
     sim_state: bool = True
     """Simulator only: publish rt/sportmodestate (false: firmware before 1.5.1 has none)."""
+
+
+def arm_limits(config: G1Config) -> ArmLimits:
+    """The arm stream's settings from ``config`` (the lease is the hold time)."""
+    return ArmLimits(
+        engage_s=config.arm_engage_s,
+        release_s=config.arm_release_s,
+        hold_s=config.lease_s,
+        speed_rad_s=config.arm_speed_rad_s,
+        max_speed_rad_s=config.arm_max_speed_rad_s,
+        max_jump_rad=config.arm_max_jump_rad,
+        kp=tuple(config.arm_kp or (DEFAULT_KP,) * COUNT),
+        kd=tuple(config.arm_kd or (DEFAULT_KD,) * COUNT),
+    )
 
 
 def check_g1(config: G1Config) -> str | None:
@@ -54,6 +85,16 @@ def check_g1(config: G1Config) -> str | None:
         return "max_duration_s must be within 0..60"
     if not 1.0 <= config.sim_rate_hz <= 1000.0 or config.sim_settle_s < 0:
         return "sim_rate_hz must be within 1..1000, sim_settle_s not negative"
+    if not 0.4 <= config.arm_engage_s <= 10 or not 1.0 <= config.arm_release_s <= 10:
+        return "arm_engage_s must be within 0.4..10 and arm_release_s within 1..10"
+    if not 0 < config.arm_speed_rad_s <= config.arm_max_speed_rad_s <= 3.0:
+        return "need 0 < arm_speed_rad_s <= arm_max_speed_rad_s <= 3"
+    if not 0 < config.arm_max_jump_rad <= 1.5:
+        return "arm_max_jump_rad must be within 0..1.5"
+    for name in ("arm_kp", "arm_kd"):
+        gains = getattr(config, name)
+        if gains is not None and (len(gains) != 17 or not all(0 <= g <= 500 for g in gains)):
+            return f"{name} must be 17 values within 0..500 (motors 12-28)"
     if not 0 < config.link_stale_s <= 10:
         return "link_stale_s must be within 0..10"
     return None

@@ -98,3 +98,78 @@ class Response_(IdlStruct, typename="unitree_api::msg::dds_::Response_"):  # noq
     header: ResponseHeader_ = field(default_factory=ResponseHeader_)
     data: str = ""
     binary: types.sequence[types.uint8] = field(default_factory=list)
+
+
+# ---------------------------------------------------------------------- low level (rt/arm_sdk)
+
+
+@dataclass
+@annotate.final
+class MotorCmd_(IdlStruct, typename="unitree_hg::msg::dds_::MotorCmd_"):  # noqa: N801
+    """One motor's command: mode (1 enabled), q (rad; on index 29 of rt/arm_sdk the weight),
+    dq, tau, kp, kd."""
+
+    mode: types.uint8 = 0
+    q: types.float32 = 0.0
+    dq: types.float32 = 0.0
+    tau: types.float32 = 0.0
+    kp: types.float32 = 0.0
+    kd: types.float32 = 0.0
+    reserve: types.uint32 = 0
+
+
+@dataclass
+@annotate.final
+class LowCmd_(IdlStruct, typename="unitree_hg::msg::dds_::LowCmd_"):  # noqa: N801
+    """``rt/arm_sdk`` (seed 004: indices 12-28 the waist and arms, 29 the weight), CRC-sealed."""
+
+    mode_pr: types.uint8 = 0
+    mode_machine: types.uint8 = 0
+    motor_cmd: types.array[MotorCmd_, 35] = field(default_factory=lambda: [MotorCmd_()] * 35)
+    reserve: types.array[types.uint32, 4] = field(default_factory=lambda: [0, 0, 0, 0])
+    crc: types.uint32 = 0
+
+
+@dataclass
+@annotate.final
+class IMUState_(IdlStruct, typename="unitree_hg::msg::dds_::IMUState_"):  # noqa: N801
+    """The body IMU: quaternion (w, x, y, z), gyroscope, accelerometer, rpy (rad)."""
+
+    quaternion: types.array[types.float32, 4] = field(default_factory=lambda: [1.0, 0, 0, 0])
+    gyroscope: types.array[types.float32, 3] = field(default_factory=lambda: [0.0] * 3)
+    accelerometer: types.array[types.float32, 3] = field(default_factory=lambda: [0.0] * 3)
+    rpy: types.array[types.float32, 3] = field(default_factory=lambda: [0.0] * 3)
+    temperature: types.int16 = 0
+
+
+@dataclass
+@annotate.final
+class MotorState_(IdlStruct, typename="unitree_hg::msg::dds_::MotorState_"):  # noqa: N801
+    """One motor's state (q in rad)."""
+
+    mode: types.uint8 = 0
+    q: types.float32 = 0.0
+    dq: types.float32 = 0.0
+    ddq: types.float32 = 0.0
+    tau_est: types.float32 = 0.0
+    temperature: types.array[types.int16, 2] = field(default_factory=lambda: [0, 0])
+    vol: types.float32 = 0.0
+    sensor: types.array[types.uint32, 2] = field(default_factory=lambda: [0, 0])
+    motorstate: types.uint32 = 0
+    reserve: types.array[types.uint32, 4] = field(default_factory=lambda: [0, 0, 0, 0])
+
+
+@dataclass
+@annotate.final
+class LowState_(IdlStruct, typename="unitree_hg::msg::dds_::LowState_"):  # noqa: N801
+    """``rt/lowstate``: the 29 (of 35) motors' states and the IMU, CRC-sealed."""
+
+    version: types.array[types.uint32, 2] = field(default_factory=lambda: [0, 0])
+    mode_pr: types.uint8 = 0
+    mode_machine: types.uint8 = 0
+    tick: types.uint32 = 0
+    imu_state: IMUState_ = field(default_factory=IMUState_)
+    motor_state: types.array[MotorState_, 35] = field(default_factory=lambda: [MotorState_()] * 35)
+    wireless_remote: types.array[types.uint8, 40] = field(default_factory=lambda: [0] * 40)
+    reserve: types.array[types.uint32, 4] = field(default_factory=lambda: [0, 0, 0, 0])
+    crc: types.uint32 = 0

@@ -39,6 +39,24 @@ class G1State(Struct, frozen=True):
     """The service answered GetFsmId (someone serves ``rt/api/<service>``)."""
     stop_detail: Text | None = None
     """The latched stop's state when not confirmed (``unconfirmed: no state``)."""
+    arm_phase: Literal["off", "engaging", "on", "releasing"] = "off"
+    """The rt/arm_sdk stream (``fleet/g1/arms.py``)."""
+    arm_weight: float = 0.0
+    """The weight of the newest rt/arm_sdk message (0: the robot's own controller has the arms)."""
+    arm_released: Text | None = None
+    """Why the arms were last released (a stop, the lease, an FSM that forbids it)."""
+
+
+class G1LowState(Struct, frozen=True):
+    """``g1/<id>/lowstate``: the newest valid ``rt/lowstate`` (CRC and values checked) at
+    ``relay_hz``: the 29 joints' positions (rad, Unitree's motor order) and the IMU."""
+
+    stamp_ns: StampNs
+    q_rad: list[float]
+    imu_rpy: list[float]
+    imu_quaternion: list[float]
+    tick: int
+    bad_samples: Count
 
 
 class _G1Command(DeviceCommand, kw_only=True):
@@ -85,6 +103,108 @@ class GetFsmId(_G1Command, tag="get_fsm_id", kw_only=True):
     """GetFsmId: the reply's ``result`` is the id."""
 
 
+class GetFsmMode(_G1Command, tag="get_fsm_mode", kw_only=True):
+    """GetFsmMode: the reply's ``result`` is 0 (standing) or 1 (moving)."""
+
+
+class GetBalanceMode(_G1Command, tag="get_balance_mode", kw_only=True):
+    """GetBalanceMode: the reply's ``result`` is 0 (balance stand) or 1 (continuous gait)."""
+
+
+class Squat(_G1Command, tag="squat", kw_only=True):
+    """SetFsmId(2): position-control squat."""
+
+
+class Sit(_G1Command, tag="sit", kw_only=True):
+    """SetFsmId(3): position-control sit down."""
+
+
+class ZeroTorque(_G1Command, tag="zero_torque", kw_only=True):
+    """SetFsmId(0): no torque at all (the robot falls): allowed only from damping."""
+
+
+class Squat2StandUp(_G1Command, tag="squat2standup", kw_only=True):
+    """SetFsmId(706): from the squat, stand up."""
+
+
+class StandUp2Squat(_G1Command, tag="standup2squat", kw_only=True):
+    """SetFsmId(706): from standing, squat."""
+
+
+class Lie2StandUp(_G1Command, tag="lie2standup", kw_only=True):
+    """SetFsmId(702): from lying, stand up."""
+
+
+class SetFsmId(_G1Command, tag="set_fsm_id", kw_only=True):
+    """SetFsmId(fsm_id): an id of seed 004's table."""
+
+    fsm_id: Annotated[int, Meta(ge=0, le=1000)]
+
+
+class HighStand(_G1Command, tag="high_stand", kw_only=True):
+    """SetStandHeight(UINT32_MAX): the highest stand."""
+
+
+class LowStand(_G1Command, tag="low_stand", kw_only=True):
+    """SetStandHeight(0): the lowest stand."""
+
+
+class SetStandHeight(_G1Command, tag="set_stand_height", kw_only=True):
+    """SetStandHeight(height): as Unitree's SDK passes it (0 lowest .. 4294967295 highest)."""
+
+    height: Annotated[float, Meta(ge=0.0, le=4294967295.0)]
+
+
+class SetSpeedMode(_G1Command, tag="set_speed_mode", kw_only=True):
+    """SetSpeedMode(mode): the running mode's top speed, 0: 1.0, 1: 2.0, 2: 2.7, 3: 3.0 m/s."""
+
+    mode: Annotated[int, Meta(ge=0, le=3)]
+
+
+class Move(_G1Command, tag="move", kw_only=True):
+    """Move(vx, vy, vyaw, continuous): SetVelocity for 1 s, or with ``continuous`` for the SDK's
+    864000 s (refused unless the inventory's ``allow_continuous_move``; a fleet stop ends it)."""
+
+    vx: Speed = 0.0
+    vy: Speed = 0.0
+    vyaw: Speed = 0.0
+    continuous: bool = False
+
+
+class SetTaskId(_G1Command, tag="set_task_id", kw_only=True):
+    """SetTaskId(task_id): an upper-limb task of the loco service (0-3: wave, shake)."""
+
+    task_id: Annotated[int, Meta(ge=0, le=3)]
+
+
+class WaveHand(_G1Command, tag="wave_hand", kw_only=True):
+    """WaveHand(turn): SetTaskId(1 if turn else 0)."""
+
+    turn: bool = False
+
+
+class ShakeHand(_G1Command, tag="shake_hand", kw_only=True):
+    """ShakeHand(stage): SetTaskId(2) to reach out (stage 0), SetTaskId(3) to let go (1)."""
+
+    stage: Annotated[int, Meta(ge=0, le=1)] = 0
+
+
+JointQ = Annotated[float, Meta(ge=-10.0, le=10.0)]
+
+
+class ArmTarget(_G1Command, tag="arm_target", kw_only=True):
+    """The waist and arms (motors 12-28, rad) as a target of the rt/arm_sdk stream: the agent
+    engages (weight 0 -> 1), then moves the commanded pose towards it at ``speed_rad_s`` (the
+    inventory's ``arm_speed_rad_s`` when None). Renew it within the lease, else released."""
+
+    q_rad: Annotated[list[JointQ], Meta(min_length=17, max_length=17)]
+    speed_rad_s: Annotated[float, Meta(gt=0.0, le=10.0)] | None = None
+
+
+class ArmRelease(_G1Command, tag="arm_release", kw_only=True):
+    """Give the arms back to the robot's own controller (weight 1 -> 0 over ``arm_release_s``)."""
+
+
 G1Command = (
     Damp
     | Start
@@ -94,16 +214,27 @@ G1Command = (
     | StopMove
     | SetVelocity
     | GetFsmId
+    | GetFsmMode
+    | GetBalanceMode
+    | Squat
+    | Sit
+    | ZeroTorque
+    | Squat2StandUp
+    | StandUp2Squat
+    | Lie2StandUp
+    | SetFsmId
+    | HighStand
+    | LowStand
+    | SetStandHeight
+    | SetSpeedMode
+    | Move
+    | SetTaskId
+    | WaveHand
+    | ShakeHand
+    | ArmTarget
+    | ArmRelease
     | Release
 )
-OPS = {
-    Damp: "damp",
-    Start: "start",
-    StandUp: "stand_up",
-    BalanceStand: "balance_stand",
-    ContinuousGait: "continuous_gait",
-    StopMove: "stop_move",
-    SetVelocity: "set_velocity",
-    GetFsmId: "get_fsm_id",
-    Release: "release",
-}
+OPS: dict[type, str] = {cls: cls.__struct_config__.tag for cls in G1Command.__args__}
+READS = (GetFsmId, GetFsmMode, GetBalanceMode)
+"""Calls that only ask (allowed under a stop, never set the robot moving)."""

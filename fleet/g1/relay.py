@@ -32,17 +32,28 @@ from cyclonedds.util import duration
 
 from fleet.devices.base import DeviceReply, Release
 from fleet.devices.driver import Done, DriverBase, LatchView, Put, error_reply
-from fleet.g1 import idl, loco
-from fleet.g1.config import G1Config
+from fleet.g1 import arms, idl, loco
+from fleet.g1.config import G1Config, arm_limits
+from fleet.g1.crc import low_cmd_crc, low_state_crc
 from fleet.g1.messages import (
     OPS,
+    READS,
+    ArmRelease,
+    ArmTarget,
     BalanceStand,
     ContinuousGait,
     Damp,
+    G1LowState,
     G1State,
-    GetFsmId,
+    Move,
+    SetFsmId,
+    SetSpeedMode,
+    SetStandHeight,
+    SetTaskId,
     SetVelocity,
+    ShakeHand,
     StopMove,
+    WaveHand,
 )
 from fleet.g1.probe import ServiceProbe
 from fleet.wire import keys
@@ -60,6 +71,15 @@ RPC_QOS = Qos(
     Policy.History.KeepLast(16),
     Policy.Durability.Volatile,
 )
+ARM_WRITER_QOS = Qos(
+    Policy.Reliability.Reliable(duration(milliseconds=5)),
+    Policy.History.KeepLast(1),
+    Policy.Durability.Volatile,
+)
+"""rt/arm_sdk: reliable matches the robot's reader whatever its reliability; depth 1, the
+newest wins (a late message is worth less than the next one, 20 ms later)."""
+LOWSTATE_MARGIN_RAD = 0.3
+"""rt/lowstate joint positions further than this outside the limits are a bad sample."""
 CONFIRM_SAMPLES = 3
 """The stop is confirmed by this many consecutive sportmodestate samples after its write."""
 MAX_PENDING = 16
@@ -100,6 +120,17 @@ class G1Driver(DriverBase):
             response = Topic(participant, loco.response_topic(service), idl.Response_)
             self.readers.append(DataReader(participant, response, qos=RPC_QOS))
             self._writers[service] = DataWriter(participant, request, qos=RPC_QOS)
+        # issue 23: rt/lowstate (newest kept, checked when used) and the rt/arm_sdk stream.
+        low = Topic(participant, arms.LOWSTATE_TOPIC, idl.LowState_)
+        self._low_index = len(self.readers)
+        self.readers.append(DataReader(participant, low, qos=STATE_READER_QOS))
+        arm_topic = Topic(participant, arms.CMD_TOPIC, idl.LowCmd_)
+        self._arm_writer = DataWriter(participant, arm_topic, qos=ARM_WRITER_QOS)
+        self._arms = arms.ArmStream(arm_limits(config))
+        self._low_raw: tuple[idl.LowState_, float] | None = None
+        self._low: tuple[idl.LowState_, list[float], float] | None = None
+        self._next_arm_s = 0.0
+        self._arm_messages = 0
         self._probe_ids: dict[int, str] = {}
         self._stop_detail: str | None = None
         self._latest: tuple[idl.SportModeState_, float] | None = None
@@ -112,7 +143,17 @@ class G1Driver(DriverBase):
     # ------------------------------------------------------------------ relay thread
 
     def on_data(self, index: int, now_s: float) -> None:
-        """State samples (newest kept; stop confirmation) or RPC responses (matched by id)."""
+        """State samples (newest kept; stop confirmation), rt/lowstate (newest kept, checked
+        when used) or RPC responses (matched by id)."""
+        if index == self._low_index:
+            newest = None
+            for sample in self.readers[index].take(N=64):
+                if isinstance(sample, idl.LowState_):
+                    newest = sample
+            if newest is not None:
+                with self._lock:
+                    self._low_raw = (newest, now_s)
+            return
         if index >= 1:
             self._on_responses(index)
             return
@@ -170,7 +211,7 @@ class G1Driver(DriverBase):
                 written_ns=call.written_ns,
             )
         result = None
-        if call.op == "get_fsm_id":
+        if call.op in ("get_fsm_id", "get_fsm_mode", "get_balance_mode"):
             value = loco.parse_data(response.data)
             result = None if value is None else str(value)
         return DeviceReply(ok=True, device=self.device, written_ns=call.written_ns, result=result)
@@ -191,8 +232,17 @@ class G1Driver(DriverBase):
             self._counts["timeouts"] += len(late)
             next_s = min(self._next_put_s, now_s + TICK_MAX_S)
             ask = self._probe.due(now_s)
+        low = self._lowstate(now_s) if due else None
+        message = self._arm_step(now_s)
+        if message is not None:
+            self._arm_writer.write(message)
+        with self._lock:
+            if self._arms.active:
+                next_s = min(next_s, self._next_arm_s)
         if state is not None:
             self._put(keys.STATE, m.encode(state), False)
+        if low is not None:
+            self._put(keys.LOWSTATE, m.encode(low), False)
         if ask:
             self._ask_service(ask)
         for call in late:
@@ -238,7 +288,127 @@ class G1Driver(DriverBase):
             service_setting=self.config.service,
             service_answered=self._probe.service in self._probe.answered,
             stop_detail=self._stop_detail if latched else None,
+            arm_phase=self._arms.phase,
+            arm_weight=round(self._arms.weight, 3),
+            arm_released=self._arms.why_released,
         )
+
+    # ------------------------------------------------------------------ issue 23: arms
+
+    def _measured(self, now_s: float) -> list[float] | None:
+        """The 29 joint positions of the newest rt/lowstate, checked here (its CRC, finite,
+        near the limits: else counted bad, dropped), None when none is fresh. Checked when
+        used, not per sample: the robot sends 500 a second, the agent uses ~10."""
+        with self._lock:
+            raw, checked = self._low_raw, self._low
+        if raw is not None and (checked is None or raw[0] is not checked[0]):
+            sample, at_s = raw
+            q = [float(s.q) for s in sample.motor_state[: arms.MOTORS]]
+            good = sample.crc == low_state_crc(sample) and all(map(math.isfinite, q))
+            if good:
+                lo, hi = self._arms.limits.lower, self._arms.limits.upper
+                arm_q = q[arms.FIRST : arms.FIRST + arms.COUNT]
+                margin = LOWSTATE_MARGIN_RAD
+                good = all(a - margin <= v <= b + margin for v, a, b in zip(arm_q, lo, hi))
+            with self._lock:
+                self._low_raw = None
+                if good:
+                    self._low = checked = (sample, q, at_s)
+                else:
+                    self._counts["bad_samples"] += 1
+        if checked is None or now_s - checked[2] > self.config.link_stale_s:
+            return None
+        return checked[1]
+
+    def _lowstate(self, now_s: float) -> G1LowState | None:
+        q = self._measured(now_s)
+        with self._lock:
+            checked, bad = self._low, self._counts["bad_samples"]
+        if q is None or checked is None:
+            return None
+        imu = checked[0].imu_state
+        return G1LowState(
+            stamp_ns=time.time_ns(),
+            q_rad=[round(v, 4) for v in q],
+            imu_rpy=[round(float(v), 4) for v in imu.rpy],
+            imu_quaternion=[round(float(v), 5) for v in imu.quaternion],
+            tick=int(checked[0].tick),
+            bad_samples=bad,
+        )
+
+    def _arm_step(self, now_s: float) -> idl.LowCmd_ | None:
+        """The next rt/arm_sdk message when one is due: the stream released first if the state
+        no longer allows it (stale, or an FSM seed 004 does not allow)."""
+        with self._lock:
+            stream = self._arms
+            if not stream.active or now_s < self._next_arm_s:
+                return None
+            latest = self._latest
+        fresh = latest is not None and now_s - latest[1] <= self.config.link_stale_s
+        why = None
+        if not fresh:
+            why = f"no fresh {loco.STATE_TOPIC}"
+        elif latest is not None and latest[0].fsm_id not in loco.ARM_SDK_FSMS:
+            fsm = latest[0].fsm_id
+            why = f"fsm {fsm} {loco.fsm_name(fsm)} does not allow rt/arm_sdk (seed 004)"
+        with self._lock:
+            if why is not None and stream.release(why):
+                self._changed = True
+            phase = stream.phase
+            step = stream.step(now_s)
+            if stream.phase != phase:
+                self._changed = True
+            self._next_arm_s = self._next_arm_s + arms.PERIOD_S
+            if self._next_arm_s <= now_s:  # late by a period: start the cadence again
+                self._next_arm_s = now_s + arms.PERIOD_S
+            if step is None:
+                return None
+            self._arm_messages += 1
+        weight, q_cmd = step
+        limits = stream.limits
+        motors = [idl.MotorCmd_() for _ in range(35)]
+        for i, q in enumerate(q_cmd):
+            motors[arms.FIRST + i] = idl.MotorCmd_(1, q, 0.0, 0.0, limits.kp[i], limits.kd[i], 0)
+        motors[arms.WEIGHT_INDEX] = idl.MotorCmd_(1, weight, 0.0, 0.0, 0.0, 0.0, 0)
+        message = idl.LowCmd_(motor_cmd=motors)
+        message.crc = low_cmd_crc(message)
+        return message
+
+    def _arm_command(self, command: ArmTarget | ArmRelease, now_s: float) -> DeviceReply:
+        """A target (checked: seed 004's FSM states, limits, speed, distance from the measured
+        pose) starts or steers the stream; a release ramps it down."""
+        if isinstance(command, ArmRelease):
+            with self._lock:
+                self._changed |= self._arms.release("released by its owner")
+            return DeviceReply(ok=True, device=self.device)
+        state = self._fresh_state(now_s)
+        if state is None:
+            raise self._refuse(
+                m.ErrorCode.REJECTED,
+                f"g1 {self.device!r}: no fresh {loco.STATE_TOPIC}: the FSM is unknown",
+            )
+        if state.fsm_id not in loco.ARM_SDK_FSMS:
+            raise self._refuse(
+                m.ErrorCode.REJECTED,
+                f"g1 {self.device!r}: rt/arm_sdk is allowed only in lock standing (4) and the "
+                f"walking controller (500, 501) (seed 004), and it is in fsm {state.fsm_id} "
+                f"{loco.fsm_name(state.fsm_id)}: send start first",
+            )
+        speed = command.speed_rad_s or self.config.arm_speed_rad_s
+        measured = self._measured(now_s)
+        arm_q = None if measured is None else measured[arms.FIRST : arms.FIRST + arms.COUNT]
+        why = arms.target_problem(command.q_rad, speed, arm_q, self._arms.limits)
+        if why is not None:
+            code = m.ErrorCode.REJECTED if arm_q is None else m.ErrorCode.PARAMETER
+            raise self._refuse(code, f"g1 {self.device!r}: arm target refused: {why}")
+        assert arm_q is not None
+        with self._lock:
+            if not self._arms.active:
+                self._next_arm_s = now_s
+            phase = self._arms.phase
+            self._arms.set_target(command.q_rad, speed, arm_q, now_s)
+            self._changed |= phase != self._arms.phase
+        return DeviceReply(ok=True, device=self.device, written_ns=time.time_ns())
 
     def _fresh_state(self, now_s: float) -> idl.SportModeState_ | None:
         with self._lock:
@@ -288,6 +458,13 @@ class G1Driver(DriverBase):
         always be activated."""
         with self._lock:
             targets = self._probe.targets
+            if self._arms.phase != "off":  # issue 23: the arms back to the robot first
+                self._changed |= self._arms.release(f"stopped ({self.stop_action})")
+                weight = self._arms.weight
+                self._stop_detail = detail = (
+                    f"releasing the arms (weight {weight:.2f}), then {self.stop_action}"
+                )
+                return True, detail
         for service in targets:
             for call in loco.stop_calls(self.stop_action):
                 self._send(call, None, service)
@@ -304,30 +481,59 @@ class G1Driver(DriverBase):
 
     def moves(self, command: Any) -> bool:
         """Velocity and mode changes set the robot moving."""
-        return not isinstance(command, (Damp, StopMove, BalanceStand, GetFsmId, Release))
+        return not isinstance(command, (Damp, StopMove, BalanceStand, Release, ArmRelease, *READS))
 
     def allowed_while_latched(self, command: Any) -> bool:
         """Damping, stopping (continuous gait's way out, BalanceStand, too) and asking are ways
         to a safe state: allowed under a stop."""
-        return isinstance(command, (Damp, StopMove, BalanceStand, GetFsmId))
+        return isinstance(command, (Damp, StopMove, BalanceStand, ArmRelease, *READS))
+
+    def _call(self, op: str, command: Any) -> loco.Call:
+        """The LocoClient call of ``command``, its parameters checked first (3204)."""
+        problem = None
+        if isinstance(command, SetVelocity):
+            c = command
+            problem = loco.velocity_problem(c.vx, c.vy, c.omega, c.duration_s, self._limits)
+            call = loco.call_for(op, c.vx, c.vy, c.omega, c.duration_s)
+        elif isinstance(command, Move):
+            c = command
+            duration = loco.CONTINUOUS_MOVE_S if c.continuous else 1.0
+            problem = loco.velocity_problem(c.vx, c.vy, c.vyaw, 1.0, self._limits)
+            if c.continuous and not self.config.allow_continuous_move:
+                problem = (
+                    "move with continuous=true walks until stopped (Unitree's 864000 s); "
+                    "set allow_continuous_move = true in its inventory entry to allow it, or "
+                    "use set_velocity with a bounded duration_s"
+                )
+            call = loco.call_for(op, c.vx, c.vy, c.vyaw, duration)
+        elif isinstance(command, ContinuousGait):
+            call = loco.call_for(op, on=command.on)
+        elif isinstance(command, SetFsmId):
+            if command.fsm_id not in loco.FSM_NAMES:
+                problem = f"fsm_id {command.fsm_id} is not in seed 004's table"
+            call = loco.call_for(op, value=command.fsm_id)
+        else:
+            value: float = {  # type: ignore[dict-item]
+                SetStandHeight: lambda c: c.height,
+                SetSpeedMode: lambda c: c.mode,
+                SetTaskId: lambda c: c.task_id,
+                WaveHand: lambda c: int(c.turn),
+                ShakeHand: lambda c: c.stage,
+            }.get(type(command), lambda c: 0)(command)
+            call = loco.call_for(op, value=value)
+        if problem is not None:
+            raise self._refuse(m.ErrorCode.PARAMETER, f"g1 {self.device!r}: {problem}")
+        return call
 
     def execute(self, command: Any, now_s: float, done: Done) -> DeviceReply | None:
         """Check and call the robot; ``done`` gets its answer (or 3104 past the timeout)."""
         assert not isinstance(command, Release)  # the core serves releases
         with self._lock:
             self._counts["commands"] += 1
+        if isinstance(command, (ArmTarget, ArmRelease)):
+            return self._arm_command(command, now_s)
         op = OPS[type(command)]
-        if isinstance(command, SetVelocity):
-            problem = loco.velocity_problem(
-                command.vx, command.vy, command.omega, command.duration_s, self._limits
-            )
-            if problem is not None:
-                raise self._refuse(m.ErrorCode.PARAMETER, f"g1 {self.device!r}: {problem}")
-            call = loco.call_for(op, command.vx, command.vy, command.omega, command.duration_s)
-        elif isinstance(command, ContinuousGait):
-            call = loco.call_for(op, on=command.on)
-        else:
-            call = loco.call_for(op)
+        call = self._call(op, command)
         with self._lock:
             service = self._probe.service
         if service is None:
@@ -337,7 +543,7 @@ class G1Driver(DriverBase):
                 "running? (`service` in the inventory names it: sport, loco or auto)",
             )
         state = self._fresh_state(now_s)
-        if state is None and not isinstance(command, (Damp, GetFsmId)):
+        if state is None and not isinstance(command, (Damp, *READS)):
             raise self._refuse(
                 m.ErrorCode.REJECTED,
                 f"g1 {self.device!r}: no fresh {loco.STATE_TOPIC} (within "

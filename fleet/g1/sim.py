@@ -26,11 +26,15 @@ from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 
-from fleet.g1 import idl, loco
+from fleet.g1 import arms, idl, loco
 from fleet.g1.config import G1Config
+from fleet.g1.crc import low_cmd_crc, low_state_crc
 from fleet.g1.relay import RPC_QOS
 from fleet.wire.messages import ErrorCode
 
+ARM_READER_QOS = Qos(
+    Policy.Reliability.BestEffort, Policy.History.KeepLast(8), Policy.Durability.Volatile
+)
 STATE_WRITER_QOS = Qos(
     Policy.Reliability.BestEffort, Policy.History.KeepLast(1), Policy.Durability.Volatile
 )
@@ -45,6 +49,14 @@ class G1Model:
         self.moving_until_s = 0.0
         self.continuous = False
         self.velocity = (0.0, 0.0, 0.0)
+        self.stand_height = float(loco.HIGH_STAND)
+        self.speed_mode = 0
+        self.task_id = 0
+        self.task_since_s: float | None = None
+
+    def task_time(self, now_s: float) -> float:
+        """Seconds since the arm task started (0 without one)."""
+        return 0.0 if self.task_since_s is None else now_s - self.task_since_s
 
     def fsm_mode(self, now_s: float) -> int:
         """1 (dynamic) while stepping, else 0."""
@@ -70,6 +82,8 @@ class G1Model:
             return self._set_fsm(params.get("data"), now_s), ""
         if api_id == loco.SET_BALANCE_MODE:
             return self._balance(params.get("data"), now_s), ""
+        if api_id in (loco.SET_STAND_HEIGHT, loco.SET_SPEED_MODE, loco.SET_ARM_TASK):
+            return self._standing_call(api_id, params.get("data"), now_s), ""
         return self._velocity(params, now_s), ""
 
     def _set_fsm(self, fsm_id: Any, now_s: float) -> int:
@@ -78,7 +92,30 @@ class G1Model:
         if fsm_id != loco.DAMP_FSM and self.fsm_mode(now_s) == loco.DYNAMIC:
             return int(ErrorCode.SERVER_REJECTED)
         self.fsm_id, self.moving_until_s, self.continuous = fsm_id, 0.0, False
+        self.task_since_s = None
         self.velocity = (0.0, 0.0, 0.0)
+        return 0
+
+    def _standing_call(self, api_id: int, data: Any, now_s: float) -> int:
+        """SetStandHeight (0..UINT32_MAX), SetSpeedMode (0-3), SetTaskId (0-3): a standing
+        controller only (else 3205)."""
+        if not isinstance(data, int | float) or isinstance(data, bool):
+            return int(ErrorCode.PARAMETER)
+        ranges = {
+            loco.SET_STAND_HEIGHT: loco.HIGH_STAND,
+            loco.SET_SPEED_MODE: max(loco.SPEED_MODES),
+            loco.SET_ARM_TASK: max(loco.ARM_TASKS),
+        }
+        if not 0 <= data <= ranges[api_id]:
+            return int(ErrorCode.PARAMETER)
+        if self.fsm_id not in loco.TASK_FSMS:
+            return int(ErrorCode.SERVER_REJECTED)
+        if api_id == loco.SET_STAND_HEIGHT:
+            self.stand_height = float(data)
+        elif api_id == loco.SET_SPEED_MODE:
+            self.speed_mode = int(data)
+        else:
+            self.task_id, self.task_since_s = int(data), now_s
         return 0
 
     def _balance(self, mode: Any, now_s: float) -> int:
@@ -109,6 +146,42 @@ class G1Model:
         return 0
 
 
+class SimArms:
+    """rt/arm_sdk as the robot takes it (issue 23): a CRC-checked LowCmd_ with a weight in
+    0..1 on motor 29 blends its motors 12-28 into the robot's own pose, in the FSM states seed
+    004 allows (else ignored). Pure."""
+
+    def __init__(self) -> None:
+        self.own = [0.0] * arms.MOTORS
+        """The robot's own controller's pose (standing, arms down)."""
+        self.weight = 0.0
+        self.q_cmd = [0.0] * arms.COUNT
+        self.messages = self.bad = self.ignored = 0
+
+    def take(self, cmd: idl.LowCmd_, fsm_id: int) -> None:
+        """One rt/arm_sdk message."""
+        weight = float(cmd.motor_cmd[arms.WEIGHT_INDEX].q)
+        if cmd.crc != low_cmd_crc(cmd) or not 0.0 <= weight <= 1.0:
+            self.bad += 1
+            return
+        if fsm_id not in loco.ARM_SDK_FSMS:
+            self.ignored += 1
+            return
+        self.messages += 1
+        self.weight = weight
+        self.q_cmd = [float(m.q) for m in cmd.motor_cmd[arms.FIRST : arms.FIRST + arms.COUNT]]
+
+    def pose(self, fsm_id: int) -> list[float]:
+        """The 29 joint positions now."""
+        q = list(self.own)
+        if fsm_id not in loco.ARM_SDK_FSMS:
+            self.weight = 0.0  # the controller that blends is gone
+        w = self.weight
+        for i, target in enumerate(self.q_cmd):
+            q[arms.FIRST + i] = (1 - w) * self.own[arms.FIRST + i] + w * target
+        return q
+
+
 class SimG1:
     """One simulated G1's DDS endpoints and model."""
 
@@ -122,14 +195,25 @@ class SimG1:
         self._responses = DataWriter(participant, response, qos=RPC_QOS)
         self._state = DataWriter(participant, state, qos=STATE_WRITER_QOS)
         self.publish_state = config.sim_state
-        self.readers = [self._requests]
+        low = Topic(participant, arms.LOWSTATE_TOPIC, idl.LowState_)
+        arm = Topic(participant, arms.CMD_TOPIC, idl.LowCmd_)
+        self._low = DataWriter(participant, low, qos=STATE_WRITER_QOS)
+        self._arm_reader = DataReader(participant, arm, qos=ARM_READER_QOS)
+        self.arms = SimArms()
+        self.tick = 0
+        self.readers = [self._requests, self._arm_reader]
         self.model = G1Model(config.sim_fsm_id, config.sim_settle_s)
         self.period_s = 1.0 / config.sim_rate_hz
         self.next_s = now_s
         self.calls = 0
 
     def on_data(self, index: int, now_s: float) -> None:
-        """Answer every request (identity echoed, status code, data)."""
+        """Answer every request (identity echoed, status code, data); take rt/arm_sdk."""
+        if index == 1:
+            for cmd in self._arm_reader.take(N=64):
+                if isinstance(cmd, idl.LowCmd_):
+                    self.arms.take(cmd, self.model.fsm_id)
+            return
         for request in self._requests.take(N=32):
             if not isinstance(request, idl.Request_):
                 continue
@@ -148,6 +232,19 @@ class SimG1:
         """Publish one sportmodestate; the next time it is due."""
         mode = self.model.fsm_mode(now_s)
         if self.publish_state:
-            self._state.write(idl.SportModeState_(fsm_id=self.model.fsm_id, fsm_mode=mode))
+            model = self.model
+            task_time = model.task_time(now_s)
+            sample = idl.SportModeState_(model.fsm_id, mode, model.task_id, task_time)
+            self._state.write(sample)
+            self._low.write(self.lowstate())
         self.next_s = max(self.next_s + self.period_s, now_s)
         return self.next_s
+
+    def lowstate(self) -> idl.LowState_:
+        """rt/lowstate now: the blended pose, a level IMU, Unitree's CRC."""
+        self.tick += 1
+        q = self.arms.pose(self.model.fsm_id)
+        motors = [idl.MotorState_(q=v) for v in q] + [idl.MotorState_() for _ in range(35 - len(q))]
+        state = idl.LowState_(tick=self.tick, motor_state=motors)
+        state.crc = low_state_crc(state)
+        return state

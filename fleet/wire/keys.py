@@ -29,6 +29,7 @@ RESET = "reset"
 HEARTBEAT = "heartbeat"
 CONTACT = "contact"
 SIM_FAULT = "sim/fault"
+LOWSTATE = "lowstate"  # a G1's rt/lowstate (joint positions, IMU) at its relay rate
 
 # Key kinds directly under fleet/<fleet>/ (HEARTBEAT, ESTOP and RESET above serve both levels)
 STATE = "state"
@@ -68,7 +69,7 @@ _NAMED_CHANNELS = ((HEARTBEAT, 1), (COORDINATOR_CMD, 1), (INFO, 2))
 """Fleet-level channels followed by names: ``heartbeat/<principal>``,
 ``coordinator/cmd/<principal>``, ``info/<role>/<instance>``."""
 
-DEVICE_CHANNELS = (STATE, CMD, CONTACT, AGENT, DIAG, ESTOP, ESTOP_ACK, RESET)
+DEVICE_CHANNELS = (STATE, CMD, CONTACT, LOWSTATE, AGENT, DIAG, ESTOP, ESTOP_ACK, RESET)
 """Channels under ``fleet/<fleet>/<kind>/<device>/`` for the device kinds beside the D1 arm
 (``fleet/devices``: ``gripper``, ``g1``): the same words as the arm's, one meaning each."""
 

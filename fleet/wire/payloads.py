@@ -134,6 +134,7 @@ GRIPPER_CONTACT: PayloadKind[dex1.GripEvent] = payload_kind(
 )
 G1_STATE: PayloadKind[g1.G1State] = payload_kind("g1 state", g1.G1State, 4 * KIB)
 G1_COMMAND: PayloadKind[g1.G1Command] = payload_kind("g1 command", g1.G1Command, 4 * KIB)
+G1_LOWSTATE: PayloadKind[g1.G1LowState] = payload_kind("g1 lowstate", g1.G1LowState, 8 * KIB)
 
 CMD_REPLY = f"{keys.CMD} reply"
 COORDINATOR_CMD_REPLY = f"{keys.COORDINATOR_CMD} reply"
@@ -190,7 +191,7 @@ DEVICE_PAYLOADS: dict[str, dict[str, PayloadKind[Any]]] = {
         keys.CMD: GRIPPER_COMMAND,
         keys.CONTACT: GRIPPER_CONTACT,
     },
-    keys.G1: {keys.STATE: G1_STATE, keys.CMD: G1_COMMAND},
+    keys.G1: {keys.STATE: G1_STATE, keys.CMD: G1_COMMAND, keys.LOWSTATE: G1_LOWSTATE},
 }
 """Each device kind's own payloads by channel (what ``fleet.devices`` kinds decode with)."""
 
