@@ -83,8 +83,8 @@ def seeds() -> list[bytes]:
 
 
 def device_payloads() -> list[msgspec.Struct]:
-    """One valid payload of every device row of the channel table (issue 28: the devices'
-    payloads and commands, which the seeds had left out)."""
+    """One valid payload of every device row of the channel table (the devices' payloads and
+    commands, which the seeds had once left out)."""
     from fleet.dex1 import messages as dex1
     from fleet.g1 import messages as g1
 
@@ -110,6 +110,14 @@ def device_payloads() -> list[msgspec.Struct]:
         g1.StopMove(),
         g1.SetVelocity(vx=0.1, duration_s=2.0),
         g1.GetFsmId(),
+        g1.G1LowState(
+            stamp_ns=1,
+            q_rad=[0.0] * 29,
+            imu_rpy=[0.0] * 3,
+            imu_quaternion=[1.0, 0.0, 0.0, 0.0],
+            tick=1,
+            bad_samples=0,
+        ),  # fmt: skip
         m.DeviceReply(True, "h1", None, 5, "500"),
         m.ProcessInfo("agent", "agent-lo", "host", 7, "1.0", 1, 2, ["a1"], 9100),
     ]
