@@ -14,7 +14,7 @@ $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 
-# Unitree's Python SDK with its G1 clients is the far side of the G1 tests (issue 22), installed
+# Unitree's Python SDK with its G1 clients is the far side of the G1 tests, installed
 # --no-deps: it declares opencv-python, which none of its code the tests use imports, and it
 # runs on our cyclonedds 11. The stamp depends on this Makefile too, so an older venv gets it.
 $(STAMP): pyproject.toml Makefile | $(BIN)/python
