@@ -8,13 +8,13 @@ FUZZ_TIMEOUT ?= 10
 DURATION ?= 30m
 UNITREE_SDK := unitree-sdk2py-dimos==1.0.3
 
-.PHONY: demo test lint bench fuzz soak clean
+.PHONY: demo test lint bench fuzz soak docs clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 
-# Unitree's Python SDK with its G1 clients is the far side of the G1 tests (issue 22), installed
+# Unitree's Python SDK with its G1 clients is the far side of the G1 tests, installed
 # --no-deps: it declares opencv-python, which none of its code the tests use imports, and it
 # runs on our cyclonedds 11. The stamp depends on this Makefile too, so an older venv gets it.
 $(STAMP): pyproject.toml Makefile | $(BIN)/python
@@ -29,6 +29,11 @@ $(VENV)/.installed-fuzz: pyproject.toml | $(STAMP)
 
 $(VENV)/.installed-soak: pyproject.toml | $(STAMP)
 	$(BIN)/python -m pip install --quiet -e '.[test,soak]'
+	touch $@
+
+# mkdocs (the documentation site) is an optional extra too.
+$(VENV)/.installed-docs: pyproject.toml | $(STAMP)
+	$(BIN)/python -m pip install --quiet -e '.[test,docs]'
 	touch $@
 
 demo: $(STAMP)
@@ -46,7 +51,7 @@ test: $(STAMP) lint
 bench: $(STAMP)
 	$(BIN)/python -m bench
 
-# Coverage-guided fuzzing of every hostile-input decoder: FUZZ_SECONDS per target (README, "Fuzzing").
+# Coverage-guided fuzzing of every hostile-input decoder: FUZZ_SECONDS per target (docs/design/testing.md, "Fuzzing").
 fuzz: $(VENV)/.installed-fuzz
 	$(BIN)/python -m fuzz.run --seconds $(FUZZ_SECONDS) --timeout $(FUZZ_TIMEOUT)
 
@@ -54,5 +59,11 @@ fuzz: $(VENV)/.installed-fuzz
 soak: $(VENV)/.installed-soak
 	$(BIN)/python -m bench.soak --duration $(DURATION)
 
+# docs/ as a website in site/ (ignored): the results pages are refreshed from the newest
+# bench and soak outputs first (scripts/docs_results.py), then every link is checked (--strict).
+docs: $(VENV)/.installed-docs
+	$(BIN)/python scripts/docs_results.py
+	$(BIN)/mkdocs build --strict --site-dir site
+
 clean:
-	rm -rf $(VENV) build *.egg-info artifacts
+	rm -rf $(VENV) build *.egg-info artifacts site

@@ -56,9 +56,8 @@ SECTIONS = (
     "routers",
 )  # fmt: skip
 """raw: hops and fan-outs; relay: latency and cost at 1-100 arms; fleet: command and stop;
-devices: one Dex1-1 at 500 Hz (issue 14); onecore: one agent for a D1 and its Dex1-1 vs two
-processes, a device's stop under a flood (issue 21); scale: 1000 arms; routers: two routers
-(issue 12)."""
+devices: one Dex1-1 at 500 Hz; onecore: one agent for a D1 and its Dex1-1 vs two
+processes, a device's stop under a flood; scale: 1000 arms; routers: two routers."""
 
 
 _STEPS: tuple[tuple[str, str, Callable[[bool], Any]], ...] = (

@@ -5,7 +5,7 @@ the spec's example pose, every joint to both limits, stalls on every arm joint a
 gripping an object vs closing on air, a held joint pushed by a moving obstacle, joints dragged
 by hand while unloaded; noise and feedback jitter on part of them), each labelled with the true
 contact onset (the first physics step in which the joint is blocked), on every arm dynamics
-family of ``contact_families.py`` (issue 13: never only the simulator the detector was written
+family of ``contact_families.py`` (never only the simulator the detector was written
 against), with the detector uncalibrated and calibrated (the calibration routine and fit run on
 that family's arm). Per family it prints recall of stalls, grips and pushes, false alarms per
 hour of free motion, force limits in free motion and the detection delay p50/p95 of the default
@@ -143,14 +143,14 @@ def episodes(seed: int = 7) -> list[Episode]:
                 jit,
             )
         )
-    for mode in (0, 1):  # the spec's example pose and back (issue 13)
+    for mode in (0, 1):  # the spec's example pose and back
         home = [0.0] * 7
         cmds = [
             (0.5, p.SetAllAngles(SPEC_POSE, mode)),
             (8.0, p.SetAllAngles(tuple(home), mode)),
         ]
         eps.append(Episode(f"free-spec-pose-m{mode}", "free", 700 + mode, 15.0, home, cmds))
-    for joint in range(7):  # every joint to both its limits, both modes (issue 13)
+    for joint in range(7):  # every joint to both its limits, both modes
         lo, hi = JOINT_RANGE_DEG[joint]
         t, cmds = 0.5, []
         for mode in (0, 1):

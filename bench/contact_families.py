@@ -1,4 +1,4 @@
-"""The arm dynamics the contact benchmark runs on (issue 13): named families spanning every
+"""The arm dynamics the contact benchmark runs on: named families spanning every
 plausible D1 (speed limits 20-180 deg/s, first-order lags 0.03-0.5 s, second-order servos up to
 10 % overshoot, dead time up to 0.1 s, feedback 8-12 Hz with jitter, modes 0 and 1 unlike each
 other) and seeded random draws over the same space. The detector is never tuned to one of them:

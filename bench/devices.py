@@ -1,4 +1,4 @@
-"""Section ``devices`` (issue 14): one Dex1-1's state at 500 Hz through the devices agent.
+"""Section ``devices``: one Dex1-1's state at 500 Hz through the devices agent.
 
 Processes: router, ``edge-agent --device gl`` (the agent serving the gripper, nothing else) and
 ``bench/w_grip.py`` (the gripper's DDS state stream and a plain Zenoh subscriber on its state).

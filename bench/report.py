@@ -1,4 +1,4 @@
-"""The benchmark's table: every figure with its goal (issues 7 and 12) and PASS/FAIL, as Markdown.
+"""The benchmark's table: every figure with its goal and PASS/FAIL, as Markdown.
 
 A run of some sections only (``python -m bench --only ...``) gets the rows and goals of those.
 
@@ -32,25 +32,25 @@ def _lat_row(name: str, lat: dict[str, Any]) -> Row:
 
 
 ISSUE7 = ("raw", "relay", "fleet")
-"""The sections the goals of issue 7 compare with each other."""
+"""The sections the first goals compare with each other."""
 
 
 COMMAND_RATIO = 1.15
-"""Command round trip p50 over its four raw hops (2 DDS + 2 Zenoh), issue 12 (was 1.25)."""
+"""Command round trip p50 over its four raw hops (2 DDS + 2 Zenoh) (was 1.25)."""
 STOP_FANOUT_RATIO = 1.5
-"""Stop to the last of 100 arms p99 over the raw fan-out p99, issue 12 (was 2)."""
+"""Stop to the last of 100 arms p99 over the raw fan-out p99 (was 2)."""
 ONE_ARM_CPU_PCT = 0.5
-"""The agent of one arm at 10 Hz, % of a core (issue 12)."""
+"""The agent of one arm at 10 Hz, % of a core."""
 GRIPPER_CPU_PCT = 3.0
-"""The agent serving one Dex1-1 at 500 Hz, % of a core (issue 14)."""
+"""The agent serving one Dex1-1 at 500 Hz, % of a core."""
 ONE_CORE_CPU_RATIO = 1.0
-"""One agent serving a D1 and its Dex1-1 uses no more CPU than two agent processes (issue 21)."""
+"""One agent serving a D1 and its Dex1-1 uses no more CPU than two agent processes."""
 DEVICE_STOP_FLOOD_MS = 500.0
-"""A flood on a device's command key never delays its stop beyond this (issue 21)."""
+"""A flood on a device's command key never delays its stop beyond this."""
 
 
 def goals(r: dict[str, Any]) -> list[dict[str, Any]]:
-    """Each goal of issues 7 and 12 with its figure, limit and verdict (also saved in the JSON)."""
+    """Each goal with its figure, limit and verdict (also saved in the JSON)."""
     out: list[dict[str, Any]] = []
 
     def add(name: str, figure: float, limit: float, unit: str) -> None:
@@ -84,7 +84,7 @@ def goals(r: dict[str, Any]) -> list[dict[str, Any]]:
 
 
 def _contact_goals(families: dict[str, Any], add: Callable[[str, float, float, str], None]) -> None:
-    """Issue 13: each goal over every dynamics family (the worst family's figure)."""
+    """Each goal over every dynamics family (the worst family's figure)."""
     rows = {name: row for name, row in families.items() if name != "per method"}
 
     def worst(config: str, figure: Callable[[dict[str, float]], float]) -> float:
@@ -234,7 +234,7 @@ def _onecore_rows(r: dict[str, Any]) -> list[Row]:
 
 
 def _ros2_rows(r: dict[str, Any]) -> list[Row]:
-    """fleet ros2 (issue 27): joint_states over the joints key, and its CPU."""
+    """fleet ros2: joint_states over the joints key, and its CPU."""
     p50, p95 = r["added_ms_p50"], r["added_ms_p95"]
     ok = p50 is not None and p50 <= 2.0 and r["cpu_pct"] <= 3.0
     return [
@@ -399,7 +399,7 @@ def markdown(r: dict[str, Any]) -> str:
         "|---|---|---|---|---|---|",
     ]
     lines += ["| " + " | ".join(row) + " |" for row in rows(r)]
-    lines += ["", "Goals (issues 7, 12, 13 and 14):", ""]
+    lines += ["", "Goals:", ""]
     for g in r["goals"]:
         lines.append(
             f"- {_verdict(g['ok'])}: {g['goal']}: {g['figure']:.2f} {g['unit']} "

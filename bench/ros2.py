@@ -1,4 +1,4 @@
-"""ROS 2 (issue 27): ``fleet ros2``'s added latency and CPU at 10 arms.
+"""ROS 2: ``fleet ros2``'s added latency and CPU at 10 arms.
 
 A router, ``fleet ros2`` (its own process), and in this process a feeder that puts ``Joints``
 on ``arm/<arm>/joints`` at 10 Hz for every arm (as agents do) and one subscriber on both the

@@ -1,4 +1,4 @@
-"""Sections 7 and 8 (issue 12): a fleet of 1000 simulated arms, and a fleet behind two routers.
+"""Sections 7 and 8: a fleet of 1000 simulated arms, and a fleet behind two routers.
 
 Both are real runs of the product's processes on loopback: ``fleet router`` (site routers with
 ``--listen``/``--connect``), ``fleet sim`` processes (``--no-zenoh``: a real arm is a DDS device;

@@ -24,7 +24,8 @@ from fleet.wire.session import RouterUnreachable
 log = logging.getLogger("edge_agent")
 
 
-def parse_args(argv: list[str] | None) -> argparse.Namespace:
+def build_parser() -> argparse.ArgumentParser:
+    """``edge-agent``'s options (docs/guide/cli.md lists them; tests/test_docs.py checks it)."""
     parser = argparse.ArgumentParser(prog="edge-agent", description=__doc__)
     add_inventory_options(parser)
     add_observe_options(parser)
@@ -44,6 +45,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         help="where latched stops are kept across restarts (default $D1_FLEET_STATE_DIR, "
         "else ~/.local/state/d1-fleet)",
     )
+    return parser
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    """The command line, checked: something to serve must be named."""
+    parser = build_parser()
     args = parser.parse_args(argv)
     if not (args.interface or args.arm or args.device):
         parser.error("give --interface CARD, or --arm / --device ids")

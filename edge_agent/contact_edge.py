@@ -8,7 +8,7 @@ blocks or does I/O under the lock: events go into the agent's outbox, DDS writes
 ``_pending`` until ``flush``.
 
 Force limiting by position (the D1 has no torque limit): when a contact confirmed by a method
-trustworthy for this arm (never an uncalibrated or untrusted model: issue 13) has a tracking
+trustworthy for this arm (never an uncalibrated or untrusted model) has a tracking
 error past ``force_limit_deg``, the joint's target becomes its measured angle (``1/1``), so the
 motor stops pushing; commands in flight that move that joint fail with 4002 (refused).
 

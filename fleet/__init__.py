@@ -1,4 +1,4 @@
-"""d1-fleet: fleet software for Unitree D1-550 arms (see the README).
+"""d1-fleet: fleet software for Unitree D1-550 arms (see README.md and docs/).
 
 ``from fleet import Fleet`` is the scripting API (``fleet/api.py``); it is loaded on first use so
 that importing the pure packages (``fleet.d1``, ``fleet.wire``) never loads Zenoh (and mypy's

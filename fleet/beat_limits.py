@@ -1,4 +1,4 @@
-"""Heartbeats bounded before they are parsed (issue 28): a size and a rate per principal.
+"""Heartbeats bounded before they are parsed: a size and a rate per principal.
 
 Anyone allowed to beat (in open mode: anyone) could flood ``heartbeat/*``: 4 MB beats raised an
 agent's stop -> ack from 2-7 ms to 63-376 ms. A beat carries at most one repeated stop per unit

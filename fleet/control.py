@@ -1,6 +1,6 @@
 """One shared intake for stops and resets: arrival order in every process that takes both.
 
-A reset put right after a stop must never overtake it, nor a stop the reset before it (issue 28:
+A reset put right after a stop must never overtake it, nor a stop the reset before it (before,
 the coordinator, whose stop and reset subscribers each ran on a Python thread of their own,
 applied a reset after the stop that followed it in 4 of 12 runs, and its heartbeat then did not
 repeat the new stop). Two things keep the order, and every process that takes both (the edge

@@ -4,7 +4,7 @@ Checks, in the order a first bring-up meets them: the network card named in the 
 (exists, up, has an address), the DDS domain, the DDS peers (resolvable, and reached through
 that card, not through another one), the Zenoh router, every process's version and clock
 (``info/**`` queryables, fleet/wire/info.py), every arm's agent, the arm's feedback (link and
-rate as the agent sees them), each G1's LocoClient service name (issue 22) and the
+rate as the agent sees them), each G1's LocoClient service name and the
 coordinator. Host checks are pure functions of this host; fleet checks take an open
 ``FleetClient``.
 """

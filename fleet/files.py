@@ -1,4 +1,4 @@
-"""Files a running process reads, read so that no file can freeze or flood it (issue 28).
+"""Files a running process reads, read so that no file can freeze or flood it.
 
 A calibration file replaced by a named pipe blocked the agent's relay thread on ``read()``: the
 agent still looked "up" but relayed nothing, and a stop 0.8 s later found no fresh pose. So:

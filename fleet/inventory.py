@@ -2,7 +2,7 @@
 
 Every error names the file and the path inside it (``inventory.toml: arms.a1: ...``); unknown or
 misspelled fields are errors, not silently ignored. ``[defaults]`` applies to every arm; a field
-set in ``[arms.<id>]`` overrides it. The README's "inventory.toml reference" documents each field.
+set in ``[arms.<id>]`` overrides it. docs/reference/inventory.md documents each field.
 """
 
 from __future__ import annotations
@@ -191,7 +191,7 @@ class Inventory(Struct, frozen=True):
 
     @property
     def ros2(self) -> Ros2Section:
-        """``[ros2]``, or its defaults: the fleet on rmw_zenoh's wire (README "ROS 2")."""
+        """``[ros2]``, or its defaults: the fleet on rmw_zenoh's wire (docs/guide/ros2.md)."""
         return self.ros2_section if self.ros2_section is not None else Ros2Section()
 
     def device(self, device_id: str) -> DeviceBase:

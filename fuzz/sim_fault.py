@@ -46,7 +46,7 @@ def check(data: bytes) -> None:
 
 
 def seeds() -> list[bytes]:
-    """Every fault of the README's key-space table, as the tests send them."""
+    """Every fault of docs/reference/keyspace.md, as the tests send them."""
     return [
         b'{"op":"stall","joint":1,"angle_deg":-20.5}',
         b'{"op":"unstall","joint":1}',

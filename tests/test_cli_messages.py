@@ -87,12 +87,13 @@ def _subcommand(name: str) -> argparse.ArgumentParser:
     return action.choices[name]
 
 
-def test_the_readme_names_every_option_of_the_demo_and_replay_says_where_it_goes() -> None:
+def test_the_cli_reference_names_every_option_of_the_demo_and_replay_says_where_it_goes() -> None:
     """The CLI table missed `--port`, `--dance`, `--foxglove` of `fleet demo`; `fleet replay`'s
-    help said "into the viewer" though it publishes on `<fleet>-replay`."""
-    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8")
-    row = next(line for line in readme.splitlines() if line.startswith("| `fleet demo ["))
-    shown = row.split("|")[1]
+    help said "into the viewer" though it publishes on `<fleet>-replay`. (Every command's options:
+    tests/test_docs.py.)"""
+    cli = Path(__file__).resolve().parents[1] / "docs" / "guide" / "cli.md"
+    text = cli.read_text(encoding="utf-8")
+    shown = text.split("### `fleet demo`", 1)[1].split("\n### ", 1)[0]
     common = {"--inventory", "--endpoint", "--domain", "--log-level", "--log-file", "--log-format"}
     common |= {"--help", "--connect-timeout", "--principal"}
     options = {
@@ -101,8 +102,8 @@ def test_the_readme_names_every_option_of_the_demo_and_replay_says_where_it_goes
         for option in action.option_strings
         if option.startswith("--")
     }
-    missing = sorted(o for o in options - common if o not in shown)
-    assert missing == [], f"README's fleet demo row lacks {missing}"
+    missing = sorted(o for o in options - common if f"`{o}" not in shown)
+    assert missing == [], f"docs/guide/cli.md's fleet demo section lacks {missing}"
     parser = build_parser()
     action = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
     help_text = next(c.help for c in action._choices_actions if c.dest == "replay")

@@ -52,7 +52,7 @@ BRIDGED = frozenset(
         keys.STOP_REPORT,
         keys.STATE,
         keys.COORDINATOR_DIAG,
-        # Every device kind's state, contacts, stops, acks and diag (issue 21): rows of the
+        # Every device kind's state, contacts, stops, acks and diag: rows of the
         # channel table (resets and commands stay off, as for arms' commands).
         *(
             f"{kind}/{channel}"

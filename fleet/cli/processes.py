@@ -97,7 +97,8 @@ def register(
     demo.add_argument(
         "--ros2",
         action="store_true",
-        help="also run `fleet ros2`: the fleet as ROS 2 nodes on rmw_zenoh's wire (README 'ROS 2')",
+        help="also run `fleet ros2`: the fleet as ROS 2 nodes on rmw_zenoh's wire "
+        "(docs/guide/ros2.md)",
     )
     demo.add_argument(
         "--secure",

@@ -48,7 +48,7 @@ def run_estop(args: argparse.Namespace) -> int:
         if getattr(inventory.device(device), "stop_action", "") == "damp":
             print(
                 f"WARNING: {device}'s stop action is damp: a damped G1 sinks to the ground "
-                "(README, Protective stop); make sure nobody is next to it",
+                "(docs/design/stop-path.md); make sure nobody is next to it",
                 file=sys.stderr,
             )
     for arm in [t for t in targets if t not in inventory.devices]:
@@ -56,7 +56,7 @@ def run_estop(args: argparse.Namespace) -> int:
         if action != "hold":
             print(
                 f"WARNING: {arm}'s stop action is {action}: an unloaded or unpowered D1 drops "
-                "under gravity (README, Safety); make sure nothing is under it",
+                "under gravity (README.md, Safety); make sure nothing is under it",
                 file=sys.stderr,
             )
     with FleetClient(inventory, connect_timeout_s=args.connect_timeout) as client:

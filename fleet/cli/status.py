@@ -139,7 +139,7 @@ def device_lines(inventory: Inventory, states: dict[str, Any]) -> list[str]:
 
 
 def _as_json(snapshot: Snapshot, alive: set[str], devices: dict[str, Any] | None = None) -> str:
-    """Arms by id (as before issue 14), then devices by ``<kind>/<id>`` (a ``/`` no arm id
+    """Arms by id (as before the devices), then devices by ``<kind>/<id>`` (a ``/`` no arm id
     has, so the two never collide): ``{"kind", "state"}`` (``state`` null: none heard)."""
     out: dict[str, Any] = {
         arm: {

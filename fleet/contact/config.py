@@ -1,8 +1,8 @@
 """Contact detector thresholds: the inventory's ``contact`` table (``[defaults.contact]`` or
 ``[arms.<id>.contact]``, with ``arm`` and ``gripper`` sub-tables).
 
-The defaults are justified by the benchmark (``bench/contact.py``, README "Contact detection"),
-which runs them on every plausible arm dynamics family (issue 13), uncalibrated and calibrated,
+The defaults are justified by the benchmark (``bench/contact.py``, docs/results/contact.md),
+which runs them on every plausible arm dynamics family, uncalibrated and calibrated,
 with feedback noise and jitter. Method 2's figures follow from the plausible range itself.
 """
 

@@ -16,7 +16,7 @@ A joint that does not track (unloaded, unpowered, stopped with unload/power_off)
 contact: moving it by hand is not a contact. The gripper uses its own thresholds; a confirmed
 gripper contact while closing is a grip.
 
-Trust (issue 13): method 5 needs a model of this arm's response. Without a calibration of the
+Trust: method 5 needs a model of this arm's response. Without a calibration of the
 joint (``Calibration``), or once the online sanity check (``sanity.py``) found the model off in
 free motion, method 5 may raise suspicion but never confirms; a contact is confirmed only by a
 method trustworthy for this arm, and only such a contact is force-limited.

@@ -2,7 +2,7 @@
 predictor (method 5) and the calibration fit. Pure.
 
 The D1 spec gives no figures for the firmware's command smoothing, so the model is a family
-wide enough for any plausible arm (issue 13): per smoothing mode, a dead time, then a
+wide enough for any plausible arm: per smoothing mode, a dead time, then a
 reference that moves towards the target with a first-order lag (``lag_s``, 0 = none) and a speed
 limit (``rate_deg_s``), then an optional second-order servo that follows the reference
 (``servo_hz``, ``overshoot``: the fraction a step overshoots, 0 = critically damped).
@@ -54,7 +54,7 @@ SIM_DEFAULT: dict[int, ModeDynamics] = {
     1: ModeDynamics(rate_deg_s=90.0, lag_s=0.25),
 }
 """The simulator's own smoothing (a 60 deg move takes about 1 s in mode 1; mode 0 tracks a
-10 Hz stream closely). Also the detector's *uncalibrated* guess: untrusted (issue 13)."""
+10 Hz stream closely). Also the detector's *uncalibrated* guess: untrusted."""
 
 
 class ArmDynamics(Struct, frozen=True, forbid_unknown_fields=True):

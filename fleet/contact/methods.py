@@ -36,7 +36,7 @@ def stall(samples: Samples, errors: Samples, demand: int, t: Thresholds) -> bool
     the tracking error stayed above ``stall_error_deg`` on one side (the side the joint was sent
     to: a joint past its target is overshooting, not blocked) while the joint progressed towards
     its target slower than ``min(stall_velocity_deg_s, error / stall_lag_s)``. Any plausible free
-    D1 (issue 13: speed limits from 20 deg/s, first-order lags up to 0.5 s, second-order servos,
+    D1 (speed limits from 20 deg/s, first-order lags up to 0.5 s, second-order servos,
     dead time up to 0.1 s) moves at least twice that fast once the window has passed its dead
     time; a blocked joint does not move, a pushed one moves away. ``errors`` holds (time,
     target - measured) aligned with ``samples``; ``demand`` is the side the joint was sent
@@ -115,7 +115,7 @@ def oscillation(
 ) -> bool:
     """Method 4: servo hunting, the joint reverses often while its target stays the same and
     it stays short of it (more than ``stall_error_deg``, one side): a second-order servo ringing
-    about its target (issue 13: plausible D1s overshoot up to 10 %) crosses it and is no
+    about its target (plausible D1s overshoot up to 10 %) crosses it and is no
     contact."""
     since = max(now_s - t.oscillation_window_s, target_since_s)
     window = [e for s, e in errors if s > since]

@@ -4,7 +4,7 @@ The response model is ``dynamics.py`` (dead time, lag, speed limit, optional sec
 servo per smoothing mode; ``1/1`` keeps the mode, return-to-zero uses mode 1). The D1 spec gives
 no figures: without a calibration of this arm (``fleet calibrate``) the predictor uses the
 simulator's own smoothing (``SIM_DEFAULT``), a guess the detector does not trust (it may raise
-suspicion, never confirm: issue 13). A calibration gives each joint its measured dynamics.
+suspicion, never confirm). A calibration gives each joint its measured dynamics.
 """
 
 from __future__ import annotations

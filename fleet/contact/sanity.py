@@ -1,4 +1,4 @@
-"""Online sanity of method 5's model (issue 13): after every move that completes in free
+"""Online sanity of method 5's model: after every move that completes in free
 motion (the joint reached its target, no confirmed contact on the way) the detector records how
 far the model was off during it. When the model disagrees with the arm on ``BAD_MOVES`` of the
 last ``WINDOW`` free moves, the detector stops trusting it for this arm: method 5 may still raise

@@ -171,7 +171,7 @@ class CoordinatorIntake:
             self._reports.append(report)
         self.wake.set()
 
-    # ------------------------------------------------------------------ devices (issue 14)
+    # ------------------------------------------------------------------ devices
 
     def on_device(self, kind: DeviceKind, devices: frozenset[str]):  # type: ignore[no-untyped-def]
         """The callbacks (token, state, ack) of one device kind's keys: tokens and acks go

@@ -22,7 +22,7 @@ class StopBook:
     def __init__(self, arms: list[str], keep: int = 32, devices: list[str] | None = None) -> None:
         self._arms = frozenset(arms)
         self._acking = self._arms | frozenset(devices or ())
-        """Arms and devices (issue 14): both acknowledge a fleet stop and are in its report;
+        """Arms and devices: both acknowledge a fleet stop and are in its report;
         the latch bookkeeping (per-target stops, resets one by one) is the arms'."""
         self._latched: dict[str, m.StopRequest] = {}
         self._reset_since_fleet_stop: set[str] = set()

@@ -4,7 +4,7 @@ rate (newest wins, nothing queued), grip detection on every sample, commands and
 The state reader is not waited on: ``tick`` polls it at the relay's grid (at most every
 ``POLL_MAX_S``) and takes every sample since in one batch, decoding only the fields the relay
 uses from the serialized bytes (``codec.CDR_READERS``). A 500 Hz stream costs 50 wake-ups a
-second, not 500 plus the ticks between them (issue 14's benchmark: README, Benchmark).
+second, not 500 plus the ticks between them (the devices benchmark: docs/results/bench.md).
 
 Threads and locks: ``fleet/devices/driver.py`` (``_lock`` also guards the target; the core's
 write lock of the device serializes every write with the stop's).

@@ -8,7 +8,7 @@ on the relay thread, which replies (no thread waits for the robot: a call unansw
 ``rpc_timeout_s`` is answered 3104 by ``tick``). The core's write lock of the device
 serializes requests with the stop's own: nothing checked before a stop is written after it.
 
-Issue 22 (firmware truth), in marked blocks: the service name per device
+Firmware readings, in marked blocks: the service name per device
 (``fleet/g1/probe.py``: ``sport``, ``loco`` or ``auto``; one request writer and response reader
 per candidate name, GetFsmId asked from ``tick`` until answered); the stop action's calls from
 ``loco.stop_calls`` (``stop_move`` also ends continuous gait), to every candidate name while
@@ -111,7 +111,7 @@ class G1Driver(DriverBase):
         state = Topic(participant, loco.STATE_TOPIC, idl.SportModeState_)
         self._state_reader = DataReader(participant, state, qos=STATE_READER_QOS)
         self.readers = [self._state_reader]
-        # issue 22: one request writer and response reader per candidate service name.
+        # one request writer and response reader per candidate service name.
         self._probe = ServiceProbe(config.service)
         self._services = self._probe.candidates
         self._writers: dict[str, DataWriter] = {}
@@ -120,7 +120,7 @@ class G1Driver(DriverBase):
             response = Topic(participant, loco.response_topic(service), idl.Response_)
             self.readers.append(DataReader(participant, response, qos=RPC_QOS))
             self._writers[service] = DataWriter(participant, request, qos=RPC_QOS)
-        # issue 23: rt/lowstate (newest kept, checked when used) and the rt/arm_sdk stream.
+        # rt/lowstate (newest kept, checked when used) and the rt/arm_sdk stream.
         low = Topic(participant, arms.LOWSTATE_TOPIC, idl.LowState_)
         self._low_index = len(self.readers)
         self.readers.append(DataReader(participant, low, qos=STATE_READER_QOS))
@@ -184,7 +184,7 @@ class G1Driver(DriverBase):
                 continue
             with self._lock:
                 if self._probe_ids.pop(response.header.identity.id, None) is not None:
-                    # issue 22: the topic it came on names the service that answered.
+                    # the topic it came on names the service that answered.
                     if self._probe.answer(service):
                         log.info("%s: the LocoClient service is %r", self.device, service)
                     self._changed = True
@@ -253,7 +253,7 @@ class G1Driver(DriverBase):
         return next_s
 
     def _ask_service(self, services: tuple[str, ...]) -> None:
-        """issue 22: GetFsmId on each candidate name; the first answer names the service. (Not
+        """GetFsmId on each candidate name; the first answer names the service. (Not
         under the core's write lock: a read, ordered against nothing.)"""
         call = loco.call_for("get_fsm_id")
         for service in services:
@@ -293,7 +293,7 @@ class G1Driver(DriverBase):
             arm_released=self._arms.why_released,
         )
 
-    # ------------------------------------------------------------------ issue 23: arms
+    # ------------------------------------------------------------------ the waist and arms
 
     def _measured(self, now_s: float) -> list[float] | None:
         """The 29 joint positions of the newest rt/lowstate, checked here (its CRC, finite,
@@ -458,7 +458,7 @@ class G1Driver(DriverBase):
         always be activated."""
         with self._lock:
             targets = self._probe.targets
-            if self._arms.phase != "off":  # issue 23: the arms back to the robot first
+            if self._arms.phase != "off":  # the arms back to the robot first
                 self._changed |= self._arms.release(f"stopped ({self.stop_action})")
                 weight = self._arms.weight
                 self._stop_detail = detail = (

@@ -147,7 +147,7 @@ class G1Model:
 
 
 class SimArms:
-    """rt/arm_sdk as the robot takes it (issue 23): a CRC-checked LowCmd_ with a weight in
+    """rt/arm_sdk as the robot takes it: a CRC-checked LowCmd_ with a weight in
     0..1 on motor 29 blends its motors 12-28 into the robot's own pose, in the FSM states seed
     004 allows (else ignored). Pure."""
 

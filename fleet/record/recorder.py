@@ -50,7 +50,7 @@ log = logging.getLogger("fleet.record")
 RECORDED_CHANNELS: tuple[str, ...] = (keys.JOINTS, keys.STATUS, keys.CONTACT, keys.RAW_COMMAND)
 RECORDED_CHANNELS += (keys.ESTOP, keys.ESTOP_ACK, keys.DIAG)
 DEVICE_CHANNELS: tuple[str, ...] = (keys.STATE, keys.CONTACT, keys.ESTOP, keys.ESTOP_ACK, keys.DIAG)
-"""A device's keys recorded (issue 14): its state (at its relay rate), grip events, stop acks."""
+"""A device's keys recorded: its state (at its relay rate), grip events, stop acks."""
 QUEUE_DEPTH = 20000
 """Samples waiting for the recorder thread, at most: half a second of a 40,000/s burst."""
 POLL_S = 0.005

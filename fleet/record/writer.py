@@ -106,7 +106,7 @@ class RecordingWriter:
         struct: Any = None,
     ) -> None:
         """One message on ``key`` (an arm ``channel``, or ``estop`` for the fleet's stop; a
-        device's channel with its payload's ``struct``, issue 14)."""
+        device's channel with its payload's ``struct``)."""
         self._writer.add_message(
             channel_id=self._channel(key, channel, struct),
             log_time=log_time_ns,

@@ -1,4 +1,4 @@
-"""ROS 2 without a bridge (issue 27): the fleet on rmw_zenoh's own wire, on the fleet's session.
+"""ROS 2 without a bridge: the fleet on rmw_zenoh's own wire, on the fleet's session.
 
 | module | job |
 |---|---|

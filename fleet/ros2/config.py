@@ -20,7 +20,7 @@ from fleet.ros2.contract import NameError_, check_namespace, default_namespace
 
 
 class Ros2Section(Struct, frozen=True, forbid_unknown_fields=True):
-    """``[ros2]``: the ROS 2 face of the fleet (README "ROS 2")."""
+    """``[ros2]``: the ROS 2 face of the fleet (docs/guide/ros2.md)."""
 
     domain_id: int = 0
     principal: str = "ros2"

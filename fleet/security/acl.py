@@ -85,7 +85,7 @@ class _Grants:
 
 
 DEVICE_STATE = ("state", "contact", "diag", "estop/ack")
-"""What a device agent publishes for its own devices (issue 14)."""
+"""What a device agent publishes for its own devices."""
 
 
 def _device_kinds(inventory: Inventory) -> list[str]:
@@ -110,7 +110,7 @@ def _grants(inventory: Inventory, principal: str, role: Role) -> _Grants:
         g.token = [f"{f}/arm/{a}/agent" for a in arms]
         g.read = [f"{f}/estop", f"{f}/reset", f"{f}/heartbeat/*"]
         g.read += [f"{f}/arm/{a}/{channel}" for a in arms for channel in ("estop", "reset")]
-        # Devices (issue 14): the same, for the devices this principal's agent serves.
+        # Devices: the same, for the devices this principal's agent serves.
         own = [(kind_of(d).key, i) for i, d in inventory.devices.items() if d.agent == principal]
         g.put += [f"{f}/{k}/{d}/{channel}" for k, d in own for channel in DEVICE_STATE]
         g.queryable += [f"{f}/{k}/{d}/cmd/*" for k, d in own]
@@ -141,7 +141,7 @@ def _grants(inventory: Inventory, principal: str, role: Role) -> _Grants:
         g.put = stops
         g.read = [f"{f}/**"]
         g.liveliness = agents
-    elif role == "ros2":  # `fleet ros2` (issue 27): the ROS keys of fleet/ros2/grants.py
+    elif role == "ros2":  # `fleet ros2`: the ROS keys of fleet/ros2/grants.py
         from fleet.ros2 import grants
 
         g.put = [*stops, *grants.data_keys(inventory), *grants.cache_keys(inventory)]
@@ -214,7 +214,7 @@ def payload_limits(inventory: Inventory) -> list[dict[str, Any]]:
     ]
     for kind in _device_kinds(inventory):
         small += [f"{f}/{kind}/*/cmd/**", f"{f}/{kind}/*/estop", f"{f}/{kind}/*/reset"]
-    # Every kind's command, stop and reset keys (issue 21). zenoh 1.10's low-pass filter
+    # Every kind's command, stop and reset keys. zenoh 1.10's low-pass filter
     # (zenoh/src/net/routing/interceptor/low_pass.rs) takes, per message, the smallest
     # size_limit among the filter keys that include the message's key: it only ever drops
     # messages over a limit, so these keys cannot stop small traffic (tests/test_router_limits.py
@@ -228,7 +228,7 @@ def payload_limits(inventory: Inventory) -> list[dict[str, Any]]:
             "key_exprs": small,
             "size_limit": SMALL_PAYLOAD_BYTES,
         },
-        {  # a heartbeat repeats at most every unit's stop (fleet.beat_limits, issue 28)
+        {  # a heartbeat repeats at most every unit's stop (fleet.beat_limits)
             "id": "heartbeats",
             "messages": messages,
             "key_exprs": [f"{f}/heartbeat/*"],

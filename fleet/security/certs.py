@@ -38,7 +38,7 @@ def _write_key(path: Path, key: ec.EllipticCurvePrivateKey) -> None:
 
 
 def _write_secret(path: Path, data: bytes) -> None:
-    """Write a key or the password file with mode 0600, also over an existing file (issue 28:
+    """Write a key or the password file with mode 0600, also over an existing file (once
     ``fleet certs --force`` kept a 0644 key 0644): the mode is set on the open descriptor
     before a byte is written."""
     fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_NOFOLLOW, 0o600)

@@ -3,7 +3,7 @@
 A *principal* is an authenticated identity: the common name of a client certificate (``mtls``)
 or a user name (``password``). Each has a *role* that decides what the router lets it do (see
 ``acl.py``). With ``mode = "none"`` (the loopback demo default) nothing is authenticated: the
-principal in a key is whatever the client claims, and the README says so.
+principal in a key is whatever the client claims, and docs/design/threat-model.md says so.
 """
 
 from __future__ import annotations

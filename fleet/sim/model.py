@@ -5,7 +5,7 @@ What it models, and why:
   at 10 Hz) follows quickly, mode 1 (large smoothing, for big moves) slowly, both speed-limited;
   the response is ``fleet.contact.dynamics`` (dead time, lag, speed limit, second-order servo),
   per arm in the inventory (``sim_dynamics``) so a test can run an arm whose dynamics differ
-  from the detector's assumptions (issue 13);
+  from the detector's assumptions;
 - enable/unload per joint and power: an unloaded joint or a powered-off arm does not track;
 - the field-reported quirk that a re-enabled joint chases its old cached target (so the agent
   must set the target to the measured pose before re-enabling; the sim makes that testable);

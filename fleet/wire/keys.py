@@ -1,6 +1,6 @@
 """The Zenoh key space: the only place a key expression is spelled.
 
-Every key lives under ``fleet/<fleet>``; see the README's key-space table for payloads and
+Every key lives under ``fleet/<fleet>``; see docs/reference/keyspace.md for payloads and
 publishers. Builders return strings; ``KeySpace.parse_key`` is the one parser: it turns any
 concrete key of the fleet back into (kind, unit, channel, principal), for arms, device kinds
 and the fleet-level keys alike, so subscribers on wildcards can route samples

@@ -409,7 +409,7 @@ class ArmSummary(Struct, frozen=True):
 
 
 class DeviceSummary(Struct, frozen=True):
-    """One device beside the arms (issue 14) in the fleet summary: its kind's key word, online
+    """One device beside the arms in the fleet summary: its kind's key word, online
     as for an arm (its agent's token and its state heard within ``offline_after_s``), its
     state's link and stop, and its kind's one-line summary (``DeviceKind.summary``)."""
 
@@ -423,8 +423,8 @@ class DeviceSummary(Struct, frozen=True):
 
 class FleetState(Struct, frozen=True):
     """``fleet/<fleet>/state``: the coordinator's summary of every arm and device of the
-    inventory. ``devices`` is new in issue 14 and defaults to empty: a reader built before it
-    ignores it (the Struct takes unknown fields), and a state without it still decodes."""
+    inventory. ``devices`` came with the device kinds and defaults to empty: a reader built
+    before it ignores it (the Struct takes unknown fields), and a state without it still decodes."""
 
     stamp_ns: StampNs
     coordinator: Name

@@ -147,7 +147,8 @@ Place = tuple[str, str]
 @dataclass(frozen=True)
 class Channel:
     """One row of the key-space table: a key kind (``keys.JOINTS``, ``keys.STATE``,
-    ``gripper/state``, ...; what a subscriber routes on), its key as the README spells it, its
+    ``gripper/state``, ...; what a subscriber routes on), its key as
+    docs/reference/keyspace.md spells it, its
     payload, and the places (unit kind, channel) of the keys it travels on: a sample on a key
     parsed to one of them is this row's payload (``channel_of``). A reply row travels on its
     query's keys (``reply``)."""
@@ -245,7 +246,7 @@ CHANNELS: dict[str, Channel] = {
 """THE channel table: every key kind that carries a decodable payload, with its payload kind,
 for every kind of unit (arm, gripper, G1) and the fleet-level keys. Every consumer (agent,
 coordinator, client, recorder, Foxglove bridge, choreography, viewer, ``fleet schema``,
-``echo``, ``hz``) decodes through it; the README's key-space table lists the same keys."""
+``echo``, ``hz``) decodes through it; docs/reference/keyspace.md lists the same keys."""
 
 _BY_PLACE: dict[tuple[Place, bool], Channel] = {
     (place, c.reply): c for c in CHANNELS.values() for place in c.places
