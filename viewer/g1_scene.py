@@ -130,6 +130,8 @@ class G1Scene:
                 batched_positions=pos[k],
                 batched_colors=tinted(mesh.rgb, np.full(n, OFFLINE, dtype=np.int8)),
                 lod="off",
+                cast_shadow=False,  # a software-rendered browser (CI's) pays per shadow caster
+                receive_shadow=False,
             )
             for k, mesh in enumerate(self.meshes)
         ]
