@@ -1,4 +1,5 @@
-"""Section ``devices``: one Dex1-1's state at 500 Hz through the devices agent.
+"""Section ``devices``: one Dex1-1's state at 500 Hz through the agent; a G1's rt/arm_sdk
+stream at 50 Hz: its jitter at a lightweight receiver.
 
 Processes: router, ``edge-agent --device gl`` (the agent serving the gripper, nothing else) and
 ``bench/w_grip.py`` (the gripper's DDS state stream and a plain Zenoh subscriber on its state).
@@ -18,6 +19,7 @@ from typing import Any
 from bench.proc import CLOCK_TICKS, BenchFleet, cpu_s
 from bench.stats import summary_ms
 from bench.w_grip import MARK_MOD
+from fleet.g1.arms import PERIOD_S
 
 WARMUP_S = 3.0
 
@@ -91,6 +93,48 @@ def gripper_run(rate_hz: float, relay_hz: float, window_s: float) -> dict[str, A
     }
 
 
+G1 = "h1"
+ARM_SDK_GOAL_P99_MS = 5.0
+"""Issue 23: rt/arm_sdk jitter p99 (|gap - 20 ms| between consecutive messages) at most this."""
+
+
+def arm_sdk_run(window_s: float) -> dict[str, Any]:
+    """The agent's rt/arm_sdk stream to the simulated G1 (``fleet sim``), received by
+    ``bench/w_armsdk.py`` (a bare DDS reader stamping arrivals) while it keeps the arms
+    engaged: the gaps between consecutive messages at full weight, and their jitter."""
+    extra = f"[g1.{G1}]\nsim_settle_s = 0.1\n"
+    with BenchFleet(1, "armsdk", extra=extra) as fleet:
+        fleet.start_router()
+        fleet.start("sim", ["-m", "fleet.cli.main", "sim"])
+        agent = fleet.start("agent", ["-m", "edge_agent", "--device", G1])
+        recv = fleet.start("armsdk", ["-m", "bench.w_armsdk", "--device", G1], piped=True)
+        recv.wait_ready(timeout_s=60.0)
+        time.sleep(WARMUP_S)  # discovery, the first target, the 1 s engage ramp
+        c0, t0, m0 = cpu_s(agent.pid), time.monotonic(), time.monotonic_ns()
+        time.sleep(window_s)
+        c1, t1, m1 = cpu_s(agent.pid), time.monotonic(), time.monotonic_ns()
+        result = recv.finish()
+    arrivals = [(ns, w) for ns, w in result["arrivals"] if m0 <= ns < m1]
+    gaps = [b[0] - a[0] for a, b in zip(arrivals, arrivals[1:]) if a[1] >= 1.0 and b[1] >= 1.0]
+    period_ns = PERIOD_S * 1e9
+    jitter = summary_ms([abs(g - period_ns) for g in gaps])
+    wall = t1 - t0
+    return {
+        "window_s": round(wall, 1),
+        "messages": len(arrivals),
+        "rate_hz": round(len(arrivals) / wall, 1),
+        "gap": summary_ms(gaps),
+        "jitter": jitter,
+        "goal_p99_ms": ARM_SDK_GOAL_P99_MS,
+        "goal_met": bool(gaps) and jitter["p99_ms"] <= ARM_SDK_GOAL_P99_MS,
+        "agent_cpu_pct": round(100.0 * (c1 - c0) / wall, 2),
+        "refused": result["refused"],
+    }
+
+
 def run(quick: bool) -> dict[str, Any]:
-    """One gripper at 500 Hz relayed at the default 50 Hz."""
-    return {"gripper_500": gripper_run(500.0, 50.0, 8.0 if quick else 20.0)}
+    """One gripper at 500 Hz relayed at the default 50 Hz; a G1's rt/arm_sdk at 50 Hz."""
+    return {
+        "gripper_500": gripper_run(500.0, 50.0, 8.0 if quick else 20.0),
+        "g1_arm_sdk_50": arm_sdk_run(8.0 if quick else 20.0),
+    }

@@ -22,6 +22,7 @@ from collections.abc import Sequence
 import viser
 
 from fleet.devices import kind_of
+from fleet.g1.config import G1Config
 from fleet.guard import ThreadGuard
 from fleet.inventory import Inventory
 from fleet.record.layout import FleetLayout
@@ -29,6 +30,7 @@ from fleet.security.session import open_session
 from viewer.access import AccessGuard, AccessPolicy, new_token, url_host
 from viewer.commands import Commander
 from viewer.events import REFUSED
+from viewer.g1_scene import G1Scene
 from viewer.kinematics import ArmModel, load_urdf
 from viewer.meshes import link_meshes
 from viewer.panels import FleetPanels
@@ -118,6 +120,15 @@ class Viewer:
             raise
         self.read_only = self.commander is None or self.commander.read_only
         self.scene = FleetScene(self.server, placements.arms, model, meshes)
+        self.g1_scene: G1Scene | None = None
+        g1s = {
+            device: config
+            for device, config in (inventory.devices if inventory is not None else {}).items()
+            if isinstance(config, G1Config)
+        }
+        if g1s:
+            self.g1_scene = G1Scene(self.server, g1s, self.scene.base[:, :3, 3])
+            self.scene.frame_also(self.g1_scene.frame_points)
         self.panels = FleetPanels(
             self.server,
             arms,
@@ -180,6 +191,8 @@ class Viewer:
             last = now
             snapshot = self.state.snapshot()
             self.scene.render(snapshot)
+            if self.g1_scene is not None:
+                self.g1_scene.render(snapshot.devices)
             self.panels.record(snapshot, now)
             if now >= next_panels:
                 next_panels = now + 1.0 / PANEL_RATE_HZ

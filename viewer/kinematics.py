@@ -63,8 +63,9 @@ class ArmModel:
     q_index: tuple[int, ...]
 
     @classmethod
-    def from_urdf(cls, urdf: yourdfpy.URDF) -> ArmModel:
-        """Read the chain from a loaded URDF (the file is the source of truth)."""
+    def from_urdf(cls, urdf: yourdfpy.URDF, q_joints: tuple[str, ...] = Q_JOINTS) -> ArmModel:
+        """Read the chain from a loaded URDF (the file is the source of truth); ``q_joints``:
+        the joints driven by the columns of ``q``, in order (the D1's by default)."""
         child_joint = {j.child: j for j in urdf.robot.joints}
         roots = [link.name for link in urdf.robot.links if link.name not in child_joint]
         if len(roots) != 1:
@@ -85,7 +86,7 @@ class ArmModel:
                 axis = np.zeros(3) if joint.axis is None else np.asarray(joint.axis, dtype=float)
                 axes.append(axis / max(float(np.linalg.norm(axis)), 1e-12))
                 kinds.append(joint.type if joint.type in ("revolute", "prismatic") else "fixed")
-                q_index.append(Q_JOINTS.index(joint.name) if joint.name in Q_JOINTS else -1)
+                q_index.append(q_joints.index(joint.name) if joint.name in q_joints else -1)
                 frontier.append(joint.child)
         return cls(
             links=tuple(links),
@@ -127,7 +128,7 @@ def _axis_rotations(axis: FloatArray, angle: FloatArray) -> FloatArray:
 
 
 def forward(model: ArmModel, q: FloatArray) -> FloatArray:
-    """(N, 8) joint values -> (N, L, 4, 4) transforms of every link in the arm's base frame."""
+    """(N, Q) joint values -> (N, L, 4, 4) transforms of every link in the arm's base frame."""
     n = q.shape[0]
     out = np.empty((n, len(model.links), 4, 4))
     out[:, 0] = np.eye(4)

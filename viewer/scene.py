@@ -12,7 +12,7 @@ says the same in words.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Protocol
 
 import numpy as np
@@ -152,6 +152,7 @@ class FleetScene:
         self._drawn_code = np.full(n, -1, dtype=np.int8)
         self._drawn_error = np.zeros(n, dtype=bool)
         self._drawn_contact = np.zeros((n, 7), dtype=bool)
+        self.more_points: list[Callable[[], npt.NDArray[np.float64]]] = []
 
         scene = server.scene
         scene.set_up_direction("+z")
@@ -209,7 +210,13 @@ class FleetScene:
         world = self.base[:, None] @ forward(self.model, q)[:, self._link_index]  # (N, K, 4, 4)
         corners = np.einsum("nkij,kcj->nkci", world[..., :3, :3], self._corners)
         labels = self.base[:, :3, 3] + [0.0, 0.0, LABEL_HEIGHT_M + 0.03]
-        return np.vstack([(corners + world[..., None, :3, 3]).reshape(-1, 3), labels])
+        extra = [points() for points in self.more_points]
+        return np.vstack([(corners + world[..., None, :3, 3]).reshape(-1, 3), labels, *extra])
+
+    def frame_also(self, points: Callable[[], npt.NDArray[np.float64]]) -> None:
+        """Frame ``points()`` too (another scene's bodies, e.g. the G1s), from now on."""
+        self.more_points.append(points)
+        self._set_initial_camera()
 
     def fit(self, client: viser.ClientHandle) -> None:
         """Frame every arm, in its drawn pose, in ``client``'s view (its canvas' aspect, the

@@ -49,6 +49,8 @@ class DeviceView:
     state: Any  # the kind's state payload (GripperState, G1State), None before the first
     age_s: float  # seconds since that state arrived (inf: never)
     summary: str  # the kind's one line (``fleet status``'s)
+    low: Any = None  # the kind's lowstate payload (a G1's G1LowState), None before the first
+    low_age_s: float = math.inf  # seconds since that lowstate arrived
 
 
 @dataclass(frozen=True)
@@ -91,6 +93,8 @@ class Snapshot:
         return np.array([s is not None and bool(s.error) for s in self.status], dtype=bool)
 
 
+DEVICE_SHOWN = (keys.STATE, keys.LOWSTATE)
+"""A device's channels the viewer shows: its state, and a G1's joints (``lowstate``)."""
 INGESTED = frozenset((keys.JOINTS, keys.STATUS, keys.CONTACT, keys.DIAG, keys.ESTOP, keys.RESET))
 """The channels the viewer shows (per arm; ``estop`` and ``reset`` also fleet-wide)."""
 
@@ -141,6 +145,8 @@ class ViewerFleet:
             self._contact = np.zeros((n, JOINT_COUNT), dtype=bool)
             self._device_state: list[Any] = [None] * len(self._devices)
             self._device_at = np.full(len(self._devices), -math.inf)
+            self._device_low: list[Any] = [None] * len(self._devices)
+            self._device_low_at = np.full(len(self._devices), -math.inf)
 
     def start(self, guard: ThreadGuard | None = None) -> None:
         """Declare the subscribers (liveliness with history: tokens already present count);
@@ -166,8 +172,10 @@ class ViewerFleet:
             for key in (self.keys.estop, self.keys.reset)
         ]
         self._handles += [
-            self._session.declare_subscriber(self.keys.device(kind, "*", keys.STATE), on_sample)
-            for kind in self._device_kinds
+            self._session.declare_subscriber(self.keys.device(kind, "*", channel), on_sample)
+            for kind, device_kind in self._device_kinds.items()
+            for channel in DEVICE_SHOWN
+            if channel in device_kind.payloads
         ]
         self._handles.append(
             self._session.liveliness().declare_subscriber(
@@ -231,7 +239,7 @@ class ViewerFleet:
             self._on_diag(i, payload, wall_ns)
 
     def _ingest_device(self, key: str, data: bytes, at_s: float | None) -> None:
-        """A device's state (anything else of a device is not shown)."""
+        """A device's state or lowstate (anything else of a device is not shown)."""
         kind_key = key[len(self.keys.prefix) + 1 :].partition("/")[0]
         kind = self._device_kinds.get(kind_key)
         if kind is None:
@@ -241,17 +249,22 @@ class ViewerFleet:
         except keys.KeyError_:
             return
         i = self._device_index.get(parsed.device)
-        if i is None or parsed.channel != keys.STATE:
+        channel = parsed.channel
+        if i is None or channel not in DEVICE_SHOWN or channel not in kind.payloads:
             return
         try:
-            state = kind.payloads[keys.STATE].decode(data)
+            state = kind.payloads[channel].decode(data)
         except payloads.PayloadError as exc:
-            self._bad(f"{kind.key} state", exc)
+            self._bad(f"{kind.key} {channel}", exc)
             return
         now = self._clock() if at_s is None else at_s
         with self._lock:
-            self._device_state[i] = state
-            self._device_at[i] = now
+            if channel == keys.STATE:
+                self._device_state[i] = state
+                self._device_at[i] = now
+            else:
+                self._device_low[i] = state
+                self._device_low_at[i] = now
 
     def _on_joints(self, i: int, joints: m.Joints, now: float) -> None:
         row = np.asarray(joints.angles_deg, dtype=float)
@@ -338,11 +351,24 @@ class ViewerFleet:
             contact = self._contact.copy()
             device_state = list(self._device_state)
             device_age = now - self._device_at
+            device_low = list(self._device_low)
+            low_age = now - self._device_low_at
         views = []
         for k, (device, (kind, mount)) in enumerate(self._devices.items()):
             state = device_state[k]
             summary = "no state yet" if state is None else kind.summary(state)
-            views.append(DeviceView(device, kind.key, mount, state, float(device_age[k]), summary))
+            views.append(
+                DeviceView(
+                    device,
+                    kind.key,
+                    mount,
+                    state,
+                    float(device_age[k]),
+                    summary,
+                    device_low[k],
+                    float(low_age[k]),
+                )
+            )
         return Snapshot(
             arms=self.arms,
             angles_deg=angles,

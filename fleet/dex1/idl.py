@@ -7,6 +7,8 @@ Two families, as the seed describes (003) and Unitree's unitree_sdk2 IDL defines
   ``MotorState_``), what Unitree's own Dex1-1 service and teleoperation publish.
 Field order and types follow Unitree's IDL exactly (CDR has no field names: one field out of
 place is a different message). Every struct is ``@final``, as Unitree's generated types are.
+The ``unitree_hg`` motor and IMU types are the G1's too: one definition in
+``fleet.devices.unitree_hg`` (named ``Hg...`` here beside the ``unitree_go`` ones).
 
 (No ``from __future__ import annotations``: CycloneDDS resolves the field types at run time.)
 """
@@ -17,21 +19,11 @@ import cyclonedds.idl.annotations as annotate
 import cyclonedds.idl.types as types
 from cyclonedds.idl import IdlStruct
 
+from fleet.devices.unitree_hg import IMUState_ as HgIMUState_
+from fleet.devices.unitree_hg import MotorCmd_ as HgMotorCmd_
+from fleet.devices.unitree_hg import MotorState_ as HgMotorState_
+
 # ----------------------------------------------------------------------------- unitree_hg
-
-
-@dataclass
-@annotate.final
-class HgMotorCmd_(IdlStruct, typename="unitree_hg::msg::dds_::MotorCmd_"):  # noqa: N801
-    """``unitree_hg::msg::dds_::MotorCmd_``."""
-
-    mode: types.uint8 = 0
-    q: types.float32 = 0.0
-    dq: types.float32 = 0.0
-    tau: types.float32 = 0.0
-    kp: types.float32 = 0.0
-    kd: types.float32 = 0.0
-    reserve: types.uint32 = 0
 
 
 @dataclass
@@ -40,23 +32,6 @@ class HandCmd_(IdlStruct, typename="unitree_hg::msg::dds_::HandCmd_"):  # noqa: 
     """``unitree_hg::msg::dds_::HandCmd_``: one motor command for a Dex1-1."""
 
     motor_cmd: types.sequence[HgMotorCmd_] = field(default_factory=list)
-    reserve: types.array[types.uint32, 4] = field(default_factory=lambda: [0, 0, 0, 0])
-
-
-@dataclass
-@annotate.final
-class HgMotorState_(IdlStruct, typename="unitree_hg::msg::dds_::MotorState_"):  # noqa: N801
-    """``unitree_hg::msg::dds_::MotorState_``."""
-
-    mode: types.uint8 = 0
-    q: types.float32 = 0.0
-    dq: types.float32 = 0.0
-    ddq: types.float32 = 0.0
-    tau_est: types.float32 = 0.0
-    temperature: types.array[types.int16, 2] = field(default_factory=lambda: [0, 0])
-    vol: types.float32 = 0.0
-    sensor: types.array[types.uint32, 2] = field(default_factory=lambda: [0, 0])
-    motorstate: types.uint32 = 0
     reserve: types.array[types.uint32, 4] = field(default_factory=lambda: [0, 0, 0, 0])
 
 
@@ -71,18 +46,6 @@ class PressSensorState_(  # noqa: N801
     temperature: types.array[types.float32, 12] = field(default_factory=lambda: [0.0] * 12)
     lost: types.uint32 = 0
     reserve: types.uint32 = 0
-
-
-@dataclass
-@annotate.final
-class HgIMUState_(IdlStruct, typename="unitree_hg::msg::dds_::IMUState_"):  # noqa: N801
-    """``unitree_hg::msg::dds_::IMUState_`` (zeros on a Dex1-1)."""
-
-    quaternion: types.array[types.float32, 4] = field(default_factory=lambda: [0.0] * 4)
-    gyroscope: types.array[types.float32, 3] = field(default_factory=lambda: [0.0] * 3)
-    accelerometer: types.array[types.float32, 3] = field(default_factory=lambda: [0.0] * 3)
-    rpy: types.array[types.float32, 3] = field(default_factory=lambda: [0.0] * 3)
-    temperature: types.int16 = 0
 
 
 @dataclass

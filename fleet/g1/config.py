@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Literal
 
 from fleet.devices.base import DeviceBase
@@ -47,6 +48,11 @@ class G1Config(DeviceBase, frozen=True, forbid_unknown_fields=True, kw_only=True
     arm_kd: list[float] | None = None
     """17 dampings; None: Unitree's example's 1.5."""
     link_stale_s: float = 0.5
+    base_xyz: list[float] | None = None
+    """Where the viewer draws it (m, the point under its pelvis on the floor); None: beside
+    the arms (to their left, one metre apart)."""
+    base_yaw_deg: float = 0.0
+    """Which way the drawn G1 faces (0: along +x, as the arms' default)."""
     sim_rate_hz: float = 100.0
     """Simulator only: rt/sportmodestate rate."""
     sim_fsm_id: int = 500
@@ -95,6 +101,11 @@ def check_g1(config: G1Config) -> str | None:
         gains = getattr(config, name)
         if gains is not None and (len(gains) != 17 or not all(0 <= g <= 500 for g in gains)):
             return f"{name} must be 17 values within 0..500 (motors 12-28)"
+    placed = [*(config.base_xyz or []), config.base_yaw_deg]
+    if config.base_xyz is not None and len(config.base_xyz) != 3:
+        return "base_xyz must be 3 values (x, y, z in metres)"
+    if not all(math.isfinite(v) and abs(v) <= 1000 for v in placed):
+        return "base_xyz and base_yaw_deg must be finite (within 1000)"
     if not 0 < config.link_stale_s <= 10:
         return "link_stale_s must be within 0..10"
     return None

@@ -4,7 +4,8 @@
 envelope of unitree_sdk2 (``unitree_api::msg::dds_::Request_`` / ``Response_``): a request
 carries an identity (a request id and the API id), a lease and a policy, and a JSON parameter
 string; the response echoes the identity, with a status code and a JSON data string. The
-field layout follows Unitree's IDL (read from unitree_sdk2 / unitree_sdk2_python).
+field layout follows Unitree's IDL (read from unitree_sdk2 / unitree_sdk2_python). The motor
+and IMU types shared with the Dex1-1 live in ``fleet.devices.unitree_hg``.
 
 (No ``from __future__ import annotations``: CycloneDDS resolves IDL types at run time.)
 """
@@ -14,6 +15,19 @@ from dataclasses import dataclass, field
 import cyclonedds.idl.annotations as annotate
 import cyclonedds.idl.types as types
 from cyclonedds.idl import IdlStruct
+
+from fleet.devices.unitree_hg import IMUState_, MotorCmd_, MotorState_
+
+__all__ = [
+    "IMUState_",
+    "LowCmd_",
+    "LowState_",
+    "MotorCmd_",
+    "MotorState_",
+    "Request_",
+    "Response_",
+    "SportModeState_",
+]
 
 
 @dataclass
@@ -105,21 +119,6 @@ class Response_(IdlStruct, typename="unitree_api::msg::dds_::Response_"):  # noq
 
 @dataclass
 @annotate.final
-class MotorCmd_(IdlStruct, typename="unitree_hg::msg::dds_::MotorCmd_"):  # noqa: N801
-    """One motor's command: mode (1 enabled), q (rad; on index 29 of rt/arm_sdk the weight),
-    dq, tau, kp, kd."""
-
-    mode: types.uint8 = 0
-    q: types.float32 = 0.0
-    dq: types.float32 = 0.0
-    tau: types.float32 = 0.0
-    kp: types.float32 = 0.0
-    kd: types.float32 = 0.0
-    reserve: types.uint32 = 0
-
-
-@dataclass
-@annotate.final
 class LowCmd_(IdlStruct, typename="unitree_hg::msg::dds_::LowCmd_"):  # noqa: N801
     """``rt/arm_sdk`` (seed 004: indices 12-28 the waist and arms, 29 the weight), CRC-sealed."""
 
@@ -128,35 +127,6 @@ class LowCmd_(IdlStruct, typename="unitree_hg::msg::dds_::LowCmd_"):  # noqa: N8
     motor_cmd: types.array[MotorCmd_, 35] = field(default_factory=lambda: [MotorCmd_()] * 35)
     reserve: types.array[types.uint32, 4] = field(default_factory=lambda: [0, 0, 0, 0])
     crc: types.uint32 = 0
-
-
-@dataclass
-@annotate.final
-class IMUState_(IdlStruct, typename="unitree_hg::msg::dds_::IMUState_"):  # noqa: N801
-    """The body IMU: quaternion (w, x, y, z), gyroscope, accelerometer, rpy (rad)."""
-
-    quaternion: types.array[types.float32, 4] = field(default_factory=lambda: [1.0, 0, 0, 0])
-    gyroscope: types.array[types.float32, 3] = field(default_factory=lambda: [0.0] * 3)
-    accelerometer: types.array[types.float32, 3] = field(default_factory=lambda: [0.0] * 3)
-    rpy: types.array[types.float32, 3] = field(default_factory=lambda: [0.0] * 3)
-    temperature: types.int16 = 0
-
-
-@dataclass
-@annotate.final
-class MotorState_(IdlStruct, typename="unitree_hg::msg::dds_::MotorState_"):  # noqa: N801
-    """One motor's state (q in rad)."""
-
-    mode: types.uint8 = 0
-    q: types.float32 = 0.0
-    dq: types.float32 = 0.0
-    ddq: types.float32 = 0.0
-    tau_est: types.float32 = 0.0
-    temperature: types.array[types.int16, 2] = field(default_factory=lambda: [0, 0])
-    vol: types.float32 = 0.0
-    sensor: types.array[types.uint32, 2] = field(default_factory=lambda: [0, 0])
-    motorstate: types.uint32 = 0
-    reserve: types.array[types.uint32, 4] = field(default_factory=lambda: [0, 0, 0, 0])
 
 
 @dataclass

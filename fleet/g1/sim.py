@@ -245,6 +245,7 @@ class SimG1:
         self.tick += 1
         q = self.arms.pose(self.model.fsm_id)
         motors = [idl.MotorState_(q=v) for v in q] + [idl.MotorState_() for _ in range(35 - len(q))]
-        state = idl.LowState_(tick=self.tick, motor_state=motors)
+        level = idl.IMUState_(quaternion=[1.0, 0.0, 0.0, 0.0])
+        state = idl.LowState_(tick=self.tick, imu_state=level, motor_state=motors)
         state.crc = low_state_crc(state)
         return state
