@@ -22,6 +22,11 @@ RESET_IDS_KEPT = 256
 SUPERSEDED_IDS_KEPT = 64
 """Stop ids replaced by a newer stop before a reset (released by that reset too); a flood of
 distinct stop ids keeps only the newest."""
+STOP_CAUSES_KEPT = 8
+"""Distinct (who, why) of the stops active on one arm that its status names (issue 26: a second
+stop replaced the first one's reason); more are counted ("and 3 more")."""
+STOP_REASON_CHARS = 1000
+"""The status payload's ``stop_reason`` is Text (at most 1024 characters)."""
 STOP_REPEAT_S = 0.2
 """Until the arm is seen still, the stop command is re-sent every 0.2 s (two control cycles):
 a stop is not trusted to one DDS sample or to an ack the arm may not send."""
@@ -89,6 +94,10 @@ class ArmSafety:
     watched_by: str | None = None
     watched_since_s: float = 0.0
     last_reason: str | None = None
+    causes: dict[tuple[str, str], None] = field(default_factory=dict)
+    """(source, reason) of every stop active since the latch, in arrival order (at most
+    STOP_CAUSES_KEPT); ``more_causes`` counts the others."""
+    more_causes: int = 0
 
     # ------------------------------------------------------------------ stop latch
 
@@ -119,22 +128,45 @@ class ArmSafety:
             return False
         if self.stop is None:
             self.standstill.clear()
+            self.causes.clear()
+            self.more_causes = 0
         else:
             self.superseded_ids.append(self.stop.stop_id)  # reset releases it too
             del self.superseded_ids[:-SUPERSEDED_IDS_KEPT]
         self.stop = ActiveStop(stop_id, source, reason, now_ns, now_s, action)
-        self.last_reason = (f"stopped by {source}" + (f": {reason}" if reason else ""))[:1000]
+        self._add_cause(source, reason)
         self.watched_by = None
         self.lease = None  # a stop ends every ownership: whoever resets decides who goes next
         return True
 
-    def note_also_stopped_by(self, stop_id: str) -> None:
+    def note_also_stopped_by(self, stop_id: str, source: str = "", reason: str = "") -> None:
         """While latched, ``stop_id`` (repeated by a heartbeat) also asks for this stop: the
-        reset releases it with the latched one, so its repeats do not latch again."""
+        reset releases it with the latched one, so its repeats do not latch again; its
+        ``source`` and ``reason`` join the stop's causes."""
         if stop_id in self.reset_stop_ids or stop_id in self.superseded_ids:
             return
         self.superseded_ids.append(stop_id)
         del self.superseded_ids[:-SUPERSEDED_IDS_KEPT]
+        if source and self.stop is not None:
+            self._add_cause(source, reason)
+
+    def _add_cause(self, source: str, reason: str) -> None:
+        """Remember who stopped the arm and why (a repeat of a known pair adds nothing) and
+        say them all in ``last_reason``, compactly: ``stopped by cli@pc: test; then by
+        viewer``."""
+        cause = (source, reason)
+        if cause not in self.causes:
+            if len(self.causes) < STOP_CAUSES_KEPT:
+                self.causes[cause] = None
+            else:
+                self.more_causes += 1
+        parts = [who + (f": {why}" if why else "") for who, why in self.causes]
+        text = "stopped by " + "; then by ".join(parts)
+        if self.more_causes:
+            text += f"; and {self.more_causes} more"
+        if len(text) > STOP_REASON_CHARS:
+            text = text[: STOP_REASON_CHARS - 3] + "..."
+        self.last_reason = text
 
     def needs_resend(self, now_s: float) -> bool:
         """The stop should be written again: not yet confirmed by feedback (``done``) and the
@@ -188,6 +220,8 @@ class ArmSafety:
             for stop_id in (*self.superseded_ids, stop.stop_id):
                 self.reset_stop_ids[stop_id] = None
             self.superseded_ids.clear()
+            self.causes.clear()
+            self.more_causes = 0
             while len(self.reset_stop_ids) > RESET_IDS_KEPT:
                 del self.reset_stop_ids[next(iter(self.reset_stop_ids))]
         return stop

@@ -149,7 +149,7 @@ class CommandService:
         owner = None if command.owner is None else owner_of(principal, command.owner)
         label = f"arm {item.arm!r}"
         if isinstance(command, m.Release):
-            _release(label, slot.safety, owner)
+            _release(label, slot.safety, owner, now)
             return Plan((), {}), None, 0.0
         _check_order(label, slot.order, principal, owner, command)
         planned = plan(command, slot.tracker, now)
@@ -224,7 +224,7 @@ class CommandService:
                 owner = None if command.owner is None else owner_of(principal, command.owner)
                 released = isinstance(command, Release)
                 if released:
-                    _release(label, slot.safety, owner)
+                    _release(label, slot.safety, owner, now)
             if released:
                 self._reply_device(item, DeviceReply(ok=True, device=item.arm), now)
                 return
@@ -358,11 +358,18 @@ class CommandService:
         self._reply_now(item, started, ErrorInfo(int(code), message[:1000]))
 
 
-def _release(label: str, safety: ArmSafety, owner: str | None) -> None:
-    """``owner`` gives the robot up; raises Refused when it did not hold it."""
-    if owner is None or not safety.release(owner):
-        holder = safety.lease.owner if safety.lease else "nobody"
-        raise Refused(ErrorCode.LEASE_INVALID, f"{label} is held by {holder}")
+def _release(label: str, safety: ArmSafety, owner: str | None, now_s: float) -> None:
+    """``owner`` gives the robot up; raises Refused when another owner holds it. A robot held
+    by nobody is already released: done, not refused (issue 26: a stop ends every lease, and
+    the demo's player, releasing after each stop of its dance, filled Events and ``fleet
+    diag`` with "held by nobody" refusals the user had nothing to do with)."""
+    if owner is None:
+        raise Refused(ErrorCode.LEASE_INVALID, f"{label}: a release names its owner")
+    if safety.release(owner):
+        return
+    holder = safety.holder(now_s)
+    if holder is not None:
+        raise Refused(ErrorCode.LEASE_INVALID, f"{label} is held by {holder.owner}")
 
 
 def _check_order(

@@ -162,7 +162,7 @@ class SafetyLoop:
                     # A heartbeat repeating another stop of an arm already stopped: nothing to
                     # do physically; remembered so that the reset releases it too (a flood of
                     # such repeats must cost a list entry, not a stop write each).
-                    safety.note_also_stopped_by(request.stop_id)
+                    safety.note_also_stopped_by(request.stop_id, request.source, request.reason)
                     continue
                 action = slot.stop_action
                 if not safety.latch(

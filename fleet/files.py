@@ -23,7 +23,7 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Generic, TypeVar
+from typing import BinaryIO, Generic, TypeVar
 
 T = TypeVar("T")
 
@@ -38,9 +38,9 @@ class FileReadError(ValueError):
     """A file that was refused (its path and why in the message)."""
 
 
-def read_regular(path: str | Path, max_bytes: int = MAX_FILE_BYTES, what: str = "file") -> bytes:
-    """The bytes of ``path`` if it is a regular file of at most ``max_bytes``. Raises
-    FileNotFoundError when absent, FileReadError for anything else refused."""
+def _open_regular_fd(path: str | Path, what: str) -> tuple[int, os.stat_result]:
+    """A descriptor of ``path`` opened without blocking, and its ``fstat``, if it is a regular
+    file. Raises FileNotFoundError when absent, FileReadError for anything else refused."""
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
     except FileNotFoundError:
@@ -49,8 +49,34 @@ def read_regular(path: str | Path, max_bytes: int = MAX_FILE_BYTES, what: str = 
         raise FileReadError(f"{path}: cannot open the {what} ({exc.strerror})") from None
     try:
         info = os.fstat(fd)
-        if not stat.S_ISREG(info.st_mode):
-            raise FileReadError(f"{path}: the {what} is not a regular file; refused")
+    except OSError as exc:
+        os.close(fd)
+        raise FileReadError(f"{path}: cannot read the {what} ({exc.strerror})") from None
+    if not stat.S_ISREG(info.st_mode):
+        os.close(fd)
+        raise FileReadError(f"{path}: the {what} is not a regular file; refused")
+    return fd, info
+
+
+def open_regular(path: str | Path, max_bytes: int, what: str = "file") -> BinaryIO:
+    """``path`` opened for reading (a buffered binary file) if it is a regular file of at most
+    ``max_bytes``: for files read piece by piece (recordings), whose reader bounds what it
+    keeps. Raises FileNotFoundError when absent, FileReadError for anything else refused."""
+    fd, info = _open_regular_fd(path, what)
+    if info.st_size > max_bytes:
+        os.close(fd)
+        raise FileReadError(
+            f"{path}: the {what} is {info.st_size} bytes, more than {max_bytes}; refused"
+        )
+    os.set_blocking(fd, True)  # a regular file: reads are whole again, never EAGAIN
+    return os.fdopen(fd, "rb")
+
+
+def read_regular(path: str | Path, max_bytes: int = MAX_FILE_BYTES, what: str = "file") -> bytes:
+    """The bytes of ``path`` if it is a regular file of at most ``max_bytes``. Raises
+    FileNotFoundError when absent, FileReadError for anything else refused."""
+    fd, info = _open_regular_fd(path, what)
+    try:
         if info.st_size > max_bytes:
             raise FileReadError(
                 f"{path}: the {what} is {info.st_size} bytes, more than {max_bytes}; refused"

@@ -29,8 +29,13 @@ def protobuf_class(schema_name: str, descriptor_set: bytes) -> Any:
 class FoxgloveClient:
     """One connection: the advertised channels, subscriptions, decoded messages."""
 
-    def __init__(self, url: str, timeout_s: float = 10.0) -> None:
-        self.ws: ClientConnection = connect(url, subprotocols=[SUBPROTOCOL], open_timeout=timeout_s)
+    def __init__(self, url: str, timeout_s: float = 10.0, origin: str | None = None) -> None:
+        self.ws: ClientConnection = connect(
+            url,
+            subprotocols=[SUBPROTOCOL],  # type: ignore[list-item]
+            open_timeout=timeout_s,
+            origin=origin,  # type: ignore[arg-type]
+        )
         assert self.ws.subprotocol == SUBPROTOCOL
         self.server_info: dict[str, Any] | None = None
         self.channels: dict[int, dict[str, Any]] = {}

@@ -7,7 +7,9 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Iterator
+from pathlib import Path
 
+import msgspec
 import pytest
 import zenoh
 
@@ -18,6 +20,8 @@ from fleet.control import ControlFifo
 from fleet.coordinator.intake import Control
 from fleet.coordinator.service import Coordinator
 from fleet.guard import ThreadGuard
+from fleet.record.reader import read_recording
+from fleet.record.recorder import Recorder
 from fleet.security.session import open_session
 from fleet.wire import keys
 from fleet.wire import messages as m
@@ -150,3 +154,28 @@ def test_the_viewer_logs_them_in_order(router: FleetHarness) -> None:
         wait_until(lambda: len(seen) >= len(sequence), 20.0)
     assert [(k, a) for k, a, _ in seen] == [(k, a) for k, a, _ in sequence]
     assert [i for k, _, i in seen if k == "reset"] == list(range(PAIRS))
+
+
+def test_the_recorder_writes_them_in_order(router: FleetHarness, tmp_path: Path) -> None:
+    """Issue 28: the recorder takes stops and resets through the shared intake (it did not
+    record resets at all, and its subscribers could reorder them)."""
+    path = tmp_path / "order.mcap"
+    with open_session(router.inventory) as session:
+        space = keys.KeySpace(router.inventory.fleet)
+        recorder = Recorder(session, space, ["a1"], path)
+        try:
+            sequence = _put_all(router)
+            control = (space.estop, space.reset, space.arm("a1", keys.ESTOP))
+            control += (space.arm("a1", keys.RESET),)
+            wait_until(lambda: sum(recorder.counts.get(k, 0) for k in control) >= 2 * PAIRS, 20.0)
+        finally:
+            recorder.close()
+    seen = []
+    for r in read_recording(path).messages:
+        parsed = space.parse_key(r.key)
+        arm = parsed.unit or None
+        if parsed.channel == keys.ESTOP:
+            seen.append(("stop", arm, int(msgspec.json.decode(r.data)["stop_id"][1:])))
+        elif parsed.channel == keys.RESET:
+            seen.append(("reset", arm, int(msgspec.json.decode(r.data)["source"][1:])))
+    assert seen == sequence

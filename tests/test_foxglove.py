@@ -3,6 +3,7 @@ and the 3D channels of a recording decoded with the mcap reader and Foxglove's s
 
 from __future__ import annotations
 
+import os
 import socket
 import subprocess
 import sys
@@ -11,6 +12,7 @@ from typing import Any
 
 import msgspec
 import numpy as np
+import pytest
 from foxglove.messages import FrameTransforms
 from mcap.reader import make_reader
 
@@ -21,6 +23,7 @@ from fleet.wire import messages as m
 from tests.foxglove_client import FoxgloveClient, protobuf_class
 from tests.harness import FleetHarness, free_port, wait_until
 from tests.test_channels import STATE as GRIP_STATE
+from viewer.access import FOXGLOVE_TOKEN_ENV as TOKEN_ENV
 from viewer.frames3d import ArmFrames, transforms_topic, urdf_topic
 from viewer.kinematics import matrix_to_wxyz
 from viewer.replay import replay_source
@@ -82,7 +85,11 @@ def test_transforms_pure() -> None:
     assert '<link name=\\"a1/' in urdf and 'link=\\"a1/' in urdf
 
 
-def test_live_bridge_speaks_foxglove(tmp_path: Path) -> None:
+TOKEN = "test-token-0123456789abcdef"
+
+
+def test_live_bridge_speaks_foxglove(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv(TOKEN_ENV, TOKEN)
     with FleetHarness(tmp_path, arms=2) as harness:
         client = harness.start_fleet()
         harness.start_coordinator()
@@ -92,7 +99,7 @@ def test_live_bridge_speaks_foxglove(tmp_path: Path) -> None:
         frames = ArmFrames.load(layout_of(harness.inventory))
         reply = client.command("a2", m.MoveJoint(joint=1, angle_deg=35.0, wait_reached=True))
         assert reply.ok, reply.error
-        fox = FoxgloveClient(f"ws://127.0.0.1:{port}")
+        fox = FoxgloveClient(f"ws://127.0.0.1:{port}/?token={TOKEN}")
         try:
             joints_key = "fleet/test/arm/a2/joints"
             wanted = {transforms_topic("a2"), urdf_topic("a1"), joints_key, "fleet/test/state"}
@@ -210,11 +217,14 @@ def test_demo_option_serves_foxglove(tmp_path: Path) -> None:
             + ["--endpoint", f"tcp/127.0.0.1:{port}", "--inventory", str(repo / "inventory.toml")],
             stdout=log,
             stderr=subprocess.STDOUT,
+            env={**os.environ, TOKEN_ENV: TOKEN},
         )
     try:
         wait_until(lambda: _listening(fox_port) or demo.poll() is not None, 60.0)
         assert demo.poll() is None, (tmp_path / "demo.log").read_text()
-        fox = FoxgloveClient(f"ws://127.0.0.1:{fox_port}")
+        url = f"ws://127.0.0.1:{fox_port}/?token={TOKEN}"
+        wait_until(lambda: url in (tmp_path / "demo.log").read_text(), 30.0)  # the intro says
+        fox = FoxgloveClient(url)
         try:
             fox.wait_for_topics({transforms_topic("a1"), urdf_topic("a1")}, 20.0)
         finally:

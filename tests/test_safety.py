@@ -9,6 +9,8 @@ import pytest
 
 from edge_agent.safety import (
     RESET_IDS_KEPT,
+    STOP_CAUSES_KEPT,
+    STOP_REASON_CHARS,
     STOP_REPEAT_S,
     SUPERSEDED_IDS_KEPT,
     ArmSafety,
@@ -69,6 +71,35 @@ def test_a_newer_stop_supersedes_and_one_reset_releases_both() -> None:
     assert not _latch(safety, "s1", 0.2), "the superseded stop's repeat latched again"
     safety.reset()
     assert not _latch(safety, "s1", 0.3) and not _latch(safety, "s2", 0.3)
+
+
+def test_every_active_stops_who_and_why_is_kept_until_the_reset() -> None:
+    """Issue 26 item 9: ``fleet estop --reason test`` then a plain stop kept only the second."""
+    safety = _safety()
+    assert safety.latch("s1", "cli@pc", "test", 0.0, 0)
+    assert safety.latch("s2", "viewer", "", 0.1, 1)
+    assert safety.last_reason == "stopped by cli@pc: test; then by viewer"
+    safety.note_also_stopped_by("s3", "coordinator", "contact on a2")  # a heartbeat's repeat
+    safety.note_also_stopped_by("s4", "viewer", "")  # same who and why: said once
+    assert safety.last_reason == (
+        "stopped by cli@pc: test; then by viewer; then by coordinator: contact on a2"
+    )
+    safety.reset()
+    assert safety.latch("s5", "viewer", "", 1.0, 2)
+    assert safety.last_reason == "stopped by viewer", "a reset forgets the released stops"
+
+
+def test_the_stop_causes_are_bounded() -> None:
+    safety = _safety()
+    for k in range(STOP_CAUSES_KEPT + 5):
+        safety.latch(f"s{k}", f"who{k}", "x" * 500, k * 0.01, k)
+    reason = safety.last_reason or ""
+    assert len(safety.causes) == STOP_CAUSES_KEPT and len(reason) <= STOP_REASON_CHARS
+    assert reason.startswith("stopped by who0: ") and reason.endswith("...")
+    safety.reset()
+    for k in range(STOP_CAUSES_KEPT + 5):
+        safety.latch(f"t{k}", f"w{k}", "", k * 0.01, k)
+    assert (safety.last_reason or "").endswith("then by w7; and 5 more")
 
 
 def test_the_memory_of_stop_ids_is_bounded() -> None:

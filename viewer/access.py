@@ -44,6 +44,8 @@ from viewer.refusals import Refusals
 log = logging.getLogger("viewer.access")
 
 TOKEN_PARAM = "token"
+FOXGLOVE_TOKEN_ENV = "D1_FLEET_FOXGLOVE_TOKEN"
+"""``fleet foxglove``'s token from the environment (how ``fleet demo`` hands it to its child)."""
 _TOKEN = re.compile(r"[A-Za-z0-9_-]{16,128}")
 _ORIGIN = re.compile(r"https?://[A-Za-z0-9.\-\[\]:]+")
 WILDCARD_HOSTS = ("0.0.0.0", "::", "")
@@ -131,6 +133,10 @@ class AccessPolicy:
     token: str
     host: str = "127.0.0.1"
     allow_origins: tuple[str, ...] = ()
+    allow_no_origin: bool = False
+    """Admit an upgrade without an ``Origin`` (no browser: a desktop app or a script) when it
+    carries the token: ``fleet foxglove`` does; viser's clients are browsers, the viewer does
+    not."""
 
     def __post_init__(self) -> None:
         check_token(self.token)
@@ -168,7 +174,7 @@ class AccessPolicy:
         """What to do with ``request`` arriving at the viewer on ``port``."""
         if request.origin is not None and request.origin.lower() not in self.origins(port):
             return Decision("refuse", f"Origin {request.origin!r} is not one of the viewer's")
-        if request.upgrade and request.origin is None:
+        if request.upgrade and request.origin is None and not self.allow_no_origin:
             return Decision("refuse", "a WebSocket upgrade without an Origin header")
         split = urlsplit(request.target)
         params = parse_qsl(split.query, keep_blank_values=True)

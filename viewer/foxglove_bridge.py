@@ -1,6 +1,10 @@
 """``fleet foxglove``: the live fleet for Foxglove, with Foxglove's own SDK (``foxglove-sdk``).
 
-A WebSocket server (127.0.0.1:8765 by default; subprotocol ``foxglove.sdk.v1``) publishes:
+A WebSocket server (127.0.0.1:8765 by default; subprotocol ``foxglove.sdk.v1``), behind the
+viewer's protections (issue 28): a per-run token and an Origin allow-list checked by
+``viewer/foxglove_gate.py`` in front of the SDK's server, which listens on a private loopback
+port with TLS only the gate trusts. Under ``[security]`` the bridge runs as an observer (what
+it serves is what an observer may read). It publishes:
 - per arm, ``/d1/<arm>/robot_description`` (the URDF, re-sent every second so a late client
   gets it) and ``/d1/<arm>/transforms`` (``foxglove.FrameTransforms`` from our forward
   kinematics, under the arm's base pose: frames3d.py), one per joints sample;
@@ -8,9 +12,14 @@ A WebSocket server (127.0.0.1:8765 by default; subprotocol ``foxglove.sdk.v1``) 
   Schema (as ``fleet record`` writes them): joints, status, contact, diag, stop requests
   (``estop``), acks, reports, resets and the fleet state.
 
+Key-space channels live in a ``PinnedTable`` (fleet/tables.py): every channel of the
+inventory's arms and devices and of the fleet itself is always advertised; made-up names share
+``MAX_KEY_CHANNELS`` and the least recently used is unadvertised for a newer one.
+
 Threads: the Zenoh callback only appends to a bounded deque (overflow counted in ``dropped``);
 the ``foxglove`` thread decodes (through the channel table), logs to the SDK and computes the
-transforms. Shutdown: undeclare -> stop the thread -> stop the server -> close the session.
+transforms; the gate has its own (foxglove_gate.py). Shutdown: undeclare -> stop the thread ->
+close the gate -> stop the server -> close the session.
 """
 
 from __future__ import annotations
@@ -24,13 +33,17 @@ import foxglove
 import zenoh
 from foxglove.channels import FrameTransformsChannel
 
+from fleet.devices import kind_of as device_kind_of
 from fleet.guard import ThreadGuard
 from fleet.inventory import Inventory
 from fleet.record.layout import layout_of
 from fleet.record.writer import channel_schema
 from fleet.security.session import open_session
+from fleet.tables import PinnedTable
 from fleet.tap import kind_of
 from fleet.wire import keys, payloads
+from viewer.access import AccessPolicy, new_token, url_host
+from viewer.foxglove_gate import FOXGLOVE_APP_ORIGIN, LOOPBACK, FoxgloveGate, PrivateTls
 from viewer.frames3d import URDF_SCHEMA, ArmFrames, transforms_topic, urdf_topic
 
 log = logging.getLogger("viewer.foxglove")
@@ -38,7 +51,8 @@ log = logging.getLogger("viewer.foxglove")
 DEFAULT_PORT = 8765
 INBOX_DEPTH = 10_000
 MAX_KEY_CHANNELS = 1000
-"""At most this many key-space channels are advertised (a flood of forged keys is dropped)."""
+"""At most this many channels of keys outside the inventory (made-up names) are advertised; the
+inventory's own are always (fleet/tables.py)."""
 URDF_PERIOD_S = 1.0
 BRIDGED = frozenset(
     {
@@ -64,11 +78,26 @@ BRIDGED = frozenset(
 )
 
 
-class FoxgloveBridge:
-    """The fleet of ``inventory`` on a Foxglove WebSocket server. A context manager."""
+class BridgeRefused(ValueError):
+    """The bridge cannot serve as asked (the message says why and what to do)."""
 
-    def __init__(self, inventory: Inventory, host: str = "127.0.0.1", port: int = DEFAULT_PORT):
+
+class FoxgloveBridge:
+    """The fleet of ``inventory`` on a Foxglove WebSocket server behind the gate. A context
+    manager. ``token``: None makes a random one (``url`` carries it); ``allow_origins``: pages
+    of these origins may connect too (with the token)."""
+
+    def __init__(
+        self,
+        inventory: Inventory,
+        host: str = "127.0.0.1",
+        port: int = DEFAULT_PORT,
+        token: str | None = None,
+        allow_origins: tuple[str, ...] = (),
+    ):
+        check_observer(inventory)
         self.inventory = inventory
+        self.host = host
         self.keys = keys.KeySpace(inventory.fleet)
         self.frames = ArmFrames.load(layout_of(inventory))
         self.dropped = 0
@@ -80,10 +109,27 @@ class FoxgloveBridge:
         self._stop = threading.Event()
         self._closed = False
         self.context = foxglove.Context()
+        tls = PrivateTls.make()
         self.server = foxglove.start_server(
-            name=f"d1-fleet {inventory.fleet}", host=host, port=port, context=self.context
+            name=f"d1-fleet {inventory.fleet}",
+            host=LOOPBACK,
+            port=0,
+            context=self.context,
+            tls_cert=tls.cert_pem,
+            tls_key=tls.key_pem,
         )
-        self.port = self.server.port
+        policy = AccessPolicy(
+            token or new_token(),
+            host,
+            (FOXGLOVE_APP_ORIGIN, *allow_origins),
+            allow_no_origin=True,
+        )
+        try:
+            self.gate = FoxgloveGate(policy, host, port, self.server.port, tls, self.guard)
+        except BaseException:
+            self.server.stop()
+            raise
+        self.port = self.gate.port
         ctx = self.context
         self._tf = {
             a: FrameTransformsChannel(transforms_topic(a), context=ctx) for a in inventory.arms
@@ -92,15 +138,36 @@ class FoxgloveBridge:
             a: foxglove.Channel(urdf_topic(a), schema=URDF_SCHEMA, context=ctx)
             for a in inventory.arms
         }
-        self._channels: dict[str, foxglove.Channel] = {}
+        self._channels: PinnedTable[str, foxglove.Channel] = PinnedTable(
+            MAX_KEY_CHANNELS, self._is_inventory_key, lambda _key, channel: channel.close()
+        )
         try:
             self.session = open_session(inventory)
         except BaseException:
+            self.gate.close()
             self.server.stop()
             raise
         self._subscriber = self.session.declare_subscriber(self.keys.everything, self._on_sample)
         self._thread = self.guard.thread(self._run, "foxglove")
         self._thread.start()
+
+    @property
+    def url(self) -> str:
+        """What to open in Foxglove: the public address with this run's token."""
+        return self.gate.url(url_host(self.host))
+
+    def _is_inventory_key(self, key: str) -> bool:
+        """A key of the fleet itself or of one of the inventory's arms or devices."""
+        try:
+            parsed = self.keys.parse_key(key)
+        except keys.KeyError_:
+            return False
+        if parsed.kind == keys.FLEET_LEVEL:
+            return not parsed.unit and not parsed.principal
+        if parsed.kind == keys.ARM:
+            return parsed.unit in self.inventory.arms
+        device = self.inventory.devices.get(parsed.unit)
+        return device is not None and device_kind_of(device).key == parsed.kind
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         """Zenoh thread: hand off, never block."""
@@ -137,8 +204,6 @@ class FoxgloveBridge:
             self.bad += 1
             return
         channel = self._channel(key, kind)
-        if channel is None:
-            return
         channel.log(data, log_time=stamp_ns)
         self.published += 1
         if kind == keys.JOINTS:
@@ -149,14 +214,12 @@ class FoxgloveBridge:
                     log_time=stamp_ns,
                 )
 
-    def _channel(self, key: str, kind: str) -> foxglove.Channel | None:
-        channel = self._channels.get(key)
-        if channel is None and len(self._channels) < MAX_KEY_CHANNELS:
+    def _channel(self, key: str, kind: str) -> foxglove.Channel:
+        def make(key: str) -> foxglove.Channel:
             name, schema = channel_schema(kind)
-            schema = {**schema, "title": name}
-            channel = foxglove.Channel(key, schema=schema, context=self.context)
-            self._channels[key] = channel
-        return channel
+            return foxglove.Channel(key, schema={**schema, "title": name}, context=self.context)
+
+        return self._channels.get(key, make)
 
     def close(self) -> None:
         """Undeclare -> stop the thread -> stop the server -> close the session (idempotent)."""
@@ -167,6 +230,7 @@ class FoxgloveBridge:
         self._stop.set()
         if self._thread.is_alive():
             self._thread.join(timeout=2.0)
+        self.gate.close()
         self.server.stop()
         self.session.close()
 
@@ -175,3 +239,15 @@ class FoxgloveBridge:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def check_observer(inventory: Inventory) -> None:
+    """Under ``[security]``, the bridge serves only what an observer may read: it acts as one
+    (the default principal ``viewer``). BridgeRefused otherwise."""
+    role = inventory.role_of(inventory.principal)
+    if inventory.security.enabled and role != "observer":
+        raise BridgeRefused(
+            f"under [security] fleet foxglove acts as an observer, and principal "
+            f"{inventory.principal!r} has role {role!r}; "
+            "leave --principal out (default 'viewer') or name an observer"
+        )

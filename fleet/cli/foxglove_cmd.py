@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 from collections.abc import Callable
 from typing import Any
 
+from fleet.cli.viewer_cmd import _origin, _token
 from fleet.guard import EXIT_THREAD_FAILED
 from fleet.observe import Observed, add_observe_options
 from fleet.runtime import inventory_from_args, shutdown_event, wait_for
@@ -23,8 +25,30 @@ def register(
         "foxglove", help="serve the fleet to Foxglove (WebSocket, arms in 3D, plots, stops)"
     )
     add_common(parser)
-    parser.add_argument("--host", default="127.0.0.1", help="bind address (default 127.0.0.1)")
+    parser.add_argument(
+        "--host",
+        default="127.0.0.1",
+        help="bind address (default 127.0.0.1; another exposes the fleet's data to that "
+        "network, behind the token: prefer an SSH tunnel)",
+    )
     parser.add_argument("--port", type=int, default=8765, help="WebSocket port (default 8765)")
+    parser.add_argument(
+        "--token",
+        type=_token,
+        default=None,
+        help="the access token (16-128 of A-Z a-z 0-9 - _) instead of a random one per run "
+        "(or set D1_FLEET_FOXGLOVE_TOKEN); other users of this host can read a --token in "
+        "the process list",
+    )
+    parser.add_argument(
+        "--allow-origin",
+        action="append",
+        type=_origin,
+        default=[],
+        metavar="ORIGIN",
+        help="also accept browser pages of ORIGIN (repeatable; the port's own origins and "
+        "https://app.foxglove.dev always are; every client needs the token)",
+    )
     add_observe_options(parser)
     parser.set_defaults(run=run_foxglove)
 
@@ -32,9 +56,18 @@ def register(
 def run_foxglove(args: argparse.Namespace) -> int:
     """Bridge the fleet to Foxglove until SIGINT/SIGTERM."""
     from fleet.cli.processes import _port_free
-    from viewer.foxglove_bridge import FoxgloveBridge  # foxglove-sdk loads only here
+    from viewer.access import FOXGLOVE_TOKEN_ENV as TOKEN_ENV
+    from viewer.access import check_token
+    from viewer.foxglove_bridge import BridgeRefused, FoxgloveBridge  # foxglove-sdk loads here
 
     inventory = inventory_from_args(args, "viewer")
+    token = args.token or os.environ.get(TOKEN_ENV) or None
+    if token is not None:
+        try:
+            check_token(token)
+        except ValueError as exc:
+            print(f"fleet foxglove: {TOKEN_ENV}: {exc}", file=sys.stderr)
+            return 2
     if not _port_free(f"tcp/{args.host}:{args.port}"):
         print(
             f"fleet foxglove: port {args.port} on {args.host} is in use (another fleet "
@@ -43,10 +76,15 @@ def run_foxglove(args: argparse.Namespace) -> int:
         )
         return 3
     stop = shutdown_event()
-    with FoxgloveBridge(inventory, args.host, args.port) as bridge:
+    try:
+        bridge = FoxgloveBridge(inventory, args.host, args.port, token, tuple(args.allow_origin))
+    except BridgeRefused as exc:
+        print(f"fleet foxglove: {exc}", file=sys.stderr)
+        return 2
+    with bridge:
         print(
-            f"d1-fleet foxglove: ws://{args.host}:{bridge.port} (fleet {inventory.fleet!r}; "
-            "in Foxglove: Open connection -> Foxglove WebSocket; Ctrl-C stops)",
+            f"d1-fleet foxglove: {bridge.url} (fleet {inventory.fleet!r}; in Foxglove: Open "
+            "connection -> Foxglove WebSocket, this URL with its token; Ctrl-C stops)",
             flush=True,
         )
         with Observed(

@@ -353,6 +353,12 @@ def _run_demo(args: argparse.Namespace, inventory: Inventory) -> int:
             dance = ["play", args.dance, "--loops", "0", "--quiet", "--ready-s", "30"]
             children.append(spawner.spawn(["-m", "fleet.cli.main", *dance, *common]))
         if args.foxglove is not None:
+            # The token reaches the child in its environment (not its argv: the process list
+            # shows that to every user); _intro prints the URL with it.
+            from viewer.access import FOXGLOVE_TOKEN_ENV as TOKEN_ENV
+            from viewer.access import new_token
+
+            os.environ.setdefault(TOKEN_ENV, new_token())
             fox = ["-m", "fleet.cli.main", "foxglove", "--port", str(args.foxglove), *common]
             supervisor.start("foxglove", fox)
         if args.ros2:
@@ -402,7 +408,13 @@ def _intro(args: argparse.Namespace, inventory: Inventory, url: str) -> list[str
         f"viewer: {url}",
     ]
     if args.foxglove is not None:
-        lines.append(f"foxglove: ws://127.0.0.1:{args.foxglove} (Open connection in Foxglove)")
+        from viewer.access import FOXGLOVE_TOKEN_ENV as TOKEN_ENV
+
+        token = os.environ.get(TOKEN_ENV, "")
+        lines.append(
+            f"foxglove: ws://127.0.0.1:{args.foxglove}/?token={token} "
+            "(Open connection in Foxglove, with the token)"
+        )
     if args.ros2:
         lines.append(
             f"ros2: ROS_DOMAIN_ID={inventory.ros2.domain_id}, stop service "

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from collections.abc import Callable
 
 from fleet.runtime import inventory_from_args
@@ -33,11 +34,16 @@ def register(
 
 def run_certs(args: argparse.Namespace) -> int:
     """Write the CA and the missing certificates; print what was written."""
+    from fleet.files import FileReadError
     from fleet.security.certs import make_certs  # cryptography loads only for this command
 
     inventory = inventory_from_args(args)
     out = args.out or inventory.security.certs
-    written = make_certs(inventory, out, days=args.days, force=args.force)
+    try:
+        written = make_certs(inventory, out, days=args.days, force=args.force)
+    except FileReadError as exc:
+        print(f"fleet certs: {exc}", file=sys.stderr)
+        return 2
     print(f"{out}: wrote {', '.join(written) or 'nothing (every certificate exists)'}")
     print("keep ca.key offline; give each host only its own <principal>.pem and .key, and ca.pem")
     return 0

@@ -9,7 +9,9 @@ from __future__ import annotations
 import argparse
 import json
 import queue
+import shutil
 import sys
+import textwrap
 import time
 from collections.abc import Callable
 from typing import Any
@@ -192,9 +194,13 @@ DIAG_COLUMNS = (
 )
 
 
-def diag_lines(units: list[str], diags: dict[str, m.Diag]) -> list[str]:
+def diag_lines(units: list[str], diags: dict[str, m.Diag], columns: int | None = None) -> list[str]:
     """A header and one line per arm or device (``-`` for one whose agent published no diag),
-    and the last error under one that has one. Devices are named ``<kind>/<id>``."""
+    and the last error under one that has one, whole, wrapped at word boundaries to
+    ``columns`` (default: the terminal's width; issue 26: it was cut at 100 characters
+    mid-sentence). Devices are named ``<kind>/<id>``."""
+    if columns is None:
+        columns = shutil.get_terminal_size((100, 24)).columns
     width = max([8, *(len(u) + 1 for u in units)])
     header = f"{'unit':<{width}} " + " ".join(f"{title:>{w}}" for _f, title, w in DIAG_COLUMNS)
     lines = [header]
@@ -211,7 +217,14 @@ def diag_lines(units: list[str], diags: dict[str, m.Diag]) -> list[str]:
             texts.append(f"{text!s:>{w}}")
         lines.append(f"{unit:<{width}} " + " ".join(texts))
         if diag.last_error:
-            lines.append(f"{'':<{width}} last error: {diag.last_error[:100]}")
+            lead = f"{'':<{width}} last error: "
+            lines += textwrap.wrap(
+                diag.last_error,
+                width=max(40, columns - 1),
+                initial_indent=lead,
+                subsequent_indent=" " * len(lead),
+                break_on_hyphens=False,
+            )
     return lines
 
 

@@ -7,6 +7,8 @@ file. Its kinds:
   A file that is merely *unfinished* (the recorder was killed: no summary, no footer, maybe a
   record cut short at the end) is not an error: ``read_recording`` returns what it holds and
   says so (``Recording.complete``).
+- ``RecordingTooLarge``: a recording that would expand past the reader's caps (decompressed
+  bytes, message count, one message's size: ``fleet.record.reader.ReadLimits``): refused whole.
 - ``TeachError``: the recorded joints cannot become a drag-teach choreography (fewer than two
   usable samples, a span longer than drag-teach replays).
 
@@ -23,6 +25,10 @@ class RecordError(ValueError):
 
 class RecordingUnreadable(RecordError):
     """Not an MCAP file (empty, another format, its header cut short)."""
+
+
+class RecordingTooLarge(RecordError):
+    """A recording that expands past the reader's caps (damaged or hostile)."""
 
 
 class TeachError(RecordError):

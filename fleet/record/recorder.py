@@ -38,6 +38,7 @@ from typing import Any, Protocol
 
 import zenoh
 
+from fleet.control import CONTROL_DEPTH, direct
 from fleet.devices import DeviceKind
 from fleet.record.gaps import SeqGaps
 from fleet.record.layout import LAYOUT_METADATA, FleetLayout, layout_metadata
@@ -48,9 +49,15 @@ from fleet.wire.payloads import PayloadKind
 log = logging.getLogger("fleet.record")
 
 RECORDED_CHANNELS: tuple[str, ...] = (keys.JOINTS, keys.STATUS, keys.CONTACT, keys.RAW_COMMAND)
-RECORDED_CHANNELS += (keys.ESTOP, keys.ESTOP_ACK, keys.DIAG)
-DEVICE_CHANNELS: tuple[str, ...] = (keys.STATE, keys.CONTACT, keys.ESTOP, keys.ESTOP_ACK, keys.DIAG)
-"""A device's keys recorded: its state (at its relay rate), grip events, stop acks."""
+RECORDED_CHANNELS += (keys.ESTOP, keys.RESET, keys.ESTOP_ACK, keys.DIAG)
+DEVICE_CHANNELS: tuple[str, ...] = (keys.STATE, keys.CONTACT, keys.ESTOP, keys.RESET)
+DEVICE_CHANNELS += (keys.ESTOP_ACK, keys.DIAG)
+"""A device's keys recorded: its state (at its relay rate), grip events, stops, resets, acks."""
+CONTROL_CHANNELS = frozenset({keys.ESTOP, keys.RESET})
+"""Stops and resets (the fleet's, each arm's, each device's) are recorded in arrival order
+through the shared intake's ``direct`` callbacks (fleet/control.py: on the Zenoh thread that
+received them, so a reset put right after a stop is never written before it), and a full
+inbox still takes up to ``CONTROL_DEPTH`` more of them."""
 QUEUE_DEPTH = 20000
 """Samples waiting for the recorder thread, at most: half a second of a 40,000/s burst."""
 POLL_S = 0.005
@@ -140,12 +147,16 @@ class Recorder:
         self._abandon = threading.Event()
         self._closed = False
         self._thread = threading.Thread(target=self._run, name="recorder", daemon=True)
+        control = direct(self._on_control)
         self._subs = [
-            session.declare_subscriber(space.arm(arm, channel), self._on_sample)
+            session.declare_subscriber(
+                space.arm(arm, channel),
+                control if channel in CONTROL_CHANNELS else self._on_sample,
+            )
             for arm in self.arms
             for channel in RECORDED_CHANNELS
         ]
-        self._subs.append(session.declare_subscriber(space.estop, self._on_sample))
+        self._subs += [session.declare_subscriber(k, control) for k in (space.estop, space.reset)]
         # Devices: their routes are known up front (a bounded set), so _where finds them.
         self._device_routes: dict[str, PayloadKind[Any]] = {}
         for device, kind in (devices or {}).items():
@@ -155,7 +166,8 @@ class Recorder:
                     continue
                 key = space.device(kind.key, device, channel)
                 self._device_routes[key] = decoders[channel]
-                self._subs.append(session.declare_subscriber(key, self._on_sample))
+                on = control if channel in CONTROL_CHANNELS else self._on_sample
+                self._subs.append(session.declare_subscriber(key, on))
         self._thread.start()
 
     @property
@@ -169,6 +181,15 @@ class Recorder:
         bytes on the recorder thread: under a burst every microsecond a callback holds the GIL
         delays Zenoh's reading of the socket, and the router then drops joints (DROP)."""
         if len(self._inbox) < QUEUE_DEPTH:  # racy by a few samples across Zenoh threads: fine
+            self._inbox.append((sample, time.time_ns()))
+        else:
+            with self._drop_lock:
+                self.dropped += 1
+
+    def _on_control(self, sample: zenoh.Sample) -> None:
+        """The receiving Zenoh thread (``direct``): a stop or reset joins the one inbox in
+        arrival order; a full inbox still takes CONTROL_DEPTH more of them."""
+        if len(self._inbox) < QUEUE_DEPTH + CONTROL_DEPTH:
             self._inbox.append((sample, time.time_ns()))
         else:
             with self._drop_lock:
@@ -236,12 +257,13 @@ class Recorder:
                 self._file.add_foreign(message, stamp_ns)
 
     def _where(self, key: str) -> tuple[str | None, str] | None:
-        """(arm, channel) of a recorded key, (None, estop) for the fleet's stop, else None."""
+        """(arm, channel) of a recorded key, (None, estop|reset) for the fleet's stop and
+        reset, else None."""
         route = self._routes.get(key)
         if route is not None:
             return route
-        if key == self.space.estop:
-            route = (None, keys.ESTOP)
+        if key in (self.space.estop, self.space.reset):
+            route = (None, keys.ESTOP if key == self.space.estop else keys.RESET)
         else:
             try:
                 parsed = self.space.parse_arm_key(key)

@@ -21,9 +21,12 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
+from fleet.files import read_regular
 from fleet.inventory import Inventory
 
 CA_NAME = "d1-fleet CA"
+PEM_MAX_BYTES = 64 * 1024
+"""A PEM certificate or key we write is about 1 KB."""
 
 
 def _name(common_name: str) -> x509.Name:
@@ -55,9 +58,13 @@ def _load_ca(out: Path) -> tuple[x509.Certificate, ec.EllipticCurvePrivateKey] |
     cert, key = out / "ca.pem", out / "ca.key"
     if not (cert.is_file() and key.is_file()):
         return None
-    loaded = serialization.load_pem_private_key(key.read_bytes(), password=None)
+    # Bounded reads (fleet/files.py): a FIFO or a huge file in its place is refused, not read.
+    loaded = serialization.load_pem_private_key(
+        read_regular(key, PEM_MAX_BYTES, "CA key"), password=None
+    )
     assert isinstance(loaded, ec.EllipticCurvePrivateKey), "ca.key is not an EC key"
-    return x509.load_pem_x509_certificate(cert.read_bytes()), loaded
+    pem = read_regular(cert, PEM_MAX_BYTES, "CA certificate")
+    return x509.load_pem_x509_certificate(pem), loaded
 
 
 def _new_ca(out: Path, days: int) -> tuple[x509.Certificate, ec.EllipticCurvePrivateKey]:
@@ -160,7 +167,11 @@ def make_certs(
     known = {}
     if passwords.is_file() and not force:
         known = dict(
-            line.split(":", 1) for line in passwords.read_text().splitlines() if ":" in line
+            line.split(":", 1)
+            for line in read_regular(passwords, what="passwords file")
+            .decode("utf-8", "replace")
+            .splitlines()
+            if ":" in line
         )
     lines = [
         f"{p}:{known.get(p) or secrets.token_urlsafe(18)}" for p in sorted(inventory.principals)

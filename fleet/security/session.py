@@ -13,6 +13,7 @@ from pathlib import Path
 
 import zenoh
 
+from fleet.files import FileReadError, read_regular
 from fleet.inventory import Inventory, InventoryError
 from fleet.security.acl import access_control, payload_limits
 from fleet.wire.session import Credentials, RouterUnreachable, open_client, zenoh_config
@@ -31,9 +32,10 @@ def _password_of(inventory: Inventory, principal: str) -> str:
         return given
     path = Path(inventory.security.passwords)
     try:
-        lines = path.read_text(encoding="utf-8").splitlines()
-    except OSError as exc:
+        text = read_regular(path, what="passwords file").decode("utf-8", "replace")
+    except (OSError, FileReadError) as exc:
         raise InventoryError(f"{inventory.path}: security.passwords: {exc}") from None
+    lines = text.splitlines()
     for line in lines:
         user, _, password = line.partition(":")
         if user == principal and password:
