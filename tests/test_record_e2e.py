@@ -106,7 +106,8 @@ def test_bad_samples_are_skipped_and_gaps_by_seq_reported(
             session.put(space.arm("a1", keys.STATUS), b'{"stamp_ns": -1, "link": "ok"}')
             session.put(f"fleet/{space.fleet}/**", b"{}")
             session.put(f"fleet/{space.fleet}/arm/*/joints", b"{}")
-            bad += 2 + (len(RECORDED_CHANNELS) + 1) + 1  # `**` reaches every subscription
+            # `**` reaches every subscription: the arm's channels, the fleet's estop and reset
+            bad += 2 + (len(RECORDED_CHANNELS) + 2) + 1
         time.sleep(0.01)  # 100 Hz, like a fast arm
     # Every good sample is in the file (flushed within 0.5 s; read while it is being written).
     joints_key = space.arm("a1", keys.JOINTS)
