@@ -28,6 +28,11 @@ TRIGGER_RESPONSE = "std_srvs/msg/TriggerResponse"  # registered by test_ros2_con
 MOVING_JOINTS = [
     j.get("name") for j in ET.parse(URDF).getroot().iter("joint") if j.get("type") != "fixed"
 ]
+MOVING_LINKS = [
+    (j.find("parent").get("link"), j.find("child").get("link"))  # type: ignore[union-attr]
+    for j in ET.parse(URDF).getroot().iter("joint")
+    if j.get("type") != "fixed"
+]
 
 
 def ros_key(fqn: str, ros_type: str, domain: int = 0) -> str:
@@ -150,6 +155,19 @@ def _check(harness: FleetHarness, client: Any, peer: zenoh.Session, ros2: Any) -
     assert matched >= 10, (matched, len(js_samples.samples))
     assert seqs == list(range(seqs[0], seqs[0] + len(seqs))) and len(gids) == 1
 
+    # /tf: each joints sample's moving joints, parent -> child as the URDF names them.
+    tf_samples = Collector()
+    sub = peer.declare_subscriber(ros_key("/tf", "tf2_msgs/msg/TFMessage"), tf_samples)
+    wait_until(lambda: tf_samples.count() >= 4, 10.0)
+    sub.undeclare()
+    for sample in tf_samples.samples:
+        tf = STORE.deserialize_cdr(sample.payload.to_bytes(), "tf2_msgs/msg/TFMessage")
+        arm = tf.transforms[0].header.frame_id.split("/")[0]
+        edges = [(t.header.frame_id, t.child_frame_id) for t in tf.transforms]
+        assert edges == [(f"{arm}/{p}", f"{arm}/{c}") for p, c in MOVING_LINKS]
+        stamp = tf.transforms[0].header.stamp
+        assert attachment(sample)[1] == stamp.sec * 1_000_000_000 + stamp.nanosec
+
     # A late joiner gets robot_description and tf_static from the publishers' caches.
     late, late_tf = Collector(), Collector()
     history = zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1)
@@ -171,8 +189,11 @@ def _check(harness: FleetHarness, client: Any, peer: zenoh.Session, ros2: Any) -
     assert urdf == URDF.read_text()
     assert attachment(late.samples[0])[0] == 1
     tf = STORE.deserialize_cdr(late_tf.samples[0].payload.to_bytes(), "tf2_msgs/msg/TFMessage")
-    bases = {t.child_frame_id: t for t in tf.transforms}
+    bases = {t.child_frame_id: t for t in tf.transforms if t.header.frame_id == "world"}
     assert set(bases) == {"a1/base_link", "a2/base_link"}
+    # the fixed joints are static too (robot_state_publisher's way); the moving ones are /tf
+    static_children = {t.child_frame_id for t in tf.transforms}
+    assert not static_children & {f"a1/{child}" for _p, child in MOVING_LINKS}
     assert bases["a2/base_link"].header.frame_id == "world"
     assert math.isclose(bases["a2/base_link"].transform.translation.y, 0.6)
 
