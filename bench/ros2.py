@@ -7,6 +7,10 @@ joint_states arrival minus its joints arrival (matched by the sample's stamp, bo
 same subscriber). CPU: the ros2 process's user+system time over the measured window. The load
 average is reported with the numbers (a loaded 2-core host doubles them).
 
+A no-op relay runs next to it (``floor``: a Python process that takes each joints sample on a
+Zenoh callback, decodes it and puts it on ``bench_relay/<arm>``): the least any process of
+ours adds on this host at this load, the floor under ``fleet ros2``'s number.
+
 ``python -m bench.ros2 --against main`` also runs the ``fleet ros2`` of another revision (its
 ``git archive``, in a temporary directory, with this venv) on ROS domain 1, at the same time,
 on the same samples: the two rows' ratio holds whatever the load was.
@@ -35,6 +39,30 @@ from fleet.wire import keys, messages, payloads
 from fleet.wire.session import open_client
 
 RATE_HZ = 10.0
+RELAY = "bench_relay"
+
+
+def relay(endpoint: str) -> None:
+    """The floor: joints -> ``bench_relay/<arm>`` on the Zenoh callback, with the attachment's
+    source timestamp as rmw_zenoh's, until stdin closes or SIGTERM."""
+    import signal
+    import struct
+
+    space = keys.KeySpace("bench")
+    session = open_client([endpoint])
+
+    def on_joints(sample: zenoh.Sample) -> None:
+        arm = str(sample.key_expr).split("/")[3]
+        stamp = payloads.JOINTS.decode(sample.payload.to_bytes()).stamp_ns
+        attachment = struct.pack("<qqB16s", 1, stamp, 16, bytes(16))
+        session.put(f"{RELAY}/{arm}", b"x", attachment=attachment)
+
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    sub = session.declare_subscriber(space.all_arms(keys.JOINTS), on_joints)
+    stop.wait()
+    sub.undeclare()
+    session.close()
 
 
 def _inventory(path: Path, port: int, arms: int, domain: int = 0) -> None:
@@ -76,6 +104,8 @@ def run(quick: bool, arms: int = 10, against: str | None = None) -> dict[str, An
                 processes[name] = subprocess.Popen(
                     [*py, "ros2", "--inventory", str(inv)], cwd=cwd, stdout=subprocess.DEVNULL
                 )
+            relay = [sys.executable, "-m", "bench.ros2", "--relay", f"tcp/127.0.0.1:{port}"]
+            processes["floor"] = subprocess.Popen(relay, cwd=REPO, stdout=subprocess.DEVNULL)
             out = _measure(inventory, port, arms, seconds, processes, wait_until)
             out["load_avg_1m_5m"] = [round(v, 2) for v in os.getloadavg()[:2]]
             if against is not None:
@@ -114,8 +144,8 @@ def _measure(
     inventory: Any, port: int, arms: int, seconds: float, ros2: dict[str, Any], wait: Any
 ) -> dict[str, Any]:
     space = keys.KeySpace(inventory.fleet)
-    js_keys = {}
-    for domain, name in enumerate(ros2):
+    js_keys = {f"{RELAY}/{arm}": ("floor", arm) for arm in inventory.arms}
+    for domain, name in enumerate(n for n in ros2 if n != "floor"):
         for fqn, t, _l in topics(inventory):
             if fqn.endswith("joint_states"):
                 js_keys[c.topic_key(domain, fqn, t)] = (name, fqn.split("/")[2])
@@ -182,6 +212,8 @@ def _measure(
     return out
 
 
-if __name__ == "__main__":
+if __name__ == "__main__" and "--relay" in sys.argv:
+    relay(sys.argv[sys.argv.index("--relay") + 1])
+elif __name__ == "__main__":
     rev = sys.argv[sys.argv.index("--against") + 1] if "--against" in sys.argv else None
     print(run(quick="--quick" in sys.argv, against=rev))

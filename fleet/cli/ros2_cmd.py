@@ -36,7 +36,7 @@ class UrdfArms:
 
     def __init__(self, inventory: Inventory) -> None:
         from fleet.record.layout import layout_of
-        from fleet.ros2.frames import ArmTree, JointFrame
+        from fleet.ros2.frames import ArmTree, JointFrame, wire_to_q
         from viewer import kinematics as k
 
         self.layout = layout_of(inventory)
@@ -59,6 +59,7 @@ class UrdfArms:
                 )
             )
         self.tree = ArmTree(joints)
+        self._wire_to_q = wire_to_q
         self._bases = {}
         for arm, p in self.layout.arms.items():
             m = k.base_transforms(p.base_xyz, p.base_rpy_deg)[0]
@@ -71,10 +72,8 @@ class UrdfArms:
 
     def q(self, arm: str, angles_deg: Sequence[float]) -> list[float]:
         """The URDF joint values of ``arm`` at ``angles_deg``."""
-        from fleet.ros2.frames import wire_to_q
-
         p = self.layout.arms[arm]
-        return wire_to_q(angles_deg, p.joint_sign, (p.gripper_closed_deg, p.gripper_open_deg))
+        return self._wire_to_q(angles_deg, p.joint_sign, (p.gripper_closed_deg, p.gripper_open_deg))
 
     def static_transforms(self, arm: str) -> list[Any]:
         """World -> base, then every fixed joint's parent -> child (frames ``<arm>/<link>``)."""

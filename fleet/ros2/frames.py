@@ -77,14 +77,27 @@ class ArmTree:
         """Each moving joint's parent -> child at joint values ``q``, in the order of
         ``moving``."""
         out: list[Pose] = []
+        sin, cos = math.sin, math.cos
         for joint, slide in zip(self.moving, self._slide, strict=True):
             value = q[joint.q_index]
             x, y, z = joint.xyz
             if joint.kind == "revolute":
-                s = math.sin(0.5 * value)
+                # origin * (axis sin(v/2), cos(v/2)), the Hamilton product written out
+                s, c = sin(0.5 * value), cos(0.5 * value)
                 ax, ay, az = joint.axis
-                r = quat_mul(joint.xyzw, (ax * s, ay * s, az * s, math.cos(0.5 * value)))
-                out.append((x, y, z, *r))
+                bx, by, bz = ax * s, ay * s, az * s
+                ox, oy, oz, ow = joint.xyzw
+                out.append(
+                    (
+                        x,
+                        y,
+                        z,
+                        ow * bx + ox * c + oy * bz - oz * by,
+                        ow * by - ox * bz + oy * c + oz * bx,
+                        ow * bz + ox * by - oy * bx + oz * c,
+                        ow * c - ox * bx - oy * by - oz * bz,
+                    )
+                )
             else:
                 sx, sy, sz = slide
                 out.append((x + value * sx, y + value * sy, z + value * sz, *joint.xyzw))
@@ -97,7 +110,9 @@ def wire_to_q(
     """One arm's 7 wire angles -> its 8 URDF joint values (radians, then the two fingers in
     metres), as ``viewer.kinematics.wire_to_q`` defines it for arrays (the definition, with the
     why, is there; this is its one-arm form and is tested equal to it)."""
-    q = [sign * math.radians(angle) for sign, angle in zip(joint_sign[:6], angles_deg[:6])]
+    k = math.pi / 180.0
+    a = angles_deg
+    q = [joint_sign[i] * a[i] * k for i in range(6)]
     closed, fully_open = gripper_deg
     opening = min(max((angles_deg[6] - closed) / (fully_open - closed), 0.0), 1.0)
     if joint_sign[6] < 0:

@@ -12,6 +12,7 @@ request (one placeholder octet on the wire), response ``{bool success, string me
 
 from __future__ import annotations
 
+import struct
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -110,15 +111,26 @@ class TfTemplate:
             w.string(child)
             w.slot("7d", [0.0] * 7)
         self.frames = tuple(frames)
-        self._template: CdrTemplate = w.template()
+        template = w.template()
+        self._data = template.data
+        self._stamps = [offset for offset, _packer in template.slots[0::2]]
+        self._poses = [offset for offset, _packer in template.slots[1::2]]
 
     def message(self, stamp_ns: int, poses: Sequence[Sequence[float]]) -> bytes:
         """The CDR of one TFMessage: ``poses[i]`` is frame i's x y z, qx qy qz qw."""
-        stamp = _stamp(stamp_ns)
-        values: list[Sequence[float]] = []
-        for pose in poses:
-            values += (stamp, pose)
-        return self._template.fill(*values)
+        if len(poses) != len(self._poses):
+            raise ValueError(f"{len(poses)} poses for {len(self._poses)} frames")
+        buf = bytearray(self._data)
+        sec, nsec = _stamp(stamp_ns)
+        for offset in self._stamps:
+            _STAMP.pack_into(buf, offset, sec, nsec)
+        for offset, pose in zip(self._poses, poses, strict=True):
+            _POSE.pack_into(buf, offset, *pose)
+        return bytes(buf)
+
+
+_STAMP = struct.Struct("<iI")
+_POSE = struct.Struct("<7d")
 
 
 def string(text: str) -> bytes:
