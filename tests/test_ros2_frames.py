@@ -60,9 +60,13 @@ def test_every_link_is_where_the_viewer_puts_it(arms: UrdfArms, arm: str) -> Non
     for _ in range(50):
         angles = [rng.uniform(-150, 150) for _ in range(6)] + [rng.uniform(0, 65)]
         q = arms.q(arm, angles)
-        expected = k.base_transforms(p.base_xyz, p.base_rpy_deg)[0] @ k.forward(
-            model, k.wire_to_q([angles], p.joint_sign, (p.gripper_closed_deg, p.gripper_open_deg))
-        )[0]
+        expected = (
+            k.base_transforms(p.base_xyz, p.base_rpy_deg)[0]
+            @ k.forward(
+                model,
+                k.wire_to_q([angles], p.joint_sign, (p.gripper_closed_deg, p.gripper_open_deg)),
+            )[0]
+        )
         edges = [(t.parent, t.child, t.xyz, t.xyzw) for t in arms.static_transforms(arm)]
         moving = zip(arms.moving_frames(arm), arms.moving_poses(arm, q), strict=True)
         edges += [(parent, child, pose[:3], pose[3:]) for (parent, child), pose in moving]
