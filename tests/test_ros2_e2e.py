@@ -248,3 +248,111 @@ def _check(harness: FleetHarness, client: Any, peer: zenoh.Session, ros2: Any) -
     for token in forged:
         token.undeclare()
     assert ros2.poll() is None, harness.log("ros2")
+
+
+# Unitree's g1_29dof URDF (unitree_ros, mujoco-menagerie): its joints in rt/lowstate's motor
+# order, written out here rather than taken from fleet/.
+G1_29DOF_JOINTS = [
+    "left_hip_pitch_joint",
+    "left_hip_roll_joint",
+    "left_hip_yaw_joint",
+    "left_knee_joint",
+    "left_ankle_pitch_joint",
+    "left_ankle_roll_joint",
+    "right_hip_pitch_joint",
+    "right_hip_roll_joint",
+    "right_hip_yaw_joint",
+    "right_knee_joint",
+    "right_ankle_pitch_joint",
+    "right_ankle_roll_joint",
+    "waist_yaw_joint",
+    "waist_roll_joint",
+    "waist_pitch_joint",
+    "left_shoulder_pitch_joint",
+    "left_shoulder_roll_joint",
+    "left_shoulder_yaw_joint",
+    "left_elbow_joint",
+    "left_wrist_roll_joint",
+    "left_wrist_pitch_joint",
+    "left_wrist_yaw_joint",
+    "right_shoulder_pitch_joint",
+    "right_shoulder_roll_joint",
+    "right_shoulder_yaw_joint",
+    "right_elbow_joint",
+    "right_wrist_roll_joint",
+    "right_wrist_pitch_joint",
+    "right_wrist_yaw_joint",
+]
+DEVICES = '[ros2]\n\n[grippers.gl]\nmount = "a1"\n\n[g1.h1]\n'
+
+
+def test_devices_publish_their_own_joint_states(tmp_path: Path) -> None:
+    """The Dex1-1 (gripper/gl/state) and the G1 (g1/h1/lowstate) as ROS joint_states: every
+    sample's key, token, attachment and CDR, its values those of the fleet's own key."""
+    with FleetHarness(tmp_path, arms=1, extra=DEVICES) as harness:
+        harness.start_router()
+        harness.start_sim()
+        harness.start("devices", ["-m", "edge_agent", "--device", "gl", "--device", "h1"])
+        harness.start("ros2", ["-m", "fleet.cli.main", "ros2"])
+        peer = open_client([harness.endpoint])
+        try:
+            _check_devices(peer)
+        finally:
+            peer.close()
+
+
+def _check_devices(peer: zenoh.Session) -> None:
+    def publishers() -> dict[str, dict[str, str]] | None:
+        found = [str(r.ok.key_expr) for r in peer.liveliness().get("@ros2_lv/0/**") if r.ok]
+        pubs = {p["topic"]: p for p in map(parse_token, found) if p["kind"] == "MP"}
+        wanted = {"%test%gl%joint_states", "%test%h1%joint_states"}
+        return pubs if wanted <= set(pubs) else None
+
+    pubs = wait_until(publishers, 30.0)
+    for unit in ("gl", "h1"):
+        token = pubs[f"%test%{unit}%joint_states"]
+        assert token["type"] == "sensor_msgs::msg::dds_::JointState_"
+        assert token["hash"] == f"RIHS01_{PUBLIC_HASHES['sensor_msgs/msg/JointState']}"
+
+    js_type = "sensor_msgs/msg/JointState"
+    cases = {
+        "gl": (ros_key("/test/gl/joint_states", js_type), "fleet/test/gripper/gl/state"),
+        "h1": (ros_key("/test/h1/joint_states", js_type), "fleet/test/g1/h1/lowstate"),
+    }
+    ros = {unit: Collector() for unit in cases}
+    fleet = {unit: Collector() for unit in cases}
+    subs = [peer.declare_subscriber(key, ros[unit]) for unit, (key, _f) in cases.items()]
+    subs += [peer.declare_subscriber(key, fleet[unit]) for unit, (_r, key) in cases.items()]
+    wait_until(lambda: all(c.count() >= 12 for c in ros.values()), 30.0)
+    for sub in subs:
+        sub.undeclare()
+
+    kinds = {"gl": payloads.CHANNELS["gripper/state"], "h1": payloads.CHANNELS["g1/lowstate"]}
+    for unit, collector in ros.items():
+        own = {}
+        for s in fleet[unit].samples:
+            state = kinds[unit].payload.decode(s.payload.to_bytes())
+            own[state.stamp_ns] = state
+        seqs, matched = [], 0
+        for sample in collector.samples:
+            seq, stamp, _gid = attachment(sample)
+            seqs.append(seq)
+            js = STORE.deserialize_cdr(sample.payload.to_bytes(), js_type)
+            assert js.header.stamp.sec * 1_000_000_000 + js.header.stamp.nanosec == stamp
+            if unit == "gl":
+                assert list(js.name) == ["gl_joint"]
+                assert len(js.velocity) == 1 and len(js.effort) == 1
+            else:
+                assert list(js.name) == G1_29DOF_JOINTS
+                assert len(js.position) == 29 and len(js.velocity) == 0
+            state = own.get(stamp)
+            if state is None:
+                continue
+            matched += 1
+            if unit == "gl":
+                values = [js.position[0], js.velocity[0], js.effort[0]]
+                assert values == [state.q_rad, state.dq_rad_s, state.tau_est]
+            else:
+                assert list(js.position) == state.q_rad
+        assert matched >= 6, (unit, matched, len(collector.samples))
+        assert seqs == list(range(seqs[0], seqs[0] + len(seqs)))
