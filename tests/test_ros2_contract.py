@@ -73,6 +73,21 @@ def test_design_doc_examples() -> None:
     )
 
 
+def test_humble_spells_no_type_hash() -> None:
+    """rmw_zenoh on Humble: ``TypeHashNotSupported`` where the RIHS01 hash goes (the form other
+    rmw_zenoh peers document: ``0/chatter/std_msgs::msg::dds_::Int32_/TypeHashNotSupported``;
+    pamoja-ros2 knows RIHS01 only)."""
+    humble = c.for_distro(c.STRING, "humble")
+    assert c.topic_key(0, "/chatter", humble) == (
+        "0/chatter/std_msgs::msg::dds_::String_/TypeHashNotSupported"
+    )
+    node = c.Node(0, "8b20917502ee955ac4476e0266340d5c", 0, "/", "talker")
+    assert node.entity_token(1, c.PUBLISHER, "/chatter", humble, "::,7:,:,:,,").endswith(
+        "/%chatter/std_msgs::msg::dds_::String_/TypeHashNotSupported/::,7:,:,:,,"
+    )
+    assert c.for_distro(c.STRING, "jazzy") == c.STRING
+
+
 def test_qos_encoding() -> None:
     assert c.qos_keyexpr(depth=10) == "::,10:,:,:,,"
     assert c.qos_keyexpr(durability=c.TRANSIENT_LOCAL, depth=1) == ":1:,1:,:,:,,"

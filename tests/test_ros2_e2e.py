@@ -356,3 +356,34 @@ def _check_devices(peer: zenoh.Session) -> None:
                 assert list(js.position) == state.q_rad
         assert matched >= 6, (unit, matched, len(collector.samples))
         assert seqs == list(range(seqs[0], seqs[0] + len(seqs)))
+
+
+def test_humble_keys_and_tokens_carry_no_type_hash(tmp_path: Path) -> None:
+    """``[ros2] distro = "humble"``: the tokens and the keys say ``TypeHashNotSupported``, and a
+    late joiner gets robot_description from the cache on that key."""
+    with FleetHarness(tmp_path, arms=1, extra='[ros2]\ndistro = "humble"\n') as harness:
+        harness.start_router()
+        harness.start("ros2", ["-m", "fleet.cli.main", "ros2"])
+        peer = open_client([harness.endpoint])
+        try:
+
+            def publishers() -> list[dict[str, str]] | None:
+                found = [str(r.ok.key_expr) for r in peer.liveliness().get("@ros2_lv/0/**") if r.ok]
+                parsed = [parse_token(t) for t in found if "/MP/" in t or "/SS/" in t]
+                return parsed if len(parsed) >= 7 else None  # tf, tf_static, 3 + 2 services
+
+            for token in wait_until(publishers, 30.0):
+                assert token["hash"] == "TypeHashNotSupported", token
+            late = Collector()
+            sub = zenoh.ext.declare_advanced_subscriber(
+                peer,
+                "0/test/a1/robot_description/std_msgs::msg::dds_::String_/TypeHashNotSupported",
+                late,
+                history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1),
+            )
+            wait_until(lambda: late.count() >= 1, 10.0)
+            sub.undeclare()
+            text = STORE.deserialize_cdr(late.samples[0].payload.to_bytes(), "std_msgs/msg/String")
+            assert text.data == URDF.read_text()
+        finally:
+            peer.close()

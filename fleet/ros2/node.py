@@ -165,6 +165,7 @@ class Ros2Node:
         self, node: c.Node, name: str, rtype: c.RosType, depth: int, latched: bool = False
     ) -> _Publisher:
         fqn = f"{node.namespace.rstrip('/')}/{name}" if not name.startswith("/") else name
+        rtype = c.for_distro(rtype, self.section.distro)
         key = c.topic_key(self.domain, fqn, rtype)
         durability = c.TRANSIENT_LOCAL if latched else c.VOLATILE
         qos = c.qos_keyexpr(durability=durability, depth=depth)
@@ -189,9 +190,10 @@ class Ros2Node:
         return out
 
     def _service(self, node: c.Node, fqn: str, unit: str | None) -> None:
-        key = c.topic_key(self.domain, fqn, c.TRIGGER)
+        trigger = c.for_distro(c.TRIGGER, self.section.distro)
+        key = c.topic_key(self.domain, fqn, trigger)
         qos = c.qos_keyexpr(depth=10)
-        token = node.entity_token(self._id(), c.SERVICE, fqn, c.TRIGGER, qos)
+        token = node.entity_token(self._id(), c.SERVICE, fqn, trigger, qos)
         self._tokens.append(self.session.liveliness().declare_token(token))
 
         def on_query(query: zenoh.Query) -> None:  # Zenoh thread: hand off, never block
