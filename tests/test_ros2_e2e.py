@@ -160,13 +160,27 @@ def _check(harness: FleetHarness, client: Any, peer: zenoh.Session, ros2: Any) -
     sub = peer.declare_subscriber(ros_key("/tf", "tf2_msgs/msg/TFMessage"), tf_samples)
     wait_until(lambda: tf_samples.count() >= 4, 10.0)
     sub.undeclare()
+    last: dict[str, tuple[int, bytes]] = {}
     for sample in tf_samples.samples:
         tf = STORE.deserialize_cdr(sample.payload.to_bytes(), "tf2_msgs/msg/TFMessage")
         arm = tf.transforms[0].header.frame_id.split("/")[0]
         edges = [(t.header.frame_id, t.child_frame_id) for t in tf.transforms]
         assert edges == [(f"{arm}/{p}", f"{arm}/{c}") for p, c in MOVING_LINKS]
         stamp = tf.transforms[0].header.stamp
-        assert attachment(sample)[1] == stamp.sec * 1_000_000_000 + stamp.nanosec
+        stamp_ns = stamp.sec * 1_000_000_000 + stamp.nanosec
+        assert attachment(sample)[1] == stamp_ns
+        # Sent when the arm moved, else once a second (tf2 keeps 10 s: RViz never loses it).
+        poses = b"".join(
+            struct.pack(
+                "<7d",
+                *(getattr(t.transform.translation, a) for a in "xyz"),
+                *(getattr(t.transform.rotation, a) for a in "xyzw"),
+            )
+            for t in tf.transforms
+        )
+        if arm in last and last[arm][1] == poses:
+            assert stamp_ns - last[arm][0] >= 1_000_000_000, "an unchanged /tf within a second"
+        last[arm] = (stamp_ns, poses)
 
     # A late joiner gets robot_description and tf_static from the publishers' caches.
     late, late_tf = Collector(), Collector()

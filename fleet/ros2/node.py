@@ -55,6 +55,8 @@ NODE_NAME = "d1_fleet"
 REQUEST_DEPTH = 64
 """Trigger requests waiting for the stop thread; more are dropped and counted (a flood)."""
 STOP_TIMEOUT_S = 3.0
+TF_REFRESH_NS = 1_000_000_000
+"""An arm at rest: its /tf once a second (tf2 keeps 10 s of history: RViz never loses it)."""
 MISS_HEARTBEAT_MS = 500
 """rmw_zenoh's sporadic heartbeat of a reliable transient-local publisher."""
 
@@ -108,6 +110,10 @@ class _Unit:
     status: Any = None
     joint_states: msg.JointStateTemplate | None = None
     tf: msg.TfTemplate | None = None
+    tf_angles: Any = None
+    """The angles of the last /tf sent, and when (stamp_ns): /tf again on a change or after
+    ``TF_REFRESH_NS``."""
+    tf_stamp_ns: int = 0
 
 
 class Ros2Node:
@@ -334,15 +340,20 @@ class Ros2Node:
         self.published += 1
 
     def _joints(self, unit: _Unit, joints: Any) -> None:
-        """An arm's joints: its joint_states, then its moving joints on /tf."""
+        """An arm's joints: its joint_states, then its moving joints on /tf when they moved (or
+        a second passed)."""
         if len(joints.angles_deg) != 7 or unit.joint_states is None or unit.tf is None:
             self.bad += 1
             return
         stamp = joints.stamp_ns
         q = self.models.q(unit.unit, joints.angles_deg)
         unit.publishers["joint_states"].put(unit.joint_states.message(stamp, q), stamp)
+        self.published += 1
+        if joints.angles_deg == unit.tf_angles and 0 <= stamp - unit.tf_stamp_ns < TF_REFRESH_NS:
+            return
+        unit.tf_angles, unit.tf_stamp_ns = joints.angles_deg, stamp
         self._tf.put(unit.tf.message(stamp, self.models.moving_poses(unit.unit, q)), stamp)
-        self.published += 2
+        self.published += 1
 
     # ------------------------------------------------------------------ stops
 
