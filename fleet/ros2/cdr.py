@@ -14,6 +14,7 @@ at offsets recorded then (``CdrWriter.slot``), a few C calls instead of one per 
 from __future__ import annotations
 
 import struct
+from collections.abc import Sequence
 
 HEADER_LE = b"\x00\x01\x00\x00"
 """CDR_LE, options 0: what rmw_zenoh (Fast-CDR) writes before every message."""
@@ -98,7 +99,7 @@ class CdrTemplate:
         self.data = data
         self.slots = slots
 
-    def fill(self, *values: tuple[float, ...] | list[float]) -> bytes:
+    def fill(self, *values: Sequence[float]) -> bytes:
         """The message with slot ``i`` holding ``values[i]`` (one sequence per slot, in the
         order they were written)."""
         if len(values) != len(self.slots):
