@@ -237,10 +237,14 @@ def _ros2_rows(r: dict[str, Any]) -> list[Row]:
     """fleet ros2: joint_states over the joints key, and its CPU."""
     p50, p95 = r["added_ms_p50"], r["added_ms_p95"]
     ok = p50 is not None and p50 <= 2.0 and r["cpu_pct"] <= 3.0
+    floor = r.get("floor") or {}
+    load = r.get("load_avg_1m_5m")
+    extra = f"; no-op relay {_ms(floor.get('added_ms_p50'))}" if floor else ""
+    extra += f"; load {load[0]:g}" if load else ""
     return [
         (f"ROS 2 joint_states added latency over joints, {r['arms']} arms at "
          f"{r['rate_hz']:g} Hz (n={r['samples']}, lost {r['lost']})",
-         _ms(p50), _ms(p95), f"fleet ros2 {r['cpu_pct']:.1f} % core",
+         _ms(p50), _ms(p95), f"fleet ros2 {r['cpu_pct']:.1f} % core{extra}",
          "p50 <= 2 ms, <= 3 % core", _verdict(ok)),
     ]  # fmt: skip
 

@@ -143,3 +143,44 @@ def test_a_crashed_agent_is_restarted_and_the_demo_says_which(
     assert process.poll() is None, "one killed agent took the demo down"
     log = (tmp_path / "demo.log").read_text(errors="replace")
     assert f"agent of a2 (PID {agent}) killed by SIGKILL; restarting it" in log, log[-2000:]
+
+
+def test_the_demo_with_ros2_starts_fleet_ros2_and_says_where(tmp_path: Path) -> None:
+    """``fleet demo --ros2``: the intro names the ROS domain and the stop service, a
+    ``fleet ros2`` child runs, and the arms' joint_states reach a ROS subscriber's key."""
+    from fleet.wire.session import open_client
+
+    port, domain = free_port(), unique_domain()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    log_path = tmp_path / "demo.log"
+    with open(log_path, "wb") as log:
+        process = subprocess.Popen(
+            [sys.executable, "-m", "fleet.cli.main", "demo", "--ros2", "--no-viewer"]
+            + ["--no-dance", "--for-s", "120", "--domain", str(domain), "--endpoint", endpoint]
+            + ["--inventory", str(REPO / "inventory.toml")],
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            cwd=REPO,
+        )
+    children: list[int] = []
+    try:
+        intro = "ros2: ROS_DOMAIN_ID=0, stop service /lab/estop (rmw_zenoh, router "
+        wait_until(lambda: intro in log_path.read_text(errors="replace"), 60.0)
+        children = _children_of(process.pid)
+        assert any(" ros2 " in _cmdline(pid) for pid in children), children
+        peer = open_client([endpoint])
+        try:
+            seen: list[str] = []
+            sub = peer.declare_subscriber(
+                "0/lab/a1/joint_states/**", lambda s: seen.append(str(s.key_expr))
+            )
+            wait_until(lambda: seen, 60.0)
+            sub.undeclare()
+        finally:
+            peer.close()
+        assert seen[0].startswith("0/lab/a1/joint_states/sensor_msgs::msg::dds_::JointState_/")
+    finally:
+        stop_demo(process)
+        for pid in children:
+            if _alive(pid):
+                os.kill(pid, signal.SIGKILL)

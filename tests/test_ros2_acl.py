@@ -49,3 +49,20 @@ def test_no_ros_keys_for_readers_without_a_ros2_section(tmp_path: Path) -> None:
     for reader in ("ann", "viewer"):
         keys = _allowed(acl, reader, "declare_subscriber", "ingress")
         assert all(k.startswith("fleet/") for k in keys), keys
+
+
+def test_devices_joint_states_and_humbles_keys_are_granted(tmp_path: Path) -> None:
+    devices = '\n[grippers.gl]\nmount = "a1"\n\n[g1.h1]\n'
+    inventory = parse_inventory(INVENTORY + ROS2 + devices, str(tmp_path / "inventory.toml"))
+    names = {fqn for fqn, _t, _l in grants.topics(inventory)}
+    assert {"/lab/gl/joint_states", "/lab/h1/joint_states"} <= names
+    humble = parse_inventory(
+        INVENTORY + ROS2.replace("[ros2.namespaces]", 'distro = "humble"\n[ros2.namespaces]'),
+        str(tmp_path / "inventory.toml"),
+    )
+    keys = [*grants.data_keys(humble), *grants.service_keys(humble)]
+    assert keys and all(k.endswith("/TypeHashNotSupported") for k in keys)
+    puts = _allowed(access_control(humble), "ros2", "put", "ingress")
+    assert (
+        "0/lab/left/joint_states/sensor_msgs::msg::dds_::JointState_/TypeHashNotSupported" in puts
+    )

@@ -73,6 +73,21 @@ def test_design_doc_examples() -> None:
     )
 
 
+def test_humble_spells_no_type_hash() -> None:
+    """rmw_zenoh on Humble: ``TypeHashNotSupported`` where the RIHS01 hash goes (the form other
+    rmw_zenoh peers document: ``0/chatter/std_msgs::msg::dds_::Int32_/TypeHashNotSupported``;
+    pamoja-ros2 knows RIHS01 only)."""
+    humble = c.for_distro(c.STRING, "humble")
+    assert c.topic_key(0, "/chatter", humble) == (
+        "0/chatter/std_msgs::msg::dds_::String_/TypeHashNotSupported"
+    )
+    node = c.Node(0, "8b20917502ee955ac4476e0266340d5c", 0, "/", "talker")
+    assert node.entity_token(1, c.PUBLISHER, "/chatter", humble, "::,7:,:,:,,").endswith(
+        "/%chatter/std_msgs::msg::dds_::String_/TypeHashNotSupported/::,7:,:,:,,"
+    )
+    assert c.for_distro(c.STRING, "jazzy") == c.STRING
+
+
 def test_qos_encoding() -> None:
     assert c.qos_keyexpr(depth=10) == "::,10:,:,:,,"
     assert c.qos_keyexpr(durability=c.TRANSIENT_LOCAL, depth=1) == ":1:,1:,:,:,,"
@@ -139,3 +154,24 @@ def test_trigger_requests() -> None:
         assert not msg.trigger_request_ok(bad)
     with pytest.raises(CdrError):
         CdrReader(b"\x00\x01\x00\x00\xff\xff\xff\x7f").string()
+
+
+def test_templates_are_byte_for_byte_the_plain_writer() -> None:
+    names = ["Joint1", "Joint2", "Joint_L"]
+    template = msg.JointStateTemplate(names)
+    for stamp, q in ((1_700_000_000_123_456_789, [0.1, -0.2, 0.033]), (5, [0.0, 1e300, -0.0])):
+        assert template.message(stamp, q) == msg.joint_state(stamp, names, q)
+    full = msg.JointStateTemplate(["j"], frame_id="base", velocity=True, effort=True)
+    data = full.message(7, [1.0], [2.0], [3.0])
+    assert data == msg.joint_state(7, ["j"], [1.0], [2.0], [3.0], frame_id="base")
+    js = STORE.deserialize_cdr(data, "sensor_msgs/msg/JointState")
+    assert (list(js.position), list(js.velocity), list(js.effort)) == ([1.0], [2.0], [3.0])
+    with pytest.raises(ValueError):
+        template.message(1)  # no positions
+
+    frames = [("world", "a1/base_link"), ("a1/base_link", "a1/Link1"), ("a", "bcdefgh")]
+    poses = [(0.1 * i, 0.2, 0.3, 0.0, 0.0, 0.6, 0.8) for i in range(3)]
+    transforms = [msg.Transform(p, c_, pose[:3], pose[3:]) for (p, c_), pose in zip(frames, poses)]
+    assert msg.TfTemplate(frames).message(2_000_000_001, poses) == msg.tf_message(
+        2_000_000_001, transforms
+    )

@@ -28,6 +28,11 @@ TRIGGER_RESPONSE = "std_srvs/msg/TriggerResponse"  # registered by test_ros2_con
 MOVING_JOINTS = [
     j.get("name") for j in ET.parse(URDF).getroot().iter("joint") if j.get("type") != "fixed"
 ]
+MOVING_LINKS = [
+    (j.find("parent").get("link"), j.find("child").get("link"))  # type: ignore[union-attr]
+    for j in ET.parse(URDF).getroot().iter("joint")
+    if j.get("type") != "fixed"
+]
 
 
 def ros_key(fqn: str, ros_type: str, domain: int = 0) -> str:
@@ -150,6 +155,33 @@ def _check(harness: FleetHarness, client: Any, peer: zenoh.Session, ros2: Any) -
     assert matched >= 10, (matched, len(js_samples.samples))
     assert seqs == list(range(seqs[0], seqs[0] + len(seqs))) and len(gids) == 1
 
+    # /tf: each joints sample's moving joints, parent -> child as the URDF names them.
+    tf_samples = Collector()
+    sub = peer.declare_subscriber(ros_key("/tf", "tf2_msgs/msg/TFMessage"), tf_samples)
+    wait_until(lambda: tf_samples.count() >= 4, 10.0)
+    sub.undeclare()
+    last: dict[str, tuple[int, bytes]] = {}
+    for sample in tf_samples.samples:
+        tf = STORE.deserialize_cdr(sample.payload.to_bytes(), "tf2_msgs/msg/TFMessage")
+        arm = tf.transforms[0].header.frame_id.split("/")[0]
+        edges = [(t.header.frame_id, t.child_frame_id) for t in tf.transforms]
+        assert edges == [(f"{arm}/{p}", f"{arm}/{c}") for p, c in MOVING_LINKS]
+        stamp = tf.transforms[0].header.stamp
+        stamp_ns = stamp.sec * 1_000_000_000 + stamp.nanosec
+        assert attachment(sample)[1] == stamp_ns
+        # Sent when the arm moved, else once a second (tf2 keeps 10 s: RViz never loses it).
+        poses = b"".join(
+            struct.pack(
+                "<7d",
+                *(getattr(t.transform.translation, a) for a in "xyz"),
+                *(getattr(t.transform.rotation, a) for a in "xyzw"),
+            )
+            for t in tf.transforms
+        )
+        if arm in last and last[arm][1] == poses:
+            assert stamp_ns - last[arm][0] >= 1_000_000_000, "an unchanged /tf within a second"
+        last[arm] = (stamp_ns, poses)
+
     # A late joiner gets robot_description and tf_static from the publishers' caches.
     late, late_tf = Collector(), Collector()
     history = zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1)
@@ -171,8 +203,11 @@ def _check(harness: FleetHarness, client: Any, peer: zenoh.Session, ros2: Any) -
     assert urdf == URDF.read_text()
     assert attachment(late.samples[0])[0] == 1
     tf = STORE.deserialize_cdr(late_tf.samples[0].payload.to_bytes(), "tf2_msgs/msg/TFMessage")
-    bases = {t.child_frame_id: t for t in tf.transforms}
+    bases = {t.child_frame_id: t for t in tf.transforms if t.header.frame_id == "world"}
     assert set(bases) == {"a1/base_link", "a2/base_link"}
+    # the fixed joints are static too (robot_state_publisher's way); the moving ones are /tf
+    static_children = {t.child_frame_id for t in tf.transforms}
+    assert not static_children & {f"a1/{child}" for _p, child in MOVING_LINKS}
     assert bases["a2/base_link"].header.frame_id == "world"
     assert math.isclose(bases["a2/base_link"].transform.translation.y, 0.6)
 
@@ -227,3 +262,142 @@ def _check(harness: FleetHarness, client: Any, peer: zenoh.Session, ros2: Any) -
     for token in forged:
         token.undeclare()
     assert ros2.poll() is None, harness.log("ros2")
+
+
+# Unitree's g1_29dof URDF (unitree_ros, mujoco-menagerie): its joints in rt/lowstate's motor
+# order, written out here rather than taken from fleet/.
+G1_29DOF_JOINTS = [
+    "left_hip_pitch_joint",
+    "left_hip_roll_joint",
+    "left_hip_yaw_joint",
+    "left_knee_joint",
+    "left_ankle_pitch_joint",
+    "left_ankle_roll_joint",
+    "right_hip_pitch_joint",
+    "right_hip_roll_joint",
+    "right_hip_yaw_joint",
+    "right_knee_joint",
+    "right_ankle_pitch_joint",
+    "right_ankle_roll_joint",
+    "waist_yaw_joint",
+    "waist_roll_joint",
+    "waist_pitch_joint",
+    "left_shoulder_pitch_joint",
+    "left_shoulder_roll_joint",
+    "left_shoulder_yaw_joint",
+    "left_elbow_joint",
+    "left_wrist_roll_joint",
+    "left_wrist_pitch_joint",
+    "left_wrist_yaw_joint",
+    "right_shoulder_pitch_joint",
+    "right_shoulder_roll_joint",
+    "right_shoulder_yaw_joint",
+    "right_elbow_joint",
+    "right_wrist_roll_joint",
+    "right_wrist_pitch_joint",
+    "right_wrist_yaw_joint",
+]
+DEVICES = '[ros2]\n\n[grippers.gl]\nmount = "a1"\n\n[g1.h1]\n'
+
+
+def test_devices_publish_their_own_joint_states(tmp_path: Path) -> None:
+    """The Dex1-1 (gripper/gl/state) and the G1 (g1/h1/lowstate) as ROS joint_states: every
+    sample's key, token, attachment and CDR, its values those of the fleet's own key."""
+    with FleetHarness(tmp_path, arms=1, extra=DEVICES) as harness:
+        harness.start_router()
+        harness.start_sim()
+        harness.start("devices", ["-m", "edge_agent", "--device", "gl", "--device", "h1"])
+        harness.start("ros2", ["-m", "fleet.cli.main", "ros2"])
+        peer = open_client([harness.endpoint])
+        try:
+            _check_devices(peer)
+        finally:
+            peer.close()
+
+
+def _check_devices(peer: zenoh.Session) -> None:
+    def publishers() -> dict[str, dict[str, str]] | None:
+        found = [str(r.ok.key_expr) for r in peer.liveliness().get("@ros2_lv/0/**") if r.ok]
+        pubs = {p["topic"]: p for p in map(parse_token, found) if p["kind"] == "MP"}
+        wanted = {"%test%gl%joint_states", "%test%h1%joint_states"}
+        return pubs if wanted <= set(pubs) else None
+
+    pubs = wait_until(publishers, 30.0)
+    for unit in ("gl", "h1"):
+        token = pubs[f"%test%{unit}%joint_states"]
+        assert token["type"] == "sensor_msgs::msg::dds_::JointState_"
+        assert token["hash"] == f"RIHS01_{PUBLIC_HASHES['sensor_msgs/msg/JointState']}"
+
+    js_type = "sensor_msgs/msg/JointState"
+    cases = {
+        "gl": (ros_key("/test/gl/joint_states", js_type), "fleet/test/gripper/gl/state"),
+        "h1": (ros_key("/test/h1/joint_states", js_type), "fleet/test/g1/h1/lowstate"),
+    }
+    ros = {unit: Collector() for unit in cases}
+    fleet = {unit: Collector() for unit in cases}
+    subs = [peer.declare_subscriber(key, ros[unit]) for unit, (key, _f) in cases.items()]
+    subs += [peer.declare_subscriber(key, fleet[unit]) for unit, (_r, key) in cases.items()]
+    wait_until(lambda: all(c.count() >= 12 for c in ros.values()), 30.0)
+    for sub in subs:
+        sub.undeclare()
+
+    kinds = {"gl": payloads.CHANNELS["gripper/state"], "h1": payloads.CHANNELS["g1/lowstate"]}
+    for unit, collector in ros.items():
+        own = {}
+        for s in fleet[unit].samples:
+            state = kinds[unit].payload.decode(s.payload.to_bytes())
+            own[state.stamp_ns] = state
+        seqs, matched = [], 0
+        for sample in collector.samples:
+            seq, stamp, _gid = attachment(sample)
+            seqs.append(seq)
+            js = STORE.deserialize_cdr(sample.payload.to_bytes(), js_type)
+            assert js.header.stamp.sec * 1_000_000_000 + js.header.stamp.nanosec == stamp
+            if unit == "gl":
+                assert list(js.name) == ["gl_joint"]
+                assert len(js.velocity) == 1 and len(js.effort) == 1
+            else:
+                assert list(js.name) == G1_29DOF_JOINTS
+                assert len(js.position) == 29 and len(js.velocity) == 0
+            state = own.get(stamp)
+            if state is None:
+                continue
+            matched += 1
+            if unit == "gl":
+                values = [js.position[0], js.velocity[0], js.effort[0]]
+                assert values == [state.q_rad, state.dq_rad_s, state.tau_est]
+            else:
+                assert list(js.position) == state.q_rad
+        assert matched >= 6, (unit, matched, len(collector.samples))
+        assert seqs == list(range(seqs[0], seqs[0] + len(seqs)))
+
+
+def test_humble_keys_and_tokens_carry_no_type_hash(tmp_path: Path) -> None:
+    """``[ros2] distro = "humble"``: the tokens and the keys say ``TypeHashNotSupported``, and a
+    late joiner gets robot_description from the cache on that key."""
+    with FleetHarness(tmp_path, arms=1, extra='[ros2]\ndistro = "humble"\n') as harness:
+        harness.start_router()
+        harness.start("ros2", ["-m", "fleet.cli.main", "ros2"])
+        peer = open_client([harness.endpoint])
+        try:
+
+            def publishers() -> list[dict[str, str]] | None:
+                found = [str(r.ok.key_expr) for r in peer.liveliness().get("@ros2_lv/0/**") if r.ok]
+                parsed = [parse_token(t) for t in found if "/MP/" in t or "/SS/" in t]
+                return parsed if len(parsed) >= 7 else None  # tf, tf_static, 3 + 2 services
+
+            for token in wait_until(publishers, 30.0):
+                assert token["hash"] == "TypeHashNotSupported", token
+            late = Collector()
+            sub = zenoh.ext.declare_advanced_subscriber(
+                peer,
+                "0/test/a1/robot_description/std_msgs::msg::dds_::String_/TypeHashNotSupported",
+                late,
+                history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1),
+            )
+            wait_until(lambda: late.count() >= 1, 10.0)
+            sub.undeclare()
+            text = STORE.deserialize_cdr(late.samples[0].payload.to_bytes(), "std_msgs/msg/String")
+            assert text.data == URDF.read_text()
+        finally:
+            peer.close()

@@ -31,52 +31,68 @@ def register(
 
 
 class UrdfArms:
-    """The D1-550 URDF and the viewer's forward kinematics, per inventory arm."""
+    """The D1-550 URDF per inventory arm: its joints as plain-Python TF frames
+    (``fleet/ros2/frames.py``), read once from the viewer's kinematic model."""
 
     def __init__(self, inventory: Inventory) -> None:
         from fleet.record.layout import layout_of
-        from viewer import kinematics
-        from viewer.frames3d import ArmFrames
+        from fleet.ros2.frames import ArmTree, JointFrame, wire_to_q
+        from viewer import kinematics as k
 
-        self._k = kinematics
-        self.frames = ArmFrames.load(layout_of(inventory))
-        self.joint_names: Sequence[str] = kinematics.Q_JOINTS
+        self.layout = layout_of(inventory)
+        self.model = model = k.ArmModel.from_urdf(k.load_urdf())
+        self.urdf_text = k.URDF_PATH.read_text()
+        self.joint_names: Sequence[str] = k.Q_JOINTS
+        joints = []
+        for i in range(1, len(model.links)):
+            origin = model.origin[i]
+            w, x, y, z = (float(v) for v in k.matrix_to_wxyz(origin[:3, :3]))
+            joints.append(
+                JointFrame(
+                    model.links[model.parent[i]],
+                    model.links[i],
+                    (float(origin[0, 3]), float(origin[1, 3]), float(origin[2, 3])),
+                    (x, y, z, w),
+                    model.kind[i],
+                    (float(model.axis[i][0]), float(model.axis[i][1]), float(model.axis[i][2])),
+                    model.q_index[i],
+                )
+            )
+        self.tree = ArmTree(joints)
+        self._wire_to_q = wire_to_q
+        self._bases = {}
+        for arm, p in self.layout.arms.items():
+            m = k.base_transforms(p.base_xyz, p.base_rpy_deg)[0]
+            w, x, y, z = (float(v) for v in k.matrix_to_wxyz(m[:3, :3]))
+            self._bases[arm] = (float(m[0, 3]), float(m[1, 3]), float(m[2, 3]), x, y, z, w)
 
     def urdf(self, arm: str) -> str:
         """The URDF as shipped (RViz's RobotModel adds the TF prefix ``<arm>``)."""
-        return self.frames.urdf_text
-
-    def _q(self, arm: str, angles_deg: Sequence[float]) -> Any:
-        p = self.frames.layout.arms[arm]
-        grip = (p.gripper_closed_deg, p.gripper_open_deg)
-        return self._k.wire_to_q([list(angles_deg)], p.joint_sign, grip)
+        return self.urdf_text
 
     def q(self, arm: str, angles_deg: Sequence[float]) -> list[float]:
         """The URDF joint values of ``arm`` at ``angles_deg``."""
-        return [float(v) for v in self._q(arm, angles_deg)[0]]
+        p = self.layout.arms[arm]
+        return self._wire_to_q(angles_deg, p.joint_sign, (p.gripper_closed_deg, p.gripper_open_deg))
 
-    def transforms(self, arm: str, angles_deg: Sequence[float]) -> list[Any]:
-        """World -> base, then every joint's parent -> child (frames ``<arm>/<link>``), as the
-        Foxglove bridge computes them (viewer/frames3d.py)."""
-        import numpy as np
-
+    def static_transforms(self, arm: str) -> list[Any]:
+        """World -> base, then every fixed joint's parent -> child (frames ``<arm>/<link>``)."""
         from fleet.ros2.messages import Transform
 
-        k, model = self._k, self.frames.model
-        p = self.frames.layout.arms[arm]
-        links = k.forward(model, self._q(arm, angles_deg))[0]
-        base = k.base_transforms(p.base_xyz, p.base_rpy_deg)[0]
-        names = [f"{arm}/{name}" for name in model.links]
-        pairs = [("world", names[0], base)]
-        for i in range(1, len(names)):
-            local = np.linalg.solve(links[model.parent[i]], links[i])  # parent-from-child
-            pairs.append((names[model.parent[i]], names[i], local))
-        out = []
-        for parent, child, m in pairs:
-            w, x, y, z = (float(v) for v in k.matrix_to_wxyz(m[:3, :3]))
-            xyz = (float(m[0, 3]), float(m[1, 3]), float(m[2, 3]))
-            out.append(Transform(parent, child, xyz, (x, y, z, w)))
+        root = f"{arm}/{self.model.links[0]}"
+        b = self._bases[arm]
+        out = [Transform("world", root, b[:3], b[3:])]
+        for j, pose in zip(self.tree.fixed, self.tree.static_poses(), strict=True):
+            out.append(Transform(f"{arm}/{j.parent}", f"{arm}/{j.child}", pose[:3], pose[3:]))
         return out
+
+    def moving_frames(self, arm: str) -> list[tuple[str, str]]:
+        """(parent, child) of every moving joint, in the order of ``moving_poses``."""
+        return [(f"{arm}/{j.parent}", f"{arm}/{j.child}") for j in self.tree.moving]
+
+    def moving_poses(self, arm: str, q: Sequence[float]) -> list[Any]:
+        """x y z qx qy qz qw of every moving joint at URDF joint values ``q``."""
+        return self.tree.poses(q)
 
 
 def run_ros2(args: argparse.Namespace) -> int:
@@ -111,7 +127,6 @@ def _collectors(node: Any) -> list[Any]:
     def collect() -> list[Any]:
         return [
             counter("d1_ros2_published", "ROS messages published", [], [([], node.published)]),
-            counter("d1_ros2_dropped", "samples dropped at a full inbox", [], [([], node.dropped)]),
             counter("d1_ros2_bad", "undecodable key-space samples", [], [([], node.bad)]),
             counter(
                 "d1_ros2_bad_requests",

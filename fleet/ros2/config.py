@@ -7,12 +7,15 @@ principal = "ros2"            # who `fleet ros2` acts as (role "ros2")
 estop_callers = ["operator"]  # principals the router lets call the Trigger stop services
 world_frame = "world"
 frame_prefix = true           # TF frames "<id>/<link>" (several arms in one RViz)
+distro = "jazzy"              # "humble": keys and tokens without type hashes (rmw_zenoh on Humble)
 [ros2.namespaces]
 a1 = "/lab/left_arm"          # default "/<fleet>/<id>"
 ```
 """
 
 from __future__ import annotations
+
+from typing import Literal
 
 from msgspec import Struct, field
 
@@ -27,6 +30,8 @@ class Ros2Section(Struct, frozen=True, forbid_unknown_fields=True):
     estop_callers: list[str] = field(default_factory=lambda: ["operator"])
     world_frame: str = "world"
     frame_prefix: bool = True
+    distro: Literal["jazzy", "humble"] = "jazzy"
+    """``jazzy`` (also Kilted, Rolling): RIHS01 type hashes; ``humble``: none."""
     namespaces: dict[str, str] = {}
 
     def namespace(self, fleet: str, unit: str) -> str:

@@ -79,6 +79,20 @@ TRIGGER = _type(
 """A service's token and key carry the service type (rmw_zenoh strips ``Response_`` from the
 response type's name: ``std_srvs::srv::dds_::Trigger_``) and the service's own hash."""
 
+HUMBLE_HASH = "TypeHashNotSupported"
+"""What rmw_zenoh on ROS 2 Humble (no REP-2016 type hashes) puts where the RIHS01 hash goes,
+in data keys and tokens alike (``0/chatter/std_msgs::msg::dds_::String_/TypeHashNotSupported``)."""
+DISTROS = ("jazzy", "humble")
+"""``jazzy``: RIHS01 hashes (Jazzy, Kilted, Rolling); ``humble``: none."""
+
+
+def for_distro(rtype: RosType, distro: str) -> RosType:
+    """``rtype`` as ``distro``'s rmw_zenoh spells it."""
+    if distro == "humble":
+        return RosType(rtype.name, rtype.dds, HUMBLE_HASH)
+    return rtype
+
+
 _TOKEN = re.compile(r"^[A-Za-z][A-Za-z0-9_]*\Z")
 
 

@@ -37,10 +37,10 @@ def topics(inventory: Inventory) -> list[tuple[str, c.RosType, bool]]:
         ]
     for device_id, device in inventory.devices.items():
         ns = section.namespace(inventory.fleet, device_id)
-        if kind_of(device).key == keys.GRIPPER:
+        if kind_of(device).key in (keys.GRIPPER, keys.G1):
             out.append((f"{ns}/joint_states", c.JOINT_STATE, False))
         out.append((f"{ns}/diagnostics", c.DIAGNOSTIC_ARRAY, False))
-    return out
+    return [(fqn, c.for_distro(rtype, section.distro), latched) for fqn, rtype, latched in out]
 
 
 def services(inventory: Inventory) -> list[str]:
@@ -66,7 +66,9 @@ def cache_keys(inventory: Inventory) -> list[str]:
 
 def service_keys(inventory: Inventory) -> list[str]:
     """The Trigger services' queryable keys."""
-    return [c.topic_key(inventory.ros2.domain_id, s, c.TRIGGER) for s in services(inventory)]
+    section = inventory.ros2
+    trigger = c.for_distro(c.TRIGGER, section.distro)
+    return [c.topic_key(section.domain_id, s, trigger) for s in services(inventory)]
 
 
 def graph_keys(inventory: Inventory) -> list[str]:

@@ -12,10 +12,11 @@ request (one placeholder octet on the wire), response ``{bool success, string me
 
 from __future__ import annotations
 
+import struct
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from fleet.ros2.cdr import CdrError, CdrReader, CdrWriter
+from fleet.ros2.cdr import CdrError, CdrReader, CdrTemplate, CdrWriter
 
 OK, WARN, ERROR, STALE = 0, 1, 2, 3
 """diagnostic_msgs/DiagnosticStatus levels."""
@@ -64,6 +65,72 @@ def joint_state(
     w.f64s([float(v) for v in velocity])
     w.f64s([float(v) for v in effort])
     return w.bytes()
+
+
+def _stamp(stamp_ns: int) -> tuple[int, int]:
+    return stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000
+
+
+class JointStateTemplate:
+    """sensor_msgs/msg/JointState of fixed ``names`` (and frame), written once: a sample packs
+    its stamp and numbers (byte for byte ``joint_state``)."""
+
+    def __init__(
+        self, names: Sequence[str], frame_id: str = "", velocity: bool = False, effort: bool = False
+    ) -> None:
+        n = len(names)
+        if n == 0:
+            raise ValueError("a JointState template needs at least one joint")
+        w = CdrWriter()
+        w.slot("iI", (0, 0))
+        w.string(frame_id)
+        w.strings(list(names))
+        for present in (True, velocity, effort):
+            w.u32(n if present else 0)
+            if present:
+                w.slot(f"{n}d", [0.0] * n)
+        self.names = tuple(names)
+        self._template: CdrTemplate = w.template()
+
+    def message(self, stamp_ns: int, *columns: Sequence[float]) -> bytes:
+        """The CDR of one sample: ``position`` (then ``velocity``, ``effort`` when the template
+        has them), each ``len(names)`` values."""
+        return self._template.fill(_stamp(stamp_ns), *columns)
+
+
+class TfTemplate:
+    """tf2_msgs/msg/TFMessage of fixed (parent, child) frames, written once: a sample packs the
+    stamp and each transform's translation and rotation (byte for byte ``tf_message``)."""
+
+    def __init__(self, frames: Sequence[tuple[str, str]]) -> None:
+        w = CdrWriter()
+        w.u32(len(frames))
+        for parent, child in frames:
+            w.slot("iI", (0, 0))
+            w.string(parent)
+            w.string(child)
+            w.slot("7d", [0.0] * 7)
+        self.frames = tuple(frames)
+        template = w.template()
+        self._data = template.data
+        self._stamps = [offset for offset, _packer in template.slots[0::2]]
+        self._poses = [offset for offset, _packer in template.slots[1::2]]
+
+    def message(self, stamp_ns: int, poses: Sequence[Sequence[float]]) -> bytes:
+        """The CDR of one TFMessage: ``poses[i]`` is frame i's x y z, qx qy qz qw."""
+        if len(poses) != len(self._poses):
+            raise ValueError(f"{len(poses)} poses for {len(self._poses)} frames")
+        buf = bytearray(self._data)
+        sec, nsec = _stamp(stamp_ns)
+        for offset in self._stamps:
+            _STAMP.pack_into(buf, offset, sec, nsec)
+        for offset, pose in zip(self._poses, poses, strict=True):
+            _POSE.pack_into(buf, offset, *pose)
+        return bytes(buf)
+
+
+_STAMP = struct.Struct("<iI")
+_POSE = struct.Struct("<7d")
 
 
 def string(text: str) -> bytes:

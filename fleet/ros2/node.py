@@ -9,22 +9,29 @@ unit's protective stop). A fleet node ``/<fleet>/d1_fleet`` publishes ``/tf`` (e
 from our forward kinematics, frames ``<id>/<link>``, under ``world``), ``/tf_static`` (each
 base in the world, transient local) and serves ``/<fleet>/estop`` (the whole fleet's stop).
 
-Threads: Zenoh callbacks only append to bounded deques (overflow counted); the ``ros2`` thread
-decodes (the channel table) and publishes; the ``ros2-estop`` thread answers Trigger requests
-(a stop waits for the agents' acks: it must not stall joint states). Bad requests (no or a
-malformed attachment, a payload that is no Trigger request, a flood) are counted in
-``bad_requests`` and refused or dropped; the thread never dies of them. Shutdown: undeclare the
-queryables and subscribers -> stop the threads -> undeclare tokens and publishers -> close the
-session (if ours).
+Threads. Data is published on the Zenoh thread that delivers it: one subscriber per channel
+kind, whose callback decodes the sample (``payloads``), packs prepared CDR (a template per
+unit: only the stamp and the numbers change) and puts it on a DROP publisher, which never
+waits for a slow ROS subscriber. That is what zenoh's own ``z_pong`` does, it costs tens of
+microseconds per sample, and it saves the hand-off to a thread of ours that made up most of
+the added latency on a loaded host (issue 27: 7.2 ms p50 at load 5-6 with a ``ros2`` thread
+and numpy kinematics per sample). Nothing there blocks or waits for the network. The
+``ros2-estop`` thread answers Trigger requests (a stop waits for the agents' acks: it must not
+stall joint states). Bad samples are counted (``bad``); bad requests (no or a malformed
+attachment, a payload that is no Trigger request, a flood) are counted in ``bad_requests``
+and refused or dropped; nothing dies of them. Shutdown: undeclare the queryables and
+subscribers -> stop the thread -> undeclare tokens and publishers -> close the session (if
+ours).
 """
 
 from __future__ import annotations
 
 import collections
+import itertools
 import logging
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -37,25 +44,26 @@ from fleet.guard import ThreadGuard
 from fleet.inventory import Inventory
 from fleet.ros2 import contract as c
 from fleet.ros2 import messages as msg
+from fleet.ros2.devices import G1_JOINTS, gripper_joints
 from fleet.ros2.diagnostics import arm_status, device_status
 from fleet.security.session import open_session
-from fleet.tap import kind_of
 from fleet.wire import keys, payloads
 
 log = logging.getLogger("fleet.ros2")
 
 NODE_NAME = "d1_fleet"
-INBOX_DEPTH = 10_000
 REQUEST_DEPTH = 64
 """Trigger requests waiting for the stop thread; more are dropped and counted (a flood)."""
 STOP_TIMEOUT_S = 3.0
+TF_REFRESH_NS = 1_000_000_000
+"""An arm at rest: its /tf once a second (tf2 keeps 10 s of history: RViz never loses it)."""
 MISS_HEARTBEAT_MS = 500
 """rmw_zenoh's sporadic heartbeat of a reliable transient-local publisher."""
 
 
 class ArmModels(Protocol):
-    """What the node needs of the arms' kinematics (the CLI passes the viewer's URDF and
-    forward kinematics: ``fleet`` never imports the viewer)."""
+    """What the node needs of the arms' kinematics (the CLI passes the URDF and its joints as
+    ``fleet/ros2/frames.py`` frames: ``fleet`` never imports the viewer)."""
 
     joint_names: Sequence[str]
 
@@ -65,8 +73,14 @@ class ArmModels(Protocol):
     def q(self, arm: str, angles_deg: Sequence[float]) -> list[float]:
         """Wire angles -> URDF joint values (radians; metres for the fingers)."""
 
-    def transforms(self, arm: str, angles_deg: Sequence[float]) -> list[msg.Transform]:
-        """World -> base, then parent -> child of every link, frames ``<arm>/<link>``."""
+    def static_transforms(self, arm: str) -> list[msg.Transform]:
+        """World -> base, then parent -> child of every fixed joint, frames ``<arm>/<link>``."""
+
+    def moving_frames(self, arm: str) -> list[tuple[str, str]]:
+        """(parent, child) of every moving joint, frames ``<arm>/<link>``."""
+
+    def moving_poses(self, arm: str, q: Sequence[float]) -> list[Any]:
+        """x y z qx qy qz qw of every moving joint at ``q``, in ``moving_frames``' order."""
 
 
 @dataclass
@@ -76,12 +90,12 @@ class _Publisher:
     gid: bytes
     publisher: Any
     token: Any = None
-    sequence: int = 0
+    # next() on a count is atomic: samples of one publisher may come from two Zenoh threads.
+    sequence: Any = field(default_factory=lambda: itertools.count(1))
 
     def put(self, data: bytes, stamp_ns: int | None = None) -> None:
-        self.sequence += 1
         stamp = time.time_ns() if stamp_ns is None else stamp_ns
-        attachment = c.Attachment(self.sequence, stamp, self.gid).encode()
+        attachment = c.Attachment(next(self.sequence), stamp, self.gid).encode()
         self.publisher.put(data, attachment=attachment)
 
 
@@ -94,6 +108,12 @@ class _Unit:
     node: c.Node
     publishers: dict[str, _Publisher] = field(default_factory=dict)
     status: Any = None
+    joint_states: msg.JointStateTemplate | None = None
+    tf: msg.TfTemplate | None = None
+    tf_angles: Any = None
+    """The angles of the last /tf sent, and when (stamp_ns): /tf again on a change or after
+    ``TF_REFRESH_NS``."""
+    tf_stamp_ns: int = 0
 
 
 class Ros2Node:
@@ -108,16 +128,13 @@ class Ros2Node:
         self.keys = keys.KeySpace(inventory.fleet)
         self.domain = self.section.domain_id
         self.published = 0
-        self.dropped = 0
         self.bad = 0
         self.bad_requests = 0
         self.stops = 0
         self.guard = ThreadGuard("ros2")
         self.failed = self.guard.failed
-        self._inbox: collections.deque[tuple[str, bytes]] = collections.deque()
         self._requests: collections.deque[tuple[str | None, Any]] = collections.deque()
         self._wake = threading.Event()
-        self._data = threading.Event()
         self._stop = threading.Event()
         self._closed = False
         self._own_session = session is None
@@ -130,17 +147,12 @@ class Ros2Node:
         self._queryables: list[Any] = []
         try:
             self._declare()
-            self._subscriber = self.session.declare_subscriber(
-                self.keys.everything, self._on_sample
-            )
+            self._subscribers = self._subscribe()
         except BaseException:
             if self._own_session:
                 self.session.close()
             raise
-        self._threads = [
-            self.guard.thread(self._run, "ros2"),
-            self.guard.thread(self._serve_stops, "ros2-estop"),
-        ]
+        self._threads = [self.guard.thread(self._serve_stops, "ros2-estop")]
         for thread in self._threads:
             thread.start()
 
@@ -159,6 +171,7 @@ class Ros2Node:
         self, node: c.Node, name: str, rtype: c.RosType, depth: int, latched: bool = False
     ) -> _Publisher:
         fqn = f"{node.namespace.rstrip('/')}/{name}" if not name.startswith("/") else name
+        rtype = c.for_distro(rtype, self.section.distro)
         key = c.topic_key(self.domain, fqn, rtype)
         durability = c.TRANSIENT_LOCAL if latched else c.VOLATILE
         qos = c.qos_keyexpr(durability=durability, depth=depth)
@@ -183,9 +196,10 @@ class Ros2Node:
         return out
 
     def _service(self, node: c.Node, fqn: str, unit: str | None) -> None:
-        key = c.topic_key(self.domain, fqn, c.TRIGGER)
+        trigger = c.for_distro(c.TRIGGER, self.section.distro)
+        key = c.topic_key(self.domain, fqn, trigger)
         qos = c.qos_keyexpr(depth=10)
-        token = node.entity_token(self._id(), c.SERVICE, fqn, c.TRIGGER, qos)
+        token = node.entity_token(self._id(), c.SERVICE, fqn, trigger, qos)
         self._tokens.append(self.session.liveliness().declare_token(token))
 
         def on_query(query: zenoh.Query) -> None:  # Zenoh thread: hand off, never block
@@ -205,6 +219,7 @@ class Ros2Node:
         self._tf = self._publisher(fleet_node, "/tf", c.TF_MESSAGE, 100)
         self._tf_static = self._publisher(fleet_node, "/tf_static", c.TF_MESSAGE, 1, latched=True)
         self._service(fleet_node, f"{fleet_ns}/estop", None)
+        arm_joints = msg.JointStateTemplate(self.models.joint_names)
         for arm in self.inventory.arms:
             unit = _Unit(
                 arm, keys.ARM, self._node(self.section.namespace(self.inventory.fleet, arm))
@@ -215,12 +230,22 @@ class Ros2Node:
             unit.publishers["robot_description"] = self._publisher(
                 unit.node, "robot_description", c.STRING, 1, latched=True
             )
+            unit.joint_states = arm_joints
+            unit.tf = msg.TfTemplate(
+                [(self._name(p), self._name(ch)) for p, ch in self.models.moving_frames(arm)]
+            )
             self.units[arm] = unit
         for device_id, device in self.inventory.devices.items():
             kind = device_kind(device).key
             ns = self.section.namespace(self.inventory.fleet, device_id)
             unit = _Unit(device_id, kind, self._node(ns))
             if kind == keys.GRIPPER:
+                unit.joint_states = msg.JointStateTemplate(
+                    gripper_joints(device_id), velocity=True, effort=True
+                )
+            elif kind == keys.G1:
+                unit.joint_states = msg.JointStateTemplate(G1_JOINTS)
+            if unit.joint_states is not None:
                 unit.publishers["joint_states"] = self._publisher(
                     unit.node, "joint_states", c.JOINT_STATE, 10
                 )
@@ -232,84 +257,103 @@ class Ros2Node:
             self._service(unit.node, f"{unit.node.namespace}/estop", unit.unit)
         for arm in self.inventory.arms:
             self.units[arm].publishers["robot_description"].put(msg.string(self.models.urdf(arm)))
-        bases = [
-            self._frame(t)
+        # Each base in the world and every fixed joint: sent once, as robot_state_publisher
+        # does (only the moving joints are /tf, per sample).
+        static = [
+            msg.Transform(self._name(t.parent), self._name(t.child), t.xyz, t.xyzw)
             for arm in self.inventory.arms
-            for t in self.models.transforms(arm, [0.0] * 7)[:1]
+            for t in self.models.static_transforms(arm)
         ]
-        self._tf_static.put(msg.tf_message(time.time_ns(), bases))
+        self._tf_static.put(msg.tf_message(time.time_ns(), static))
 
-    def _frame(self, t: msg.Transform) -> msg.Transform:
-        """``t`` with the inventory's world frame and, without ``frame_prefix``, bare links."""
-
-        def name(frame: str) -> str:
-            if frame == "world":
-                return self.section.world_frame
-            return frame if self.section.frame_prefix else frame.partition("/")[2]
-
-        return msg.Transform(name(t.parent), name(t.child), t.xyz, t.xyzw)
+    def _name(self, frame: str) -> str:
+        """The inventory's world frame for ``world``; without ``frame_prefix``, bare links."""
+        if frame == "world":
+            return self.section.world_frame
+        return frame if self.section.frame_prefix else frame.partition("/")[2]
 
     # ------------------------------------------------------------------ data
 
-    def _on_sample(self, sample: zenoh.Sample) -> None:
-        """Zenoh thread: hand off, never block."""
-        if len(self._inbox) < INBOX_DEPTH:
-            self._inbox.append((str(sample.key_expr), sample.payload.to_bytes()))
-            self._data.set()
-        else:
-            self.dropped += 1
+    def _subscribe(self) -> list[Any]:
+        """One subscriber per channel kind this node publishes from."""
+        handlers: list[tuple[str, str, Callable[[_Unit, Any], None]]] = [
+            (self.keys.all_arms(keys.JOINTS), keys.JOINTS, self._joints),
+            (self.keys.all_arms(keys.STATUS), keys.STATUS, self._state),
+            (self.keys.all_arms(keys.DIAG), keys.DIAG, self._diag),
+        ]
+        for kind in sorted({u.kind for u in self.units.values() if u.kind != keys.ARM}):
+            handlers.append((self.keys.device(kind, "*", keys.STATE), f"{kind}/state", self._state))
+            handlers.append((self.keys.device(kind, "*", keys.DIAG), f"{kind}/diag", self._diag))
+            if kind == keys.G1:
+                low = self.keys.device(kind, "*", keys.LOWSTATE)
+                handlers.append((low, f"{kind}/lowstate", self._lowstate))
+        return [
+            self.session.declare_subscriber(key, self.guard.wrap(self._on(kind, handle)))
+            for key, kind, handle in handlers
+        ]
 
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            if not self._inbox:
-                # Woken by the callback (no polling: latency and idle CPU), or by close().
-                self._data.wait(0.1)
-                self._data.clear()
-                continue
-            for _ in range(min(len(self._inbox), 256)):
-                self._publish(*self._inbox.popleft())
+    def _on(self, kind: str, handle: Callable[[_Unit, Any], None]) -> Callable[[Any], None]:
+        """A Zenoh callback for the samples of ``kind``: decode, find the unit, publish (see the
+        module's docstring for why here)."""
+        unit_at = len(self.keys.prefix.split("/")) + 1  # fleet/<fleet>/<kind>/<unit>/...
 
-    def _publish(self, key: str, data: bytes) -> None:
-        kind = kind_of(self.keys, key)
-        if kind not in (keys.JOINTS, keys.STATUS, keys.DIAG, "gripper/state", "g1/state") and not (
-            kind is not None and kind.endswith("/diag")
-        ):
-            return
-        try:
-            parsed = self.keys.parse_key(key)
-            payload = payloads.decode(kind, data)
-        except (keys.KeyError_, payloads.PayloadError):
-            self.bad += 1
-            return
-        unit = self.units.get(parsed.unit)
-        if unit is None:
-            return
-        if kind == keys.JOINTS:
-            self._joints(unit, payload)
-        elif kind in (keys.STATUS, "gripper/state", "g1/state"):
-            unit.status = payload
-            if kind == "gripper/state" and payload.q_rad is not None:
-                stamp = payload.stamp_ns
-                data = msg.joint_state(stamp, [f"{unit.unit}_joint"], [payload.q_rad])
-                unit.publishers["joint_states"].put(data, stamp)
-                self.published += 1
-        else:  # diag, once a second: the diagnostics of the unit
-            make = arm_status if unit.kind == keys.ARM else device_status
-            status = make(unit.unit, unit.kind, unit.status, payload, self.inventory.fleet)
-            unit.publishers["diagnostics"].put(msg.diagnostic_array(time.time_ns(), [status]))
+        def on_sample(sample: zenoh.Sample) -> None:
+            parts = str(sample.key_expr).split("/")
+            unit = self.units.get(parts[unit_at]) if len(parts) > unit_at else None
+            if unit is None or self._closed:
+                return
+            try:
+                payload = payloads.decode(kind, sample.payload.to_bytes())
+            except payloads.PayloadError:
+                self.bad += 1
+                return
+            handle(unit, payload)
+
+        return on_sample
+
+    def _state(self, unit: _Unit, state: Any) -> None:
+        """An arm's status or a device's state: kept for its diagnostics; a Dex1-1's motor is
+        its joint state."""
+        unit.status = state
+        if unit.kind == keys.GRIPPER and unit.joint_states is not None:
+            data = unit.joint_states.message(
+                state.stamp_ns, [state.q_rad], [state.dq_rad_s], [state.tau_est]
+            )
+            unit.publishers["joint_states"].put(data, state.stamp_ns)
             self.published += 1
 
+    def _lowstate(self, unit: _Unit, low: Any) -> None:
+        """A G1's rt/lowstate: its 29 joints in Unitree's motor order."""
+        if unit.joint_states is None or len(low.q_rad) != len(G1_JOINTS):
+            self.bad += 1
+            return
+        unit.publishers["joint_states"].put(
+            unit.joint_states.message(low.stamp_ns, low.q_rad), low.stamp_ns
+        )
+        self.published += 1
+
+    def _diag(self, unit: _Unit, diag: Any) -> None:
+        """Once a second: the unit's diagnostics."""
+        make = arm_status if unit.kind == keys.ARM else device_status
+        status = make(unit.unit, unit.kind, unit.status, diag, self.inventory.fleet)
+        unit.publishers["diagnostics"].put(msg.diagnostic_array(time.time_ns(), [status]))
+        self.published += 1
+
     def _joints(self, unit: _Unit, joints: Any) -> None:
-        if len(joints.angles_deg) != 7:
+        """An arm's joints: its joint_states, then its moving joints on /tf when they moved (or
+        a second passed)."""
+        if len(joints.angles_deg) != 7 or unit.joint_states is None or unit.tf is None:
             self.bad += 1
             return
         stamp = joints.stamp_ns
         q = self.models.q(unit.unit, joints.angles_deg)
-        data = msg.joint_state(stamp, self.models.joint_names, q)
-        unit.publishers["joint_states"].put(data, stamp)
-        links = [self._frame(t) for t in self.models.transforms(unit.unit, joints.angles_deg)[1:]]
-        self._tf.put(msg.tf_message(stamp, links), stamp)
-        self.published += 2
+        unit.publishers["joint_states"].put(unit.joint_states.message(stamp, q), stamp)
+        self.published += 1
+        if joints.angles_deg == unit.tf_angles and 0 <= stamp - unit.tf_stamp_ns < TF_REFRESH_NS:
+            return
+        unit.tf_angles, unit.tf_stamp_ns = joints.angles_deg, stamp
+        self._tf.put(unit.tf.message(stamp, self.models.moving_poses(unit.unit, q)), stamp)
+        self.published += 1
 
     # ------------------------------------------------------------------ stops
 
@@ -361,17 +405,17 @@ class Ros2Node:
     # ------------------------------------------------------------------ shutdown
 
     def close(self) -> None:
-        """Undeclare queryables and subscriber -> stop threads -> undeclare tokens and
+        """Undeclare queryables and subscribers -> stop the thread -> undeclare tokens and
         publishers -> close the session if ours (idempotent)."""
         if self._closed:
             return
         self._closed = True
         for queryable in self._queryables:
             queryable.undeclare()
-        self._subscriber.undeclare()
+        for subscriber in self._subscribers:
+            subscriber.undeclare()
         self._stop.set()
         self._wake.set()
-        self._data.set()
         for thread in self._threads:
             if thread.is_alive():
                 thread.join(timeout=STOP_TIMEOUT_S + 2.0)
