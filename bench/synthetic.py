@@ -1,6 +1,6 @@
 """Synthetic fleet traffic for the viewer's benchmark: fake joints, status and agent tokens.
 
-``python -m viewer.synthetic --inventory inv.toml --rate-hz 10`` publishes, for every inventory
+``python -m bench.synthetic --inventory inv.toml --rate-hz 10`` publishes, for every inventory
 arm, a smooth made-up motion on ``arm/<arm>/joints`` at ``rate_hz``, a status every second, and
 the agent's liveliness token, exactly as an agent would. No DDS, no simulated arm: only the key
 space, so the viewer can be measured with hundreds of arms on one machine.

@@ -1,7 +1,7 @@
 """CPU of the viewer process at several fleet sizes, with synthetic traffic at 10 Hz.
 
-``python -m viewer.bench --arms 3 10 50 200 [--browser]`` starts, per fleet size, a router, the
-synthetic publisher (viewer/synthetic.py) and ``fleet viewer`` as separate processes, optionally
+``python -m bench.viewer_load --arms 3 10 50 200 [--browser]`` starts, per fleet size, a router, the
+synthetic publisher (bench/synthetic.py) and ``fleet viewer`` as separate processes, optionally
 a headless Chromium showing the page, then reads the viewer's CPU time from /proc/<pid>/stat
 (utime + stime) over a window and prints one JSON line per size.
 """
@@ -70,7 +70,7 @@ def measure(arms: int, window_s: float, browser: bool, workdir: Path) -> dict[st
     logs = {name: workdir / f"{name}-{arms}.log" for name in ("router", "synthetic", "viewer")}
     argvs = {
         "router": ["-m", "fleet.cli.main", "router", *common],
-        "synthetic": ["-m", "viewer.synthetic", "--rate-hz", "10", *common],
+        "synthetic": ["-m", "bench.synthetic", "--rate-hz", "10", *common],
         "viewer": ["-m", "fleet.cli.main", "viewer", "--port", str(free_port()), *common],
     }
     procs: dict[str, subprocess.Popen[bytes]] = {}
