@@ -17,12 +17,12 @@ from mcap.reader import make_reader
 from fleet.record.layout import layout_of
 from fleet.record.reader import read_recording
 from fleet.record.replay import recorded_joints
+from fleet.scene3d.frames3d import ArmFrames, transforms_topic, urdf_topic
+from fleet.scene3d.kinematics import matrix_to_wxyz
 from fleet.wire import messages as m
 from tests.foxglove_client import FoxgloveClient, protobuf_class
 from tests.harness import FleetHarness, free_port, wait_until
 from tests.test_channels import STATE as GRIP_STATE
-from viewer.frames3d import ArmFrames, transforms_topic, urdf_topic
-from viewer.kinematics import matrix_to_wxyz
 from viewer.replay import replay_source
 
 

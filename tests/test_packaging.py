@@ -69,8 +69,15 @@ def test_wheel_installs_working_commands_with_their_data(tmp_path: Path) -> None
     # Every non-Python file of our packages is in the wheel (package-data keeps up with assets).
     data = {f for f in files if f.split("/")[0] in PACKAGES and not f.endswith(".py")}
     assert data, "no package data found: the URDF should be one"
-    missing = data - set(zipfile.ZipFile(wheel).namelist())
+    names = zipfile.ZipFile(wheel).namelist()
+    missing = data - set(names)
     assert not missing, f"add to [tool.setuptools.package-data] in pyproject.toml: {missing}"
+    # Only the product ships: no benchmark tool, test helper or fuzz target (bench/, testkit/,
+    # tests/, fuzz/ are the checkout's), not even one hiding inside a product package.
+    tops = {n.split("/")[0] for n in names if not n.split("/")[0].endswith(".dist-info")}
+    assert tops == set(PACKAGES), f"the wheel ships {sorted(tops)}, not only {PACKAGES}"
+    tools = [n for n in names if n.rpartition("/")[2].startswith(("bench", "synthetic", "test"))]
+    assert tools == [], f"benchmark and test tools belong in bench/ or testkit/: {tools}"
 
     _run([sys.executable, "-m", "venv", "--without-pip", str(venv)], cwd=tmp_path)
     python = venv / "bin" / "python"
@@ -95,7 +102,7 @@ def test_wheel_installs_working_commands_with_their_data(tmp_path: Path) -> None
     assert "--interface" in _run([str(venv / "bin" / "edge-agent"), "--help"], cwd=elsewhere).stdout
     check = (
         "import sys, fleet, edge_agent, viewer\n"
-        "from viewer.kinematics import URDF_PATH, load_urdf\n"
+        "from fleet.scene3d.kinematics import URDF_PATH, load_urdf\n"
         "print(json.dumps({'paths': [fleet.__file__, edge_agent.__file__, viewer.__file__,\n"
         "    str(URDF_PATH)], 'sys_path': sys.path, 'links': len(load_urdf().link_map)}))\n"
     )

@@ -235,7 +235,7 @@ def test_a_gripper_reading_without_a_stroke_is_refused(line: str) -> None:
 
 def test_viewer_draws_each_arms_gripper_its_own_way() -> None:
     """Closed fingers (0.033 m) at the arm's closed reading, open (0 m) at its open one."""
-    from viewer.kinematics import FINGER_TRAVEL_M, wire_to_q
+    from fleet.scene3d.kinematics import FINGER_TRAVEL_M, wire_to_q
 
     angles = [[0.0] * 6 + [g] for g in (0.0, 65.0, 100.0, 0.0)]
     gripper = [(0.0, 65.0), (0.0, 65.0), (100.0, 0.0), (100.0, 0.0)]

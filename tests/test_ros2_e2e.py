@@ -23,7 +23,7 @@ from fleet.wire.session import open_client
 from tests.harness import FleetHarness, wait_until
 from tests.test_ros2_contract import PUBLIC_HASHES, STORE
 
-URDF = Path(__file__).resolve().parent.parent / "viewer" / "assets" / "d1_550.urdf"
+URDF = Path(__file__).resolve().parent.parent / "fleet" / "scene3d" / "assets" / "d1_550.urdf"
 TRIGGER_RESPONSE = "std_srvs/msg/TriggerResponse"  # registered by test_ros2_contract
 MOVING_JOINTS = [
     j.get("name") for j in ET.parse(URDF).getroot().iter("joint") if j.get("type") != "fixed"

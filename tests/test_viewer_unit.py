@@ -9,8 +9,7 @@ import pytest
 import yourdfpy
 
 from fleet.d1.limits import JOINT_RANGE_DEG
-from viewer.commands import clamp_to_limits
-from viewer.kinematics import (
+from fleet.scene3d.kinematics import (
     FINGER_JOINTS,
     Q_JOINTS,
     URDF_PATH,
@@ -21,6 +20,7 @@ from viewer.kinematics import (
     matrix_to_wxyz,
     wire_to_q,
 )
+from viewer.commands import clamp_to_limits
 from viewer.meshes import link_meshes
 from viewer.scene import NORMAL, OFFLINE, STALE, STOPPED, label_text, tinted
 

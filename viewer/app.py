@@ -25,11 +25,11 @@ from fleet.devices import kind_of
 from fleet.guard import ThreadGuard
 from fleet.inventory import Inventory
 from fleet.record.layout import FleetLayout
+from fleet.scene3d.kinematics import ArmModel, load_urdf
 from fleet.security.session import open_session
 from viewer.access import AccessGuard, AccessPolicy, new_token, url_host
 from viewer.commands import Commander
 from viewer.events import REFUSED
-from viewer.kinematics import ArmModel, load_urdf
 from viewer.meshes import link_meshes
 from viewer.panels import FleetPanels
 from viewer.replay import ReplaySource, ReplayTimeline

@@ -1,4 +1,5 @@
-"""``fleet foxglove``: the live fleet on a Foxglove WebSocket server (viewer/foxglove_bridge.py)."""
+"""``fleet foxglove``: the live fleet on a Foxglove WebSocket server
+(fleet/scene3d/foxglove_bridge.py)."""
 
 from __future__ import annotations
 
@@ -32,7 +33,7 @@ def register(
 def run_foxglove(args: argparse.Namespace) -> int:
     """Bridge the fleet to Foxglove until SIGINT/SIGTERM."""
     from fleet.cli.processes import _port_free
-    from viewer.foxglove_bridge import FoxgloveBridge  # foxglove-sdk loads only here
+    from fleet.scene3d.foxglove_bridge import FoxgloveBridge  # foxglove-sdk loads only here
 
     inventory = inventory_from_args(args, "viewer")
     if not _port_free(f"tcp/{args.host}:{args.port}"):

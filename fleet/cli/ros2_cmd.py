@@ -1,5 +1,5 @@
-"""``fleet ros2``: the fleet on rmw_zenoh's wire (fleet/ros2/node.py), with the viewer's URDF
-and forward kinematics as the arms' model (``fleet`` reaches the viewer only from its CLI)."""
+"""``fleet ros2``: the fleet on rmw_zenoh's wire (fleet/ros2/node.py), with the D1-550's URDF
+and forward kinematics of ``fleet/scene3d`` (the viewer draws with the same) as the arms' model."""
 
 from __future__ import annotations
 
@@ -31,12 +31,12 @@ def register(
 
 
 class UrdfArms:
-    """The D1-550 URDF and the viewer's forward kinematics, per inventory arm."""
+    """The D1-550 URDF and its forward kinematics (``fleet/scene3d``), per inventory arm."""
 
     def __init__(self, inventory: Inventory) -> None:
         from fleet.record.layout import layout_of
-        from viewer import kinematics
-        from viewer.frames3d import ArmFrames
+        from fleet.scene3d import kinematics
+        from fleet.scene3d.frames3d import ArmFrames
 
         self._k = kinematics
         self.frames = ArmFrames.load(layout_of(inventory))
@@ -57,7 +57,7 @@ class UrdfArms:
 
     def transforms(self, arm: str, angles_deg: Sequence[float]) -> list[Any]:
         """World -> base, then every joint's parent -> child (frames ``<arm>/<link>``), as the
-        Foxglove bridge computes them (viewer/frames3d.py)."""
+        Foxglove bridge computes them (fleet/scene3d/frames3d.py)."""
         import numpy as np
 
         from fleet.ros2.messages import Transform

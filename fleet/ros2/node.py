@@ -54,8 +54,8 @@ MISS_HEARTBEAT_MS = 500
 
 
 class ArmModels(Protocol):
-    """What the node needs of the arms' kinematics (the CLI passes the viewer's URDF and
-    forward kinematics: ``fleet`` never imports the viewer)."""
+    """What the node needs of the arms' kinematics (the CLI passes the URDF and forward
+    kinematics of ``fleet/scene3d``, which needs numpy and yourdfpy: the node itself does not)."""
 
     joint_names: Sequence[str]
 

@@ -3,9 +3,9 @@ transforms of a joints sample as Foxglove's well-known ``foxglove.FrameTransform
 
 Frames: ``world`` -> ``<arm>/<root link>`` is the arm's base pose (inventory or recorded
 layout); then every URDF joint is one transform ``<arm>/<parent link>`` -> ``<arm>/<child link>``
-computed by our forward kinematics (viewer/kinematics.py, the viewer's own). Foxglove's 3D panel
-places the URDF (loaded from the ``/d1/<arm>/robot_description`` topic, ``{"data": urdf}``, as
-ROS's ``std_msgs/String`` would carry it) on those frames.
+computed by our forward kinematics (kinematics.py, which the viewer draws with too).
+Foxglove's 3D panel places the URDF (loaded from the ``/d1/<arm>/robot_description`` topic,
+``{"data": urdf}``, as ROS's ``std_msgs/String`` would carry it) on those frames.
 
 Used by the live bridge (``fleet foxglove``) and by ``fleet record``: both write the same
 topics and schemas. Pure: no transport, no clock.
@@ -24,8 +24,8 @@ from foxglove.messages import FrameTransform, FrameTransforms, Quaternion, Times
 
 from fleet.record.layout import ArmPlacement, FleetLayout
 from fleet.record.writer import DerivedMessage
+from fleet.scene3d import kinematics as k
 from fleet.wire import keys
-from viewer import kinematics as k
 
 WORLD_FRAME = "world"
 TOPIC_PREFIX = "/d1"

@@ -28,12 +28,12 @@ from fleet.guard import ThreadGuard
 from fleet.inventory import Inventory
 from fleet.record.layout import layout_of
 from fleet.record.writer import channel_schema
+from fleet.scene3d.frames3d import URDF_SCHEMA, ArmFrames, transforms_topic, urdf_topic
 from fleet.security.session import open_session
 from fleet.tap import kind_of
 from fleet.wire import keys, payloads
-from viewer.frames3d import URDF_SCHEMA, ArmFrames, transforms_topic, urdf_topic
 
-log = logging.getLogger("viewer.foxglove")
+log = logging.getLogger("fleet.foxglove")
 
 DEFAULT_PORT = 8765
 INBOX_DEPTH = 10_000
