@@ -118,6 +118,15 @@ def test_the_client_side_library_never_imports_its_users() -> None:
         assert [t for t in imports_of(module) if any(_within(t, u) for u in users)] == []
 
 
+def test_the_inventory_is_below_the_security_runtime() -> None:
+    """The security schema sits beside the inventory (``fleet.security_config``, importing no
+    product module); access control, certificates and sessions (``fleet.security``) read an
+    inventory, so neither the inventory nor the schema imports them."""
+    assert imports_of("fleet.security_config") == frozenset()
+    assert _violations("fleet.inventory", ("fleet.security",)) == []
+    assert "fleet.inventory" in imports_of("fleet.security.acl")
+
+
 @pytest.mark.parametrize(
     ("importer", "forbidden"),
     [

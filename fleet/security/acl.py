@@ -27,7 +27,7 @@ from typing import Any
 from fleet.beat_limits import max_heartbeat_bytes
 from fleet.devices import kind_of
 from fleet.inventory import Inventory
-from fleet.security.config import Role
+from fleet.security_config import Role
 from fleet.wire.payloads import KIB
 
 PUT = ["put", "delete"]

@@ -1,9 +1,13 @@
 """The inventory's ``[security]`` and ``[principals]`` sections, validated. Pure.
 
+The security schema lives beside the inventory, below it (``fleet/inventory.py`` imports it and
+it imports nothing of the product); ``fleet/security/`` holds the parts that run on an inventory
+(access control, certificates, sessions) and sits above it.
+
 A *principal* is an authenticated identity: the common name of a client certificate (``mtls``)
 or a user name (``password``). Each has a *role* that decides what the router lets it do (see
-``acl.py``). With ``mode = "none"`` (the loopback demo default) nothing is authenticated: the
-principal in a key is whatever the client claims, and the README says so.
+``fleet/security/acl.py``). With ``mode = "none"`` (the loopback demo default) nothing is
+authenticated: the principal in a key is whatever the client claims, and the README says so.
 """
 
 from __future__ import annotations
