@@ -40,7 +40,7 @@ def _inventory(path: Path, port: int, arms: int) -> None:
 
 def run(quick: bool, arms: int = 10) -> dict[str, Any]:
     """Added latency p50/p95 (ms) and CPU (% of a core) of ``fleet ros2`` at ``arms`` arms."""
-    from tests.harness import free_port, wait_until
+    from testkit.harness import free_port, wait_until
 
     seconds = 10.0 if quick else 30.0
     port = free_port()
