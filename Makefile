@@ -8,7 +8,7 @@ FUZZ_TIMEOUT ?= 10
 DURATION ?= 30m
 UNITREE_SDK := unitree-sdk2py-dimos==1.0.3
 
-.PHONY: demo test lint bench fuzz soak docs clean
+.PHONY: demo test test-fast lint bench fuzz soak docs clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -40,13 +40,19 @@ demo: $(STAMP)
 	$(BIN)/fleet demo --inventory inventory.toml
 
 lint: $(STAMP)
-	$(BIN)/ruff check fleet edge_agent viewer tests bench fuzz
-	$(BIN)/ruff format --check fleet edge_agent viewer tests bench fuzz
+	$(BIN)/ruff check fleet edge_agent viewer tests testkit bench fuzz
+	$(BIN)/ruff format --check fleet edge_agent viewer tests testkit bench fuzz
 	$(BIN)/mypy fleet/wire fleet/d1
 
+# Everything: lint, then unit, e2e, browser and netlab tests on two workers (browser tests share
+# one worker, netlab tests another: --dist loadgroup). Under 10 minutes on a 2-core machine.
 test: $(STAMP) lint
 	sh scripts/ensure-chromium
 	$(BIN)/python -m pytest -n 2 --dist loadgroup
+
+# The pure tests only (tests/unit: no process, no network), in under a minute: while working.
+test-fast: $(STAMP)
+	$(BIN)/python -m pytest -n 2 -q tests/unit
 
 bench: $(STAMP)
 	$(BIN)/python -m bench

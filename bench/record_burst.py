@@ -28,7 +28,7 @@ from fleet.record.gaps import SeqGaps
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
 from fleet.wire.session import open_client
-from tests.harness import FleetHarness, wait_until
+from testkit.harness import FleetHarness, wait_until
 
 FLEET = "test"  # the harness inventory's fleet name
 

@@ -75,7 +75,7 @@ def _inventory(path: Path, port: int, arms: int, domain: int = 0) -> None:
 def run(quick: bool, arms: int = 10, against: str | None = None) -> dict[str, Any]:
     """Added latency p50/p95 (ms) and CPU (% of a core) of ``fleet ros2`` at ``arms`` arms; with
     ``against`` (a git revision) the same of that revision's, measured at the same time."""
-    from tests.harness import free_port, wait_until
+    from testkit.harness import free_port, wait_until
 
     seconds = 10.0 if quick else 30.0
     port = free_port()

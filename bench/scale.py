@@ -32,7 +32,7 @@ from bench.proc import CLOCK_TICKS, BenchFleet, Worker, cpu_s
 from bench.raw import fanout_in
 from bench.stats import summary_ms
 from fleet.sim.node import FEEDBACK_PERIOD_S
-from tests.harness import free_port
+from testkit.harness import free_port
 
 ARMS_PER_PROCESS = 250
 """1000 arms: four ``fleet sim`` processes and four agents, 250 arms each."""

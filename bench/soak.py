@@ -6,7 +6,7 @@ fleet stops, with memory, CPU and stop times recorded (``make soak DURATION=30m`
 The fleet is the demo's (``fleet demo``): a router, ``fleet sim`` with three arms, one agent per
 arm, the coordinator, the viewer (headless: nobody opens it but the soak's own clients) and
 ``fleet play choreo/demo.toml --loops 0 --again`` dancing; on loopback, with a Zenoh port and a
-DDS domain of its own (``tests/harness.py``). Every process is started and stopped by PID.
+DDS domain of its own (``testkit/harness.py``). Every process is started and stopped by PID.
 
 Events, one every ``period`` seconds (30 s for runs of 30 min and more), in the cycle
 ``CYCLE``: a **fleet stop** (``FleetClient.estop``: every arm must acknowledge and be seen
@@ -55,7 +55,7 @@ from fleet.inventory import load_inventory
 from fleet.sim.faults import FaultReply
 from fleet.wire import keys, payloads
 from fleet.wire.messages import StopAck
-from tests.harness import claim_domain, free_port, inventory_text
+from testkit.harness import claim_domain, free_port, inventory_text
 
 ARMS = ("a1", "a2", "a3")
 SAMPLE_S = 5.0

@@ -1,4 +1,4 @@
-"""Section 5 (viewer): the viewer's CPU at several fleet sizes, reusing ``viewer/bench.py``
+"""Section 5 (viewer): the viewer's CPU at several fleet sizes, reusing ``bench/viewer_load.py``
 (router, synthetic 10 Hz traffic on the key space and ``fleet viewer`` as separate processes,
 no browser attached)."""
 
@@ -8,7 +8,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from viewer import bench as viewer_bench
+from bench import viewer_load
 
 
 def run(quick: bool) -> dict[str, Any]:
@@ -17,6 +17,6 @@ def run(quick: bool) -> dict[str, Any]:
     out: dict[str, Any] = {}
     with tempfile.TemporaryDirectory(prefix="d1-bench-viewer-") as tmp:
         for arms in (10, 50, 200):
-            result = viewer_bench.measure(arms, window_s, browser=False, workdir=Path(tmp))
+            result = viewer_load.measure(arms, window_s, browser=False, workdir=Path(tmp))
             out[str(arms)] = result["viewer_cpu_percent_of_a_core"]
     return out

@@ -9,7 +9,7 @@ import time
 from bench import workerlib
 from fleet.client import FleetClient
 from fleet.wire import keys
-from tests.hostile import nested
+from testkit.hostile import nested
 
 
 def main() -> None:

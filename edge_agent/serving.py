@@ -32,7 +32,7 @@ from fleet.d1.seq import SeqExhausted
 from fleet.devices.base import DeviceCommand, DeviceReply, Release
 from fleet.devices.driver import Refusal, error_reply
 from fleet.inventory import Inventory
-from fleet.security.config import COMMANDERS
+from fleet.security_config import COMMANDERS
 from fleet.wire import messages as m
 from fleet.wire import payloads
 from fleet.wire.messages import ErrorCode, ErrorInfo

@@ -27,7 +27,7 @@ from fleet.d1.limits import (
 from fleet.devices import DeviceKind, kinds
 from fleet.devices.base import NETWORK_FIELDS, DeviceBase
 from fleet.ros2.config import Ros2Section, check_section
-from fleet.security.config import (
+from fleet.security_config import (
     DEFAULT_PRINCIPALS,
     ROLES,
     Role,
@@ -292,7 +292,7 @@ class Inventory(Struct, frozen=True):
 
 def _enum_choices() -> dict[str, tuple[str, ...]]:
     """Fields whose value is one of a few words, and those words (an error lists them)."""
-    from fleet.security.config import Role, SecurityMode
+    from fleet.security_config import Role, SecurityMode
 
     return {
         "stop_action": get_args(StopAction),

@@ -3,7 +3,7 @@
 One module per target; each defines ``check(data: bytes)`` (raises AssertionError, or lets an
 unexpected exception through, when its property is broken) and ``seeds()`` (the seed corpus).
 ``python -m fuzz.run`` runs them under atheris with a time budget each; the same ``check``
-functions replay the seed corpus in the normal test suite (``tests/test_fuzz_targets.py``), so
+functions replay the seed corpus in the normal test suite (``tests/unit/test_fuzz_targets.py``), so
 a target cannot rot without ``make test`` noticing.
 """
 

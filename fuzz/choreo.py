@@ -66,7 +66,7 @@ def _play(script, start) -> None:  # type: ignore[no-untyped-def]
 def seeds() -> list[bytes]:
     """``choreo/demo.toml`` and the tests' choreography."""
     from fuzz.common import REPO
-    from tests.test_bad_files import choreo_text
+    from testkit.file_tables import choreo_text
 
     demo = (REPO / "choreo" / "demo.toml").read_text(encoding="utf-8")
     return [demo.encode(), choreo_text({}).encode()]

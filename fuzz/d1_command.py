@@ -34,7 +34,7 @@ def check(data: bytes) -> None:
 
 def seeds() -> list[bytes]:
     """The spec's example commands (the golden table), and a few edge values."""
-    from tests.test_protocol import GOLDEN_COMMANDS
+    from testkit.golden_d1 import GOLDEN_COMMANDS
 
     texts_ = [text for text, _ in GOLDEN_COMMANDS]
     texts_ += [

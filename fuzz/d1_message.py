@@ -36,7 +36,7 @@ def check(data: bytes) -> None:
 
 def seeds() -> list[bytes]:
     """The spec's example messages (the golden table), and an ack of another seq."""
-    from tests.test_protocol import GOLDEN_COMMANDS, GOLDEN_MESSAGES
+    from testkit.golden_d1 import GOLDEN_COMMANDS, GOLDEN_MESSAGES
 
     texts_ = [text for text, _ in GOLDEN_MESSAGES] + [text for text, _ in GOLDEN_COMMANDS]
     texts_.append('{"seq":12,"address":3,"funcode":1,"data":{"recv_status":1},"x":1}')

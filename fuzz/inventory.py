@@ -67,8 +67,8 @@ def _check_dds_config(interface: str, peers: tuple[str, ...], multicast: bool) -
 def seeds() -> list[bytes]:
     """The repository's inventory.toml, the tests' inventory, and one with every arm field."""
     from fuzz.common import REPO
-    from tests.harness import inventory_text
-    from tests.test_bad_files import inventory_text as bad_files_inventory
+    from testkit.file_tables import inventory_text as bad_files_inventory
+    from testkit.harness import inventory_text
 
     every_field = (
         '[fleet]\nname = "lab"\n[coordinator]\nheartbeat_hz = 10.0\nsync_lead_s = 0.3\n'

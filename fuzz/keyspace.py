@@ -38,7 +38,7 @@ def check(data: bytes) -> None:
 def seeds() -> list[bytes]:
     """One valid payload of every public kind (as the fleet's processes write them), the
     hostile suite's poisons, and an unknown op."""
-    from tests.hostile import POISONS
+    from testkit.hostile import POISONS
 
     stop = m.StopRequest(stamp_ns=1, source="cli@host", stop_id="s1", reason="test")
     reply = m.CommandReply(
@@ -110,14 +110,7 @@ def device_payloads() -> list[msgspec.Struct]:
         g1.StopMove(),
         g1.SetVelocity(vx=0.1, duration_s=2.0),
         g1.GetFsmId(),
-        g1.G1LowState(
-            stamp_ns=1,
-            q_rad=[0.0] * 29,
-            imu_rpy=[0.0] * 3,
-            imu_quaternion=[1.0, 0.0, 0.0, 0.0],
-            tick=1,
-            bad_samples=0,
-        ),  # fmt: skip
+        g1.G1LowState(1, [0.0] * 29, [0.0] * 3, [1.0, 0.0, 0.0, 0.0], 7, 0),
         m.DeviceReply(True, "h1", None, 5, "500"),
         m.ProcessInfo("agent", "agent-lo", "host", 7, "1.0", 1, 2, ["a1"], 9100),
     ]

@@ -1,9 +1,9 @@
-"""Write viewer/assets/g1_29dof.urdf: the Unitree G1 (29 dof) drawn with primitives.
+"""Write fleet/scene3d/assets/g1_29dof.urdf: the Unitree G1 (29 dof) drawn with primitives.
 
 The kinematics (every joint's origin, axis and limits, the link names) are Unitree's published
 ``g1_29dof`` description (unitree_ros ``robots/g1_description``, the model mujoco-menagerie's
 ``unitree_g1`` also carries; both BSD-3-Clause, Unitree Robotics: see
-viewer/assets/g1_29dof.LICENSE). Its STL meshes are not shipped: each link is drawn as
+fleet/scene3d/assets/g1_29dof.LICENSE). Its STL meshes are not shipped: each link is drawn as
 "bones" (a cylinder from the link's origin to each child joint) plus a few boxes and spheres
 (pelvis, torso, head, feet, hands), so the viewer loads no mesh file and sends few triangles.
 
@@ -17,7 +17,7 @@ import math
 import sys
 from pathlib import Path
 
-OUT = Path(__file__).resolve().parent.parent / "viewer" / "assets" / "g1_29dof.urdf"
+OUT = Path(__file__).resolve().parent.parent / "fleet" / "scene3d" / "assets" / "g1_29dof.urdf"
 
 # ruff: noqa: E501  (the joint table reads best one joint a line, as in Unitree's URDF)
 # fmt: off

@@ -1,4 +1,9 @@
-"""Shared fixtures: see tests/harness.py for the process harness."""
+"""Fixtures and rules of the whole suite (where a new test goes: tests/README.md).
+
+Each folder is a kind of test, marked by its folder (``-m unit``, ``-m "not browser"``...):
+``unit`` (pure, no process, no network: ``make test-fast``), ``e2e`` (real processes on
+loopback), ``browser`` (the viewer in a headless Chromium), ``netlab`` (network namespaces).
+The helpers are in ``testkit/`` (the process harness: testkit/harness.py)."""
 
 from __future__ import annotations
 
@@ -7,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from tests.browser import Browser, open_browser
-from tests.harness import FleetHarness
+from testkit.browser import Browser, open_browser
+from testkit.harness import FleetHarness
 
 
 @pytest.fixture
@@ -25,10 +30,18 @@ def fleet3_harness(tmp_path: Path) -> Iterator[FleetHarness]:
         yield harness
 
 
+FOLDERS = ("unit", "e2e", "browser", "netlab")
+
+
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Every browser test on one xdist worker: two software-rendered Chromiums at once on this
-    2-core machine made a page take over 30 s to answer a click."""
+    """Each test marked by its folder. Every browser test on one xdist worker: two
+    software-rendered Chromiums at once on this 2-core machine made a page take over 30 s to
+    answer a click."""
     for item in items:
+        parts = item.nodeid.split("::")[0].split("/")
+        folder = parts[1] if len(parts) > 2 and parts[0] == "tests" else None
+        if folder in FOLDERS:
+            item.add_marker(getattr(pytest.mark, folder))
         if "browser" in getattr(item, "fixturenames", ()):
             item.add_marker(pytest.mark.xdist_group("browser"))
 

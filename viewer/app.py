@@ -8,7 +8,7 @@ callback pool, ``viewer-render`` (ours: snapshot -> scene at ``rate_hz``, panels
 thread works on a snapshot copy. A replay opens no Zenoh session and builds no command control.
 
 Access: the web server answers only requests carrying this run's token, and WebSockets only
-from the viewer's own origins (viewer/access.py, installed by viewer/server.py). The viewer acts
+from the viewer's own origins (fleet/web/access.py, installed by viewer/server.py). The viewer acts
 as ``inventory.principal``; it is read-only unless that principal's role may command.
 """
 
@@ -26,12 +26,12 @@ from fleet.g1.config import G1Config
 from fleet.guard import ThreadGuard
 from fleet.inventory import Inventory
 from fleet.record.layout import FleetLayout
+from fleet.scene3d.kinematics import ArmModel, load_urdf
 from fleet.security.session import open_session
-from viewer.access import AccessGuard, AccessPolicy, new_token, url_host
+from fleet.web.access import AccessGuard, AccessPolicy, new_token, url_host
 from viewer.commands import Commander
 from viewer.events import REFUSED
 from viewer.g1_scene import G1Scene
-from viewer.kinematics import ArmModel, load_urdf
 from viewer.meshes import link_meshes
 from viewer.panels import FleetPanels
 from viewer.replay import ReplaySource, ReplayTimeline

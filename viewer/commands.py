@@ -35,10 +35,10 @@ from fleet.client import FleetClient
 from fleet.d1.limits import JOINT_RANGE_DEG, JointRanges
 from fleet.guard import ThreadGuard
 from fleet.inventory import Inventory
-from fleet.security.config import COMMANDERS
+from fleet.security_config import COMMANDERS
+from fleet.web.refusals import Refusals
 from fleet.wire import keys
 from fleet.wire import messages as m
-from viewer.refusals import Refusals
 
 log = logging.getLogger("viewer.commands")
 

@@ -1,5 +1,5 @@
 """The G1 humanoids in the 3D scene: each drawn from Unitree's g1_29dof kinematics
-(viewer/assets/g1_29dof.urdf, primitives only) and posed live from its ``g1/<id>/lowstate``
+(fleet/scene3d/assets/g1_29dof.urdf, primitives only) and posed live from its ``g1/<id>/lowstate``
 (29 joints, rad, Unitree's motor order), tilted by its IMU's roll and pitch.
 
 Like the arms (viewer/scene.py): one instanced mesh per link with an instance per G1, forward
@@ -16,7 +16,6 @@ rt/arm_sdk weight while the fleet streams its arms.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
@@ -24,7 +23,8 @@ import viser
 
 from fleet.g1.config import G1Config
 from fleet.g1.messages import G1LowState, G1State
-from viewer.kinematics import (
+from fleet.scene3d.kinematics import (
+    URDF_PATH,
     ArmModel,
     base_transforms,
     forward,
@@ -35,7 +35,7 @@ from viewer.meshes import LinkMesh, link_meshes
 from viewer.scene import NORMAL, OFFLINE, STALE, STOPPED, tinted
 from viewer.state import STALE_S, DeviceView
 
-G1_URDF_PATH = Path(__file__).resolve().parent / "assets" / "g1_29dof.urdf"
+G1_URDF_PATH = URDF_PATH.parent / "g1_29dof.urdf"
 DEADBAND_RAD = 0.002
 LABEL_ABOVE_M = 0.25
 """The label floats this far above the head's top."""

@@ -24,6 +24,7 @@ import numpy as np
 import viser
 
 from fleet.d1.limits import JOINT_COUNT
+from fleet.web.refusals import Refusals
 from fleet.wire import messages as m
 from viewer.arm_panel import (
     PLOT_RATE_HZ,
@@ -37,7 +38,6 @@ from viewer.commands import Commander
 from viewer.confirm import FLEET, Confirmations
 from viewer.device_panel import DevicePanel
 from viewer.events import EventLog
-from viewer.refusals import Refusals
 from viewer.replay import ReplayTimeline
 from viewer.replay_panel import ReplayControls
 from viewer.scene import legend_html

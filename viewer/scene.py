@@ -20,19 +20,19 @@ import numpy.typing as npt
 import viser
 
 from fleet.d1.limits import GRIPPER_JOINT
+from fleet.scene3d.kinematics import (
+    ArmModel,
+    base_transforms,
+    forward,
+    matrix_to_wxyz,
+    wire_to_q,
+)
 from viewer.camera import (
     DEFAULT_ASPECT,
     DEFAULT_WIDTH_PX,
     FOV_RAD,
     fit_view,
     usable_right_edge,
-)
-from viewer.kinematics import (
-    ArmModel,
-    base_transforms,
-    forward,
-    matrix_to_wxyz,
-    wire_to_q,
 )
 from viewer.meshes import LinkMesh
 from viewer.state import STALE_S, Snapshot

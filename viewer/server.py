@@ -1,4 +1,4 @@
-"""viser's web server with the access guard (viewer/access.py) in front and its share tunnel off.
+"""viser's web server with the access guard (fleet/web/access.py) in front and its share tunnel off.
 
 This is the one module that reaches into viser's internals; it was written against viser 1.1.1
 and websockets 16.
@@ -12,7 +12,7 @@ only while ``ViserServer()`` runs (its constructor returns after the server is b
 wrapper has been called by then), under a lock, and restores it. The wrapper puts
 ``AccessGuard.process_request`` in front of viser's. If a later viser starts its server some
 other way, the wrapper is never called and ``start_server`` refuses to run the viewer
-(``AccessNotInstalled``): it fails closed, never open. tests/test_viewer_access.py checks the
+(``AccessNotInstalled``): it fails closed, never open. tests/e2e/test_viewer_access.py checks the
 version and the behaviour, so an upgrade of viser fails the suite loudly.
 
 **Share tunnel.** viser's share button asks the server (``ShareUrlRequest``) to open a public
@@ -34,13 +34,13 @@ import rich
 import viser
 import websockets.asyncio.server
 
-from viewer.access import AccessGuard
-from viewer.refusals import Refusals
+from fleet.web.access import AccessGuard
+from fleet.web.refusals import Refusals
 
 log = logging.getLogger("viewer.server")
 
 TESTED_VISER = "1.1.1"
-"""The viser version this shim was checked against (tests/test_viewer_access.py asserts it)."""
+"""The viser version this shim was checked against (tests/e2e/test_viewer_access.py asserts it)."""
 
 _SWAP_LOCK = threading.Lock()
 """Serializes the swap of ``websockets.asyncio.server.serve`` (two viewers in one process)."""

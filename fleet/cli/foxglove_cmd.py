@@ -1,4 +1,5 @@
-"""``fleet foxglove``: the live fleet on a Foxglove WebSocket server (viewer/foxglove_bridge.py)."""
+"""``fleet foxglove``: the live fleet on a Foxglove WebSocket server
+(fleet/scene3d/foxglove_bridge.py)."""
 
 from __future__ import annotations
 
@@ -56,9 +57,12 @@ def register(
 def run_foxglove(args: argparse.Namespace) -> int:
     """Bridge the fleet to Foxglove until SIGINT/SIGTERM."""
     from fleet.cli.processes import _port_free
-    from viewer.access import FOXGLOVE_TOKEN_ENV as TOKEN_ENV
-    from viewer.access import check_token
-    from viewer.foxglove_bridge import BridgeRefused, FoxgloveBridge  # foxglove-sdk loads here
+    from fleet.scene3d.foxglove_bridge import (  # foxglove-sdk loads here
+        BridgeRefused,
+        FoxgloveBridge,
+    )
+    from fleet.web.access import FOXGLOVE_TOKEN_ENV as TOKEN_ENV
+    from fleet.web.access import check_token
 
     inventory = inventory_from_args(args, "viewer")
     token = args.token or os.environ.get(TOKEN_ENV) or None

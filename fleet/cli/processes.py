@@ -355,8 +355,8 @@ def _run_demo(args: argparse.Namespace, inventory: Inventory) -> int:
         if args.foxglove is not None:
             # The token reaches the child in its environment (not its argv: the process list
             # shows that to every user); _intro prints the URL with it.
-            from viewer.access import FOXGLOVE_TOKEN_ENV as TOKEN_ENV
-            from viewer.access import new_token
+            from fleet.web.access import FOXGLOVE_TOKEN_ENV as TOKEN_ENV
+            from fleet.web.access import new_token
 
             os.environ.setdefault(TOKEN_ENV, new_token())
             fox = ["-m", "fleet.cli.main", "foxglove", "--port", str(args.foxglove), *common]
@@ -408,7 +408,7 @@ def _intro(args: argparse.Namespace, inventory: Inventory, url: str) -> list[str
         f"viewer: {url}",
     ]
     if args.foxglove is not None:
-        from viewer.access import FOXGLOVE_TOKEN_ENV as TOKEN_ENV
+        from fleet.web.access import FOXGLOVE_TOKEN_ENV as TOKEN_ENV
 
         token = os.environ.get(TOKEN_ENV, "")
         lines.append(

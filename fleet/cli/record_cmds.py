@@ -104,7 +104,7 @@ def run_record(args: argparse.Namespace) -> int:
 
 def _extras(layout: Any) -> Any:
     """The 3D channels (URDF, foxglove.FrameTransforms) for Foxglove, next to the keys."""
-    from viewer.frames3d import ArmFrames, RecordingExtras  # numpy, yourdfpy, foxglove-sdk
+    from fleet.scene3d.frames3d import ArmFrames, RecordingExtras  # numpy, yourdfpy, foxglove-sdk
 
     return RecordingExtras(ArmFrames.load(layout))
 

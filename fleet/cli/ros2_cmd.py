@@ -1,5 +1,5 @@
-"""``fleet ros2``: the fleet on rmw_zenoh's wire (fleet/ros2/node.py), with the viewer's URDF
-and forward kinematics as the arms' model (``fleet`` reaches the viewer only from its CLI)."""
+"""``fleet ros2``: the fleet on rmw_zenoh's wire (fleet/ros2/node.py), with the D1-550's URDF
+and forward kinematics of ``fleet/scene3d`` (the viewer draws with the same) as the arms' model."""
 
 from __future__ import annotations
 
@@ -37,7 +37,7 @@ class UrdfArms:
     def __init__(self, inventory: Inventory) -> None:
         from fleet.record.layout import layout_of
         from fleet.ros2.frames import ArmTree, JointFrame, wire_to_q
-        from viewer import kinematics as k
+        from fleet.scene3d import kinematics as k
 
         self.layout = layout_of(inventory)
         self.model = model = k.ArmModel.from_urdf(k.load_urdf())

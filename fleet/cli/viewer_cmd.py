@@ -1,7 +1,7 @@
 """``fleet viewer``: the live 3D fleet in the browser (viser), bound to 127.0.0.1 by default.
 
 The page and its WebSocket need this run's token (printed in the URL) and WebSockets are
-accepted only from the viewer's own origins (viewer/access.py). The viewer acts as the principal
+accepted only from the viewer's own origins (fleet/web/access.py). The viewer acts as the principal
 ``viewer`` (role observer: STOP ALL only) unless ``--principal`` names one that may command.
 """
 
@@ -27,7 +27,7 @@ VIEWER_PRINCIPAL = "viewer"
 
 
 def _token(text: str) -> str:
-    from viewer.access import check_token
+    from fleet.web.access import check_token
 
     try:
         return check_token(text)
@@ -36,7 +36,7 @@ def _token(text: str) -> str:
 
 
 def _origin(text: str) -> str:
-    from viewer.access import check_origin
+    from fleet.web.access import check_origin
 
     try:
         return check_origin(text)

@@ -33,8 +33,8 @@ from fleet.devices import kind_of
 from fleet.guard import ThreadGuard
 from fleet.heartbeat import beat_until
 from fleet.inventory import Inventory, InventoryError
-from fleet.security.config import COMMANDERS
 from fleet.security.session import open_session
+from fleet.security_config import COMMANDERS
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, encode

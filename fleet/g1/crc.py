@@ -4,7 +4,7 @@ As unitree_sdk2py's ``utils/crc.py`` computes it: the message packed little-endi
 alignment (``LowCmd_`` 1004 bytes, ``LowState_`` 2092), read as 32-bit words without the last
 (the crc itself), fed MSB first through CRC-32 (polynomial 0x04C11DB7, initial 0xFFFFFFFF, no
 reflection, no final xor): CRC-32/MPEG-2 over each word's big-endian bytes. Table-driven here
-(the SDK calls a shared library); ``tests/test_g1_arms.py`` checks it against the SDK's.
+(the SDK calls a shared library); ``tests/unit/test_g1_arms.py`` checks it against the SDK's.
 """
 
 from __future__ import annotations

@@ -105,9 +105,10 @@ class Recorder:
     ) -> None:
         """``layout``: where the arms stand (kept in the file, for ``fleet viewer --replay``);
         ``extras``: channels derived from the recorded ones (the 3D channels: the CLI passes
-        viewer/frames3d.py's, which this package may not import); ``devices``: device id -> its
-        kind, whose ``DEVICE_CHANNELS`` are recorded too (each payload checked by its kind's
-        decoder, stored with its kind's schema)."""
+        fleet/scene3d/frames3d.py's, which imports this package's layout and writer, so it
+        cannot be imported here); ``devices``: device id -> its kind, whose ``DEVICE_CHANNELS``
+        are recorded too (each payload checked by its kind's decoder, stored with its kind's
+        schema)."""
         self.space = space
         self.arms = list(arms)
         self.path = Path(path)

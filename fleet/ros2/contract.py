@@ -16,7 +16,7 @@
   sequence number (per publisher, from 1), int64 LE source timestamp (ns since the epoch), the
   GID's length as one LEB128 byte (16), the 16-byte GID.
 
-Type hashes are constants here (their REP-2016 RIHS01 values); ``tests/test_ros2_contract.py``
+Type hashes are constants here (their REP-2016 RIHS01 values); ``tests/unit/test_ros2_contract.py``
 checks them against an independent implementation (rosbags' ``hash_rihs01``) and the public
 values found in ROS installs' generated code.
 """

@@ -27,7 +27,7 @@ from typing import Any
 from fleet.beat_limits import max_heartbeat_bytes
 from fleet.devices import kind_of
 from fleet.inventory import Inventory
-from fleet.security.config import Role
+from fleet.security_config import Role
 from fleet.wire.payloads import KIB
 
 PUT = ["put", "delete"]
@@ -217,8 +217,9 @@ def payload_limits(inventory: Inventory) -> list[dict[str, Any]]:
     # Every kind's command, stop and reset keys. zenoh 1.10's low-pass filter
     # (zenoh/src/net/routing/interceptor/low_pass.rs) takes, per message, the smallest
     # size_limit among the filter keys that include the message's key: it only ever drops
-    # messages over a limit, so these keys cannot stop small traffic (tests/test_router_limits.py
-    # and the secure demo pass with them; the break reported with 4319b77 did not reproduce).
+    # messages over a limit, so these keys cannot stop small traffic
+    # (tests/e2e/test_router_limits.py and the secure demo pass with them; the break reported
+    # with 4319b77 did not reproduce).
     messages = ["put", "delete", "query", "reply"]
     beat = max_heartbeat_bytes(len(inventory.arms) + len(inventory.devices))
     return [

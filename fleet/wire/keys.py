@@ -60,7 +60,7 @@ GRIPPER = "gripper"
 G1 = "g1"
 DEVICE_KINDS = (GRIPPER, G1)
 """Key words of the device kinds beside the D1 arm (``fleet/devices`` registers one kind per
-word; tests/test_keys.py keeps the two lists equal)."""
+word; tests/unit/test_keys.py keeps the two lists equal)."""
 FLEET_LEVEL = ""
 """The ``kind`` of a parsed key directly under ``fleet/<fleet>/`` (state, estop, heartbeat...)."""
 FLEET_CHANNELS = (STATE, ESTOP, RESET, STOP_REPORT, COORDINATOR_DIAG)

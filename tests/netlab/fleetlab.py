@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from tests.harness import wait_until
+from testkit.harness import wait_until
 from tests.netlab.lab import FLEET, Host, NetLab
 
 ARM_OCTET = 11

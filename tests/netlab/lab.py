@@ -30,7 +30,7 @@ import threading
 from dataclasses import dataclass
 from pathlib import Path
 
-from tests.harness import FleetHarness, wait_until
+from testkit.harness import FleetHarness, wait_until
 from tests.netlab.cable import Impairment
 
 SUBNET = "192.168.123"

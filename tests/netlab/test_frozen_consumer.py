@@ -27,7 +27,7 @@ from typing import Any
 
 import pytest
 
-from tests.harness import wait_until
+from testkit.harness import wait_until
 from tests.netlab.checks import percentile, restore
 from tests.netlab.fleetlab import LabFleet, RemoteClient
 

@@ -29,7 +29,7 @@ from typing import Any
 import pytest
 
 from fleet.d1 import protocol
-from tests.harness import wait_until
+from testkit.harness import wait_until
 from tests.netlab.checks import commands_seen, restore
 from tests.netlab.fleetlab import LabFleet
 

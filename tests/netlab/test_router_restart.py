@@ -23,7 +23,7 @@ from typing import Any
 
 import pytest
 
-from tests.harness import wait_until
+from testkit.harness import wait_until
 from tests.netlab.checks import STILL_DEG, commands_seen, joint_moves, joints_of, restore
 from tests.netlab.fleetlab import LabFleet, site_routers
 

@@ -1,0 +1,1 @@
+"""The viewer in a real headless Chromium (one xdist group: one browser at a time)."""

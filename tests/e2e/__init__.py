@@ -1,0 +1,1 @@
+"""End-to-end tests: real processes, routers, DDS participants and servers on loopback."""

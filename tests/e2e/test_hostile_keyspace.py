@@ -1,0 +1,316 @@
+"""Hostile input on the key space, against real processes: a router, two simulated arms, one
+agent per arm and a coordinator. Each test performs one attack of the security review, then
+proves the fleet still stops (every arm acknowledges a fleet stop in normal time and is seen
+still) and still serves (a valid command works). Before the fix each attack disabled the stop,
+killed a process or made the coordinator report a dead fleet.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterator
+
+import pytest
+import zenoh
+
+from fleet.client import FleetClient
+from fleet.wire import keys
+from fleet.wire import messages as m
+from fleet.wire.messages import ErrorCode
+from fleet.wire.session import open_client
+from testkit.harness import FleetHarness, wait_until
+from testkit.hostile import (
+    POISONS,
+    ROUTER_DROPS,
+    alive,
+    assert_fleet_stops_and_serves,
+    decode,
+    latest,
+    put,
+    rss_mb,
+    statuses,
+    wait_reset,
+)
+
+ARMS = ["a1", "a2"]
+FLOOD_BOUND_MS = 1000.0
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[FleetHarness, FleetClient]]:
+    """Router, simulator, one agent per arm and a coordinator, shared by this module's tests
+    (each test ends by proving the fleet healthy, so the next starts from a working fleet)."""
+    # a2 detects no contact: a stalled joint then waits for its target instead of being
+    # force-limited (the long-request test needs requests that really take long).
+    no_contact = "[arms.a2.contact]\nenabled = false\n"
+    with FleetHarness(tmp_path_factory.mktemp("hostile"), arms=2, extra=no_contact) as harness:
+        harness.start_router()
+        harness.start_sim()
+        harness.start_agent("a1", name="agent1")
+        harness.start_agent("a2", name="agent2")
+        harness.start_coordinator()
+        client = harness.client()
+        wait_until(lambda: harness.all_links_ok(client), 30.0)
+        wait_until(lambda: _state(client) is not None, 15.0)
+        yield harness, client
+
+
+def _state(client: FleetClient) -> m.FleetState | None:
+    data = latest(client, client.keys.state)
+    return None if data is None else decode(m.FleetState, data)  # type: ignore[return-value]
+
+
+@pytest.mark.parametrize("poison", sorted(POISONS))
+def test_a_poison_stop_still_stops_and_never_disables_the_stop(
+    fleet: tuple[FleetHarness, FleetClient], poison: str
+) -> None:
+    harness, client = fleet
+    wait_reset(client, ARMS)
+    put(client, client.keys.estop, POISONS[poison])
+    if poison in ROUTER_DROPS:
+        # Dropped at the router: a1 stays as it was (checked after a2's stop and standstill,
+        # put behind it on the same session, and on statuses published after that).
+        assert client.estop(arm="a2", timeout_s=5.0)["a2"] is not None
+        assert statuses(client, ["a1"])["a1"] is not None
+        assert not statuses(client, ["a1"])["a1"].estopped  # type: ignore[union-attr]
+        assert_fleet_stops_and_serves(harness, client)
+        return
+    # Fail safe: anyone may stop, so a stop that does not decode stops every arm.
+    wait_until(
+        lambda: all(
+            s is not None and s.estopped and "undecodable" in (s.stop_reason or "")
+            for s in statuses(client, ARMS).values()
+        ),
+        5.0,
+    )
+    put(client, client.keys.arm("a2", keys.ESTOP), POISONS[poison])
+    assert_fleet_stops_and_serves(harness, client)
+
+
+@pytest.mark.parametrize("poison", sorted(POISONS))
+def test_poison_on_reset_and_heartbeat_changes_nothing(
+    fleet: tuple[FleetHarness, FleetClient], poison: str
+) -> None:
+    harness, client = fleet
+    acks = client.estop(arm="a1", timeout_s=5.0)
+    assert acks["a1"] is not None
+    heartbeat = client.keys.heartbeat_of(client.principal)
+    for key in (client.keys.reset, client.keys.arm("a1", keys.RESET), heartbeat):
+        put(client, key, POISONS[poison])
+    time.sleep(0.5)
+    # A reset that does not decode releases nothing.
+    status = statuses(client, ["a1"])["a1"]
+    assert status is not None and status.estopped
+    assert_fleet_stops_and_serves(harness, client)
+
+
+def test_poison_reports_never_blind_the_coordinator(
+    fleet: tuple[FleetHarness, FleetClient],
+) -> None:
+    harness, client = fleet
+    for channel in (keys.STATUS, keys.CONTACT, keys.ESTOP_ACK):
+        for payload in POISONS.values():
+            put(client, client.keys.arm("a1", channel), payload)
+        put(client, client.keys.arm("zz-not-an-arm", channel), POISONS["nested"])
+    time.sleep(1.5)  # longer than offline_after_s: a dead events thread shows every arm offline
+    state = _state(client)
+    assert state is not None
+    assert all(state.arms[arm].online for arm in ARMS), state
+
+    # Diag is published at 1 Hz: on a loaded host the newest one may predate the last puts.
+    def counted() -> m.CoordinatorDiag | None:
+        diag = decode(m.CoordinatorDiag, latest(client, client.keys.coordinator_diag))
+        return diag if diag.bad_events >= 9 and diag.unknown_arms >= 3 else None  # type: ignore[attr-defined,return-value]
+
+    assert wait_until(counted, 10.0, interval_s=0.5)
+    assert_fleet_stops_and_serves(harness, client)
+
+
+def _get_all(client: FleetClient, key: str, payload: bytes) -> list[m.CommandReply]:
+    replies = []
+    # QueryTarget.ALL: every agent's queryable answers (the default asks only the best match).
+    everyone = zenoh.QueryTarget.ALL
+    for reply in client.session.get(key, payload=payload, timeout=5.0, target=everyone):
+        if reply.ok is not None:
+            replies.append(decode(m.CommandReply, reply.ok.payload.to_bytes()))
+    return replies  # type: ignore[return-value]
+
+
+def test_a_poison_command_is_refused_and_no_agent_dies(
+    fleet: tuple[FleetHarness, FleetClient],
+) -> None:
+    harness, client = fleet
+    everyone = client.keys.command("*", client.principal)
+    for name, payload in POISONS.items():
+        replies = _get_all(client, everyone, payload)
+        if name in ROUTER_DROPS:  # no agent ever sees it: no answer at all
+            assert replies == [], (name, replies)
+            continue
+        assert sorted(r.arm for r in replies) == ARMS, (name, replies)
+        assert all(r.error and r.error.code == ErrorCode.PARAMETER for r in replies), replies
+    (unknown,) = _get_all(client, client.command_key("a1"), b'{"op":"fly","to":"moon"}')
+    assert unknown.error is not None and unknown.error.code == ErrorCode.NOT_IMPLEMENTED
+    assert "fly" in unknown.error.message
+    assert_fleet_stops_and_serves(harness, client)
+
+
+def test_a_heartbeat_flood_never_delays_a_stop_or_grows_memory(
+    fleet: tuple[FleetHarness, FleetClient],
+) -> None:
+    harness, client = fleet
+    wait_reset(client, ARMS)
+    agent = harness.processes["agent1"].pid
+    before_mb = rss_mb(agent)
+    flooding = threading.Event()
+    sent = [0]
+
+    def flood() -> None:
+        # A few sources, each beat repeating fresh stops for our arms: a latch (a DDS write,
+        # acks, status) per beat if every beat were acted on; only the newest per source is.
+        with open_client(client.inventory.endpoints) as s:
+            publisher = s.declare_publisher(client.keys.heartbeat_of(client.principal))
+            deadline = time.monotonic() + 6.0
+            while not flooding.is_set() and time.monotonic() < deadline:
+                n = sent[0]
+                stops = {
+                    arm: m.StopRequest(time.time_ns(), "flood", f"flood-{arm}-{n}") for arm in ARMS
+                }
+                beat = m.Heartbeat(time.time_ns(), f"flood-{n % 8}", n, 0.1, stops)
+                publisher.put(m.encode(beat))
+                sent[0] += 1
+
+    thread = threading.Thread(target=flood, name="flood", daemon=True)
+    thread.start()
+    try:
+        time.sleep(2.0)
+        request = client.stop_request(reason="under a heartbeat flood", source="hostile-suite")
+        acks = client.estop(timeout_s=5.0, request=request, wait_still=False)
+    finally:
+        flooding.set()
+        thread.join(timeout=10.0)
+    delays = {a: (k.received_ns - request.stamp_ns) / 1e6 for a, k in acks.items() if k}
+    assert len(delays) == len(ARMS), acks
+    # 1-2 ms on a quiet host, 3-5 s before the fix; the flood itself loads both cores here.
+    assert max(delays.values()) <= FLOOD_BOUND_MS, (
+        f"stop acted on after {delays} ms under the flood"
+    )
+    grown = rss_mb(agent) - before_mb
+    print(f"flood: {sent[0]} heartbeats, stop delays {delays} ms, agent RSS +{grown:.1f} MB")
+    assert grown < 40.0, f"the agent grew {grown:.0f} MB under {sent[0]} heartbeats"
+    assert_fleet_stops_and_serves(harness, client)
+
+
+def test_oversized_and_invented_names_are_never_stored(
+    fleet: tuple[FleetHarness, FleetClient],
+) -> None:
+    harness, client = fleet
+    wait_reset(client, ARMS)
+    # A 1 MB stop id still stops (undecodable: anyone may stop) but is never repeated.
+    put(client, client.keys.estop, POISONS["1MiB"])
+    # Stops for arms that do not exist must not accumulate in the heartbeat.
+    for i in range(300):
+        put(client, client.keys.arm(f"ghost{i}", keys.ESTOP), m.encode(client.stop_request()))
+    time.sleep(1.0)
+    beat = latest(client, client.keys.heartbeat)
+    assert beat is not None and len(beat) < 4096, f"heartbeat of {len(beat or b'')} bytes"
+    heartbeat = decode(m.Heartbeat, beat)
+    assert set(heartbeat.stops) <= {"*", *ARMS}, heartbeat.stops  # type: ignore[attr-defined]
+    # An ack forged on a1's key naming a2 is a1's (the key says which arm).
+    request = client.stop_request(source="hostile-suite")
+    client.put_stop(request, "a1")
+    forged = m.StopAck("a2", request.stop_id, "hold", time.time_ns(), None)
+    reports: list[m.StopReport] = []
+    sub = client.session.declare_subscriber(
+        client.keys.stop_report,
+        lambda s: reports.append(decode(m.StopReport, s.payload.to_bytes())),  # type: ignore[arg-type]
+    )
+    try:
+        time.sleep(0.3)
+        put(client, client.keys.arm("a1", keys.ESTOP_ACK), m.encode(forged))
+        time.sleep(0.5)
+    finally:
+        sub.undeclare()
+    mine = [r for r in reports if r.stop_id == request.stop_id]
+    assert mine and all(set(r.arms) <= {"a1"} for r in mine), mine
+    client.reset()
+    assert_fleet_stops_and_serves(harness, client)
+
+
+def test_a_query_flood_is_answered_busy_never_dropped(
+    fleet: tuple[FleetHarness, FleetClient],
+) -> None:
+    harness, client = fleet
+    wait_reset(client, ARMS)
+    key = client.command_key("a1")
+    # Valid holds: each is written and waits for the arm's acks, so the queue fills.
+    handlers = [
+        client.session.get(key, payload=m.encode(m.Hold()), timeout=10.0) for _ in range(1000)
+    ]
+    answered = 0
+    codes: dict[int, int] = {}
+    for handler in handlers:
+        for reply in handler:
+            if reply.ok is not None:
+                answered += 1
+                got = decode(m.CommandReply, reply.ok.payload.to_bytes())
+                code = got.error.code if got.error else 0  # type: ignore[attr-defined]
+                codes[code] = codes.get(code, 0) + 1
+    print(f"1000 queries at once: {answered} answered, codes {codes}")
+    assert answered == 1000, codes
+    # Served (0) or answered busy (4003). A hold whose arm acknowledged it later than
+    # recv_ack_timeout_s is answered 3104, truthfully: on this 2-core host, busy with the flood,
+    # the simulated arm did so once in 1000 (one full run of four).
+    assert set(codes) <= {0, ErrorCode.BUSY, ErrorCode.TIMEOUT}, codes
+    assert codes.get(ErrorCode.TIMEOUT, 0) <= 10, codes
+    assert_fleet_stops_and_serves(harness, client)
+
+
+def test_every_agent_and_the_coordinator_survive_and_diag_counts(
+    fleet: tuple[FleetHarness, FleetClient],
+) -> None:
+    harness, client = fleet
+    diag = decode(m.Diag, latest(client, client.keys.arm("a1", keys.DIAG), wait_s=2.5))
+    assert diag.bad_payloads > 0 and diag.undecodable_stops > 0, diag  # type: ignore[attr-defined]
+    assert all(code is None for code in alive(harness).values()), alive(harness)
+
+
+def test_long_multi_arm_requests_never_queue_without_bound(
+    fleet: tuple[FleetHarness, FleetClient],
+) -> None:
+    harness, client = fleet
+    wait_reset(client, ARMS)
+    fault = client.keys.arm("a2", keys.SIM_FAULT)
+    stall = b'{"op":"stall","joint":0,"angle_deg":0.0}'
+    assert [r for r in client.session.get(fault, payload=stall) if r.ok is not None]
+    try:
+        # Each request waits (up to 4 s) for a target the stalled joint never reaches.
+        blocked = m.MoveJoint(joint=0, angle_deg=30.0, wait_reached=True, timeout_s=4.0)
+        request = m.encode(m.MultiArmRequest(target="a2", command=blocked))
+        started = time.monotonic()
+        arrived: list[tuple[float, bytes]] = []
+
+        def on_reply(reply: zenoh.Reply) -> None:  # when each answer arrives, not when read
+            if reply.ok is not None:
+                arrived.append((time.monotonic() - started, reply.ok.payload.to_bytes()))
+
+        for _ in range(10):
+            client.session.get(
+                client.keys.coordinator_command(client.principal),
+                on_reply,
+                payload=request,
+                timeout=15.0,
+            )
+        wait_until(lambda: len(arrived) == 10, 15.0)
+        answers = [(t, decode(m.MultiArmReply, data)) for t, data in arrived]
+        busy = [t for t, r in answers if r.error and "busy" in r.error.message]  # type: ignore[attr-defined]
+        print(f"10 long requests: {len(busy)} busy, answered after {[round(t, 1) for t in busy]} s")
+        assert len(answers) == 10
+        assert len(busy) >= 10 - 4 and max(busy) < 3.0, answers
+        diag = decode(m.CoordinatorDiag, latest(client, client.keys.coordinator_diag, 2.5))
+        assert diag.busy >= len(busy), diag  # type: ignore[attr-defined]
+    finally:
+        unstall = b'{"op":"clear"}'
+        assert [r for r in client.session.get(fault, payload=unstall) if r.ok is not None]
+    client.command("a2", m.Release(owner=_state(client).coordinator))  # type: ignore[union-attr]
+    assert_fleet_stops_and_serves(harness, client)

@@ -1,0 +1,339 @@
+"""The safety guarantees of the agent core, once per kind (D1 arm, Dex1-1 gripper, G1): one
+agent process serving an arm, the gripper mounted on it and a G1 on one card
+(``edge-agent --interface lo``), the simulators of all three, a router; real DDS and Zenoh.
+
+A reset never releases a stop that arrived after it however the two interleave; the latch
+survives an agent restart; leases, ordering, lifetime and the heartbeat watchdog hold; an
+undecodable stop still stops, and a flood on the command key does not delay a stop."""
+
+from __future__ import annotations
+
+import json
+import random
+import signal
+import threading
+import time
+import uuid
+from collections.abc import Iterator
+
+import pytest
+
+from fleet.client import FleetClient
+from fleet.wire import keys
+from fleet.wire import messages as m
+from fleet.wire.messages import ErrorCode, encode
+from fleet.wire.payloads import DIAG
+from testkit.collect import Collector
+from testkit.harness import FleetHarness, free_port, wait_until
+from testkit.hostile import POISONS, ROUTER_DROPS
+from testkit.kinds import DEVICES, KIND_IDS, KINDS, Kind, LatchWatch, release, send, with_envelope
+from tests.e2e.test_hostile_keyspace import FLOOD_BOUND_MS
+
+pytestmark = pytest.mark.xdist_group("kinds")
+AGENT = ["-m", "edge_agent", "--interface", "lo"]
+"""One agent process for every robot on the card: the arm, its gripper and the G1."""
+
+
+def _start_agent(harness: FleetHarness) -> None:
+    port = str(harness.metrics_port)  # type: ignore[attr-defined]
+    harness.start("agent", [*AGENT, "--metrics-port", port])
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory: pytest.TempPathFactory) -> Iterator[FleetHarness]:
+    with FleetHarness(tmp_path_factory.mktemp("kinds"), arms=1, extra=DEVICES) as harness:
+        harness.start_router()
+        harness.start_sim()
+        harness.metrics_port = free_port()  # type: ignore[attr-defined]
+        _start_agent(harness)
+        client = harness.client()
+        for kind in KINDS:
+            watch = LatchWatch(client, kind)
+            try:
+                wait_until(watch.link_ok, 30.0)
+            except AssertionError:
+                raise AssertionError(harness.diagnose(client)) from None
+        yield harness
+
+
+@pytest.fixture
+def client(fleet: FleetHarness) -> Iterator[FleetClient]:
+    client = fleet.client()
+    yield client
+    client.reset()  # every test leaves every unit unlatched
+
+
+def _ready(client: FleetClient, kind: Kind) -> LatchWatch:
+    """The unit's latch watch once it reports unlatched with a fresh link."""
+    watch = LatchWatch(client, kind)
+    client.reset(kind.unit)
+    wait_until(lambda: watch.link_ok() and watch.estopped() is False, 15.0)
+    return watch
+
+
+def _stop(unit: str, stop_id: str) -> bytes:
+    return encode(
+        m.StopRequest(stamp_ns=time.time_ns(), source="test", stop_id=stop_id, reason="race")
+    )
+
+
+def _reset() -> bytes:
+    return encode(m.ResetRequest(stamp_ns=time.time_ns(), source="test"))
+
+
+@pytest.mark.parametrize("kind", KINDS, ids=KIND_IDS)
+def test_a_reset_never_releases_a_stop_that_arrived_after_it(
+    client: FleetClient, kind: Kind
+) -> None:
+    """300 random stops and resets on the unit's own keys and the fleet-wide ones, put back to
+    back: the unit ends latched exactly when the last of them was a stop (twice: once ending
+    on a stop, once on a reset). The agent takes every stop and reset in one FIFO, so a stop
+    of another unit put after them (the sentinel) is acknowledged only once all were acted on;
+    a command then meets the latch as the last of them left it."""
+    _ready(client, kind)
+    # The sentinel's unit: one whose stop does not reach this one (an arm's reaches its gripper).
+    other = next(k for k in KINDS if k.name == ("arm" if kind.name == "g1" else "g1"))
+    rng = random.Random(kind.name)
+    acks = LatchAcks(client, other)
+    unit_stop, unit_reset = (client.unit_key(kind.unit, c) for c in (keys.ESTOP, keys.RESET))
+    try:
+        for ends_stopped in (True, False):
+            for i in range(300):
+                is_stop = ends_stopped if i == 299 else rng.random() < 0.5
+                fleet_wide = rng.random() < 0.3
+                if is_stop:
+                    key = client.keys.estop if fleet_wide else unit_stop
+                    client.session.put(key, _stop(kind.unit, uuid.uuid4().hex))
+                else:
+                    key = client.keys.reset if fleet_wide else unit_reset
+                    client.session.put(key, _reset())
+            sentinel = uuid.uuid4().hex
+            other_stop = client.unit_key(other.unit, keys.ESTOP)
+            client.session.put(other_stop, _stop(other.unit, sentinel))
+            wait_until(lambda stop_id=sentinel: acks.has(stop_id), 10.0)
+            outcome = send(client, kind, kind.moves())
+            if ends_stopped:
+                assert not outcome.ok and outcome.code == ErrorCode.REJECTED, outcome
+                assert "stopped" in outcome.message, outcome
+            else:
+                assert outcome.ok, outcome
+    finally:
+        acks.close()
+
+
+class LatchAcks:
+    """The stop ids acknowledged on the unit's ``estop/ack``."""
+
+    def __init__(self, client: FleetClient, kind: Kind) -> None:
+        self._ids: set[str] = set()
+        self._lock = threading.Lock()
+        key = client.unit_key(kind.unit, keys.ESTOP_ACK)
+        self._sub = client.session.declare_subscriber(key, self._on)
+
+    def _on(self, sample) -> None:  # type: ignore[no-untyped-def]
+        from fleet.wire import payloads
+
+        ack = payloads.STOP_ACK.decode(sample.payload.to_bytes())
+        with self._lock:
+            self._ids.add(ack.stop_id)
+
+    def has(self, stop_id: str) -> bool:
+        with self._lock:
+            return stop_id in self._ids
+
+    def close(self) -> None:
+        self._sub.undeclare()
+
+
+@pytest.mark.parametrize("kind", KINDS, ids=KIND_IDS)
+def test_lease_takeover_and_release(client: FleetClient, kind: Kind) -> None:
+    _ready(client, kind)
+    alice = send(client, kind, with_envelope(kind.moves(), owner="alice"))
+    assert alice.ok, alice
+    bob = send(client, kind, with_envelope(kind.moves(), owner="bob"))
+    assert not bob.ok and bob.code == ErrorCode.LEASE_EXISTS, bob
+    assert "alice" in bob.message
+    taken = send(client, kind, with_envelope(kind.moves(), owner="bob", takeover=True))
+    assert taken.ok, taken
+    gone = send(client, kind, release(kind, "alice"))
+    assert not gone.ok and gone.code == ErrorCode.LEASE_INVALID, gone
+    assert send(client, kind, release(kind, "bob")).ok
+    assert send(client, kind, with_envelope(kind.moves(), owner="alice")).ok
+    assert send(client, kind, release(kind, "alice")).ok
+
+
+@pytest.mark.parametrize("kind", KINDS, ids=KIND_IDS)
+def test_duplicates_old_and_late_commands_are_refused(client: FleetClient, kind: Kind) -> None:
+    _ready(client, kind)
+    stamp = time.time_ns()
+    first = send(client, kind, with_envelope(kind.moves(), owner="ord", stamp_ns=stamp))
+    assert first.ok, first
+    again = send(client, kind, with_envelope(kind.moves(), owner="ord", stamp_ns=stamp))
+    assert not again.ok and again.code == ErrorCode.OUT_OF_ORDER, again
+    older = send(client, kind, with_envelope(kind.moves(), owner="ord", stamp_ns=stamp - 1000))
+    assert not older.ok and older.code == ErrorCode.OUT_OF_ORDER, older
+    late = with_envelope(
+        kind.moves(), owner="late", stamp_ns=time.time_ns() - 2_000_000_000, lifetime_s=0.5
+    )
+    outcome = send(client, kind, late)
+    assert not outcome.ok and outcome.code == ErrorCode.EXPIRED, outcome
+    assert "lifetime" in outcome.message, outcome
+    for owner in ("ord",):
+        send(client, kind, release(kind, owner))
+
+
+@pytest.mark.parametrize("kind", KINDS, ids=KIND_IDS)
+def test_silent_coordinator_trips_the_watchdog(fleet: FleetHarness, kind: Kind) -> None:
+    """A coordinator moves the unit and never beats: the agent stops it on its own."""
+    operator = fleet.client()
+    _ready(operator, kind)
+    coordinator = fleet.client("coordinator")
+    watch = LatchWatch(operator, kind)
+    outcome = send(coordinator, kind, with_envelope(kind.moves(), owner="silent"))
+    assert outcome.ok, outcome
+    wait_until(lambda: watch.estopped() is True, 5.0)
+    assert "heartbeat" in watch.reason() and "silent" in watch.reason(), watch.reason()
+    operator.reset(kind.unit)
+
+
+@pytest.mark.parametrize("kind", KINDS, ids=KIND_IDS)
+def test_undecodable_stop_stops_and_a_command_flood_does_not_delay_a_stop(
+    fleet: FleetHarness, client: FleetClient, kind: Kind
+) -> None:
+    watch = _ready(client, kind)
+    client.session.put(client.unit_key(kind.unit, keys.ESTOP), b"\xff not a stop")
+    wait_until(lambda: watch.estopped() is True, 5.0)
+    assert "undecodable" in watch.reason(), watch.reason()
+    client.reset(kind.unit)
+    wait_until(lambda: watch.estopped() is False, 5.0)
+    # A flood of hostile queries on the command key, from another session, during a stop.
+    flooder = fleet.client()
+    stop_flood = threading.Event()
+    cmd_key = flooder.unit_key(kind.unit, keys.CMD) + "/operator"
+    sent = [0]
+
+    def flood() -> None:
+        deadline = time.monotonic() + 10.0
+        while not stop_flood.is_set() and time.monotonic() < deadline:
+            flooder.session.get(cmd_key, payload=b'{"op": "nope"' * 20, timeout=0.2)
+            sent[0] += 1
+
+    thread = threading.Thread(target=flood, name="flood", daemon=True)
+    thread.start()
+    try:
+        wait_until(lambda: sent[0] > 500, 10.0)  # the flood is on
+        request = client.stop_request("flood test")
+        acks = client.estop(kind.unit, request=request, wait_still=False)
+    finally:
+        stop_flood.set()
+        thread.join(timeout=15.0)
+    ack = next(iter(a for a in acks.values() if a is not None), None)
+    assert ack is not None, acks
+    delay_s = (ack.received_ns - request.stamp_ns) / 1e9
+    # 1-3 ms on a quiet host; the flood loads both cores of the test host (the 500 ms goal is
+    # the benchmark's, measured with the flood in a process of its own).
+    assert delay_s * 1000 < FLOOD_BOUND_MS, f"the stop took {delay_s:.3f} s under a flood"
+    assert ack.dds_written_ns is not None
+
+
+@pytest.mark.parametrize("kind", KINDS, ids=KIND_IDS)
+def test_latch_survives_an_agent_restart(fleet: FleetHarness, kind: Kind) -> None:
+    client = fleet.client()
+    watch = _ready(client, kind)
+    acks = client.estop(kind.unit, reason="before restart", wait_still=False)
+    assert all(a is not None for a in acks.values()), acks
+    # The latch is on disk once its file is (written just after the stop's DDS write).
+    latch_file = fleet.tmp_path / "state" / fleet.inventory.fleet / f"{kind.unit}.stop.json"
+    wait_until(latch_file.exists, 5.0)
+    fleet.stop("agent", signal.SIGKILL)
+    _start_agent(fleet)
+    # Back: still stopped, motion refused until an operator resets.
+    wait_until(lambda: watch.link_ok() and time.sleep(0.3) is None, 30.0)
+    outcome = None
+
+    def refused() -> bool:
+        nonlocal outcome
+        outcome = send(client, kind, kind.moves())
+        return outcome.code != ErrorCode.NO_AGENT
+
+    wait_until(refused, 30.0, interval_s=0.5)
+    assert outcome is not None and not outcome.ok and outcome.code == ErrorCode.REJECTED, outcome
+    assert "before the agent restarted" in watch.reason() or watch.estopped(), watch.reason()
+    client.reset(kind.unit)
+    wait_until(lambda: watch.estopped() is False, 10.0)
+    assert send(client, kind, kind.moves()).ok
+
+
+def test_an_arm_stop_stops_the_gripper_mounted_on_it(client: FleetClient) -> None:
+    gripper = next(k for k in KINDS if k.name == "gripper")
+    watch = _ready(client, gripper)
+    acks = client.estop("a1", reason="arm and what it carries")
+    assert set(acks) == {"a1", "gripper/gl"}, acks
+    assert all(a is not None for a in acks.values()), acks
+    wait_until(lambda: watch.estopped() is True, 5.0)
+    refused = send(client, gripper, gripper.moves())
+    assert not refused.ok and refused.code == ErrorCode.REJECTED, refused
+    client.reset("a1")  # releases what is mounted on it too
+    wait_until(lambda: watch.estopped() is False, 5.0)
+    assert send(client, gripper, gripper.moves()).ok
+
+
+def test_one_process_serves_every_kind_with_metrics_and_info(fleet: FleetHarness) -> None:
+    """The one agent's metrics cover each device; its info/ lists every robot it serves."""
+    from fleet.wire.info import query_info
+    from tests.e2e.test_metrics import scrape, value
+
+    def rates_measured() -> bool:  # the rate needs a second of samples (after a restart)
+        samples = scrape(fleet.metrics_port)  # type: ignore[attr-defined]
+        rates = [
+            value(samples, "d1_agent_device_rate_hz", device=d, kind=k)
+            for d, k in (("gl", "gripper"), ("h1", "g1"))
+        ]
+        return all(r is not None and r > 0 for r in rates)
+
+    wait_until(rates_measured, 10.0)
+    samples = scrape(fleet.metrics_port)  # type: ignore[attr-defined]
+    for device, kind in (("gl", "gripper"), ("h1", "g1")):
+        assert value(samples, "d1_agent_device_link_ok", device=device, kind=kind) == 1
+    assert (value(samples, "d1_agent_relayed_total", arm="a1") or 0) > 0
+    client = fleet.client()
+    infos, _bad = query_info(client.session, fleet.inventory.fleet)
+    agents = [r.info for r in infos if r.info.role == "agent"]
+    assert len(agents) == 1, agents
+    assert set(agents[0].arms) == {"a1", "gl", "h1"}, agents[0]
+
+
+@pytest.mark.parametrize("poison", sorted(POISONS))
+@pytest.mark.parametrize("kind", KINDS, ids=KIND_IDS)
+def test_poison_on_every_key_of_every_kind(client: FleetClient, kind: Kind, poison: str) -> None:
+    """What the hostile suite sends to arm keys, sent to each kind's: a poison reset and a
+    poison command change nothing (the command is refused with a reason), a poison stop still
+    stops, the agent counts them, and the unit still serves after a reset."""
+    watch = _ready(client, kind)
+    if poison in ROUTER_DROPS:  # never reaches an agent (tests/e2e/test_router_limits.py)
+        cmd_key = client.unit_key(kind.unit, keys.CMD) + f"/{client.principal}"
+        assert list(client.session.get(cmd_key, payload=POISONS[poison], timeout=2.0)) == []
+        return
+    diags = Collector(client.session, client.unit_key(kind.unit, keys.DIAG), DIAG.decode)
+    wait_until(lambda: diags.latest() is not None, 5.0)
+    before = diags.latest()
+    assert before is not None
+    client.session.put(client.unit_key(kind.unit, keys.RESET), POISONS[poison])
+    cmd_key = client.unit_key(kind.unit, keys.CMD) + f"/{client.principal}"
+    replies = list(client.session.get(cmd_key, payload=POISONS[poison], timeout=3.0))
+    answers = [json.loads(r.ok.payload.to_bytes()) for r in replies if r.ok is not None]
+    assert len(answers) == 1 and answers[0]["ok"] is False, answers
+    assert answers[0]["error"]["code"] in (ErrorCode.PARAMETER, ErrorCode.NOT_IMPLEMENTED)
+    assert watch.estopped() is False
+    client.session.put(client.unit_key(kind.unit, keys.ESTOP), POISONS[poison])
+    wait_until(lambda: watch.estopped() is True, 5.0)
+    assert "undecodable" in watch.reason(), watch.reason()
+    wait_until(
+        lambda: (d := diags.latest()) is not None and d.bad_payloads >= before.bad_payloads + 2, 5.0
+    )
+    refused = send(client, kind, kind.moves())
+    assert not refused.ok and refused.code == ErrorCode.REJECTED, refused
+    client.reset(kind.unit)
+    wait_until(lambda: watch.estopped() is False, 5.0)
+    assert send(client, kind, kind.moves()).ok
+    diags.close()

@@ -1,0 +1,1 @@
+"""Pure tests: no process, no socket, no Zenoh session, no DDS participant (see conftest.py)."""
