@@ -74,7 +74,9 @@ try:
     out = {{"error": None, "messages": len(recording.messages)}}
 except BaseException as exc:
     out = {{"error": type(exc).__name__, "message": str(exc)}}
-out["max_rss_kb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+# The peak of this process's own memory since exec (ru_maxrss keeps the forking parent's).
+status = open("/proc/self/status").read().split("VmHWM:")[1]
+out["max_rss_kb"] = int(status.split()[0])
 print(json.dumps(out))
 """
     run = subprocess.run(
