@@ -105,8 +105,8 @@ class BrowserCamera:
 
 
 def arm_points(viewer: Viewer) -> npt.NDArray[np.float64]:
-    """The corners of every link's box, every arm as drawn, in the world."""
-    return viewer.scene.frame_points(viewer.scene._drawn_deg.copy())
+    """The points the viewer frames: every arm's whole reach (and its label), in the world."""
+    return viewer.scene.view_points()
 
 
 # ---------------------------------------------------------------------- fit, share

@@ -1,0 +1,78 @@
+"""The operator's console in a real headless Chromium (issue 26 items 6, 8, 11; issue 25's
+viewer items): the first view and "Fit view" frame every pose the joint limits allow, alike.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from fleet.d1.limits import JOINT_RANGE_DEG
+from tests.browser import Browser
+from tests.harness import FleetHarness, wait_until
+from tests.test_viewer_shift import BrowserCamera, open_page, viewer_of
+from viewer.app import Viewer
+from viewer.camera import FOV_RAD, fit_view, usable_right_edge
+
+WIDE = {"width": 1400, "height": 900}
+"""The window where an arm of the dancing demo swung out of the first view's left edge."""
+
+
+def any_pose_points(viewer: Viewer, poses: int = 300) -> npt.NDArray[np.float64]:
+    """The corners of every link's box with every arm at ``poses`` random poses within its
+    joint limits (drawn independently of the viewer's own reach grid)."""
+    scene = viewer.scene
+    rng = np.random.default_rng(7)
+    low = np.array([r[0] for r in JOINT_RANGE_DEG])
+    high = np.array([r[1] for r in JOINT_RANGE_DEG])
+    points = [
+        scene.frame_points(rng.uniform(low, high, (len(scene.arms), 7))) for _ in range(poses)
+    ]
+    # Each arm also at the ends of every joint at once (the extremes a grid may straddle).
+    for ends in (low, high, np.where(np.arange(7) % 2 == 0, low, high)):
+        points.append(scene.frame_points(np.tile(ends, (len(scene.arms), 1))))
+    return np.vstack(points)
+
+
+def test_the_first_view_and_fit_view_frame_every_pose_the_limits_allow_alike(
+    fleet3_harness: FleetHarness, browser: Browser
+) -> None:
+    """Framed on the pose of the moment, an arm that then swung out left the view; the first
+    view and "Fit view" also framed differently (issue 26 item 11)."""
+    fleet3_harness.start_router()
+    browser.page.set_viewport_size(WIDE)
+    with viewer_of(fleet3_harness) as viewer:
+        open_page(browser, viewer.url)
+        camera = BrowserCamera(viewer)
+        points = any_pose_points(viewer)
+
+        def framed() -> bool:
+            return camera.span(points)[0]
+
+        def at_the_fit() -> bool:
+            """The browser's camera is where the viewer frames the fleet's reach for it."""
+            browser_camera = camera.client.camera
+            right = usable_right_edge(browser_camera.image_width)
+            goal, _ = fit_view(viewer.scene.view_points(), FOV_RAD, browser_camera.aspect, right)
+            return bool(np.linalg.norm(np.asarray(browser_camera.position) - goal) < 0.01)
+
+        # The initial camera assumed a window; the first report tells this one's, and the
+        # viewer frames it once for it.
+        wait_until(lambda: at_the_fit() and framed(), 15.0)
+        span = camera.span(points)[1]
+        assert span > 0.6, f"the fleet's reach fills only {span:.0%} of the first view"
+        first = np.asarray(camera.client.camera.position)
+
+        camera.client.camera.position = (8.0, -9.0, 6.0)  # the operator wanders off
+        camera.client.camera.look_at = (3.0, 3.0, 0.0)
+        wait_until(lambda: camera.span(points)[1] < 0.3, 10.0)
+        reports = camera.reports
+        browser.page.get_by_role("button", name="Fit view").click()
+        try:
+            wait_until(lambda: camera.reports > reports and at_the_fit() and framed(), 15.0)
+        except AssertionError:
+            raise AssertionError(
+                f"Fit view put the camera at {camera.client.camera.position}, the first view "
+                f"at {tuple(first)}"
+            ) from None
+        browser.save_page("30-fit-1400")
