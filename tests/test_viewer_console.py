@@ -34,6 +34,14 @@ def any_pose_points(viewer: Viewer, poses: int = 300) -> npt.NDArray[np.float64]
     return np.vstack(points)
 
 
+def at_the_fit(viewer: Viewer, camera: BrowserCamera) -> bool:
+    """The browser's camera is where the viewer frames the fleet's reach for its window."""
+    browser_camera = camera.client.camera
+    right = usable_right_edge(browser_camera.image_width)
+    goal, _ = fit_view(viewer.scene.view_points(), FOV_RAD, browser_camera.aspect, right)
+    return bool(np.linalg.norm(np.asarray(browser_camera.position) - goal) < 0.01)
+
+
 def test_the_first_view_and_fit_view_frame_every_pose_the_limits_allow_alike(
     fleet3_harness: FleetHarness, browser: Browser
 ) -> None:
@@ -49,16 +57,9 @@ def test_the_first_view_and_fit_view_frame_every_pose_the_limits_allow_alike(
         def framed() -> bool:
             return camera.span(points)[0]
 
-        def at_the_fit() -> bool:
-            """The browser's camera is where the viewer frames the fleet's reach for it."""
-            browser_camera = camera.client.camera
-            right = usable_right_edge(browser_camera.image_width)
-            goal, _ = fit_view(viewer.scene.view_points(), FOV_RAD, browser_camera.aspect, right)
-            return bool(np.linalg.norm(np.asarray(browser_camera.position) - goal) < 0.01)
-
         # The initial camera assumed a window; the first report tells this one's, and the
         # viewer frames it once for it.
-        wait_until(lambda: at_the_fit() and framed(), 15.0)
+        wait_until(lambda: at_the_fit(viewer, camera) and framed(), 15.0)
         span = camera.span(points)[1]
         assert span > 0.6, f"the fleet's reach fills only {span:.0%} of the first view"
         first = np.asarray(camera.client.camera.position)
@@ -69,10 +70,66 @@ def test_the_first_view_and_fit_view_frame_every_pose_the_limits_allow_alike(
         reports = camera.reports
         browser.page.get_by_role("button", name="Fit view").click()
         try:
-            wait_until(lambda: camera.reports > reports and at_the_fit() and framed(), 15.0)
+            wait_until(
+                lambda: camera.reports > reports and at_the_fit(viewer, camera) and framed(), 15.0
+            )
         except AssertionError:
             raise AssertionError(
                 f"Fit view put the camera at {camera.client.camera.position}, the first view "
                 f"at {tuple(first)}"
             ) from None
         browser.save_page("30-fit-1400")
+
+
+def animation_frames(browser: Browser, count: int) -> None:
+    """Returns once the page has drawn ``count`` more animation frames (viser moves the camera
+    by held keys once per frame)."""
+    browser.page.evaluate(
+        """count => new Promise(done => {
+            const step = n => n <= 0 ? done() : requestAnimationFrame(() => step(n - 1));
+            step(count);
+        })""",
+        count,
+    )
+
+
+def azimuth_deg(camera: BrowserCamera) -> float:
+    """Where the browser's camera looks from, around the vertical."""
+    view = np.asarray(camera.client.camera.position) - np.asarray(camera.client.camera.look_at)
+    return float(np.degrees(np.arctan2(view[1], view[0])))
+
+
+def test_arrow_keys_on_a_focused_jog_slider_jog_and_leave_the_camera_alone(
+    fleet_harness: FleetHarness, browser: Browser
+) -> None:
+    """viser orbits the camera on arrow keys pressed anywhere but a text field; a focused jog
+    slider is a <div role=slider>, so jogging an arm from the keyboard also turned the view
+    (issue 26 item 6). The control: the same keys with the slider blurred still move the
+    camera, and its report arrives."""
+    fleet_harness.start_fleet()
+    with viewer_of(fleet_harness) as viewer:
+        open_page(browser, viewer.url)
+        camera = BrowserCamera(viewer)
+        wait_until(lambda: camera.client.client_id in viewer._framed, 15.0)
+        wait_until(lambda: at_the_fit(viewer, camera), 15.0)
+        start_azimuth, start_z = azimuth_deg(camera), float(camera.client.camera.position[2])
+        browser.page.get_by_text("Arm a1", exact=True).first.click()
+        slider = browser.page.get_by_role("slider").first  # jog j0
+        wait_until(lambda: slider.get_attribute("data-disabled") is None, 15.0)
+        before = slider.get_attribute("aria-valuenow")
+        slider.focus()
+        browser.page.keyboard.down("ArrowLeft")
+        wait_until(lambda: slider.get_attribute("aria-valuenow") != before, 10.0)
+        animation_frames(browser, 40)  # viser would turn the camera on each of them
+        browser.page.keyboard.up("ArrowLeft")
+        assert viewer.commander is not None
+        wait_until(lambda: viewer.commander.sent_to("a1"), 10.0)  # type: ignore[union-attr]
+
+        # The control: off the slider, a held key moves the camera (E: up; no turn).
+        browser.page.evaluate("document.activeElement && document.activeElement.blur()")
+        browser.page.keyboard.down("KeyE")
+        animation_frames(browser, 20)
+        browser.page.keyboard.up("KeyE")
+        wait_until(lambda: camera.client.camera.position[2] > start_z + 0.05, 10.0)
+        turned = azimuth_deg(camera) - start_azimuth
+        assert abs(turned) < 0.5, f"the jog's arrow key turned the camera {turned:.1f} deg"
