@@ -10,6 +10,7 @@ import numpy.typing as npt
 from fleet.d1.limits import JOINT_RANGE_DEG
 from tests.browser import Browser
 from tests.harness import FleetHarness, wait_until
+from tests.test_viewer_devices import fleet  # noqa: F401  (router, sim, agent: arm + devices)
 from tests.test_viewer_shift import BrowserCamera, open_page, viewer_of
 from viewer.app import Viewer
 from viewer.camera import FOV_RAD, fit_view, usable_right_edge
@@ -133,3 +134,56 @@ def test_arrow_keys_on_a_focused_jog_slider_jog_and_leave_the_camera_alone(
         wait_until(lambda: camera.client.camera.position[2] > start_z + 0.05, 10.0)
         turned = azimuth_deg(camera) - start_azimuth
         assert abs(turned) < 0.5, f"the jog's arrow key turned the camera {turned:.1f} deg"
+
+
+NARROW = {"width": 1024, "height": 768}
+"""The window where the fleet table hid its last columns (issue 26 item 8)."""
+
+GEOMETRY = """() => {
+    const box = e => { const r = e.getBoundingClientRect(); return [r.left, r.right, r.height]; };
+    const wrap = document.querySelector('#fleet-table').parentElement;
+    const fit = [...document.querySelectorAll('button')]
+        .find(b => b.innerText.includes('Fit view'));
+    const arm = document.querySelector('#fleet-table tr[data-arm] td');
+    const heads = document.querySelectorAll('#fleet-table th');
+    const idle = {wrap: box(wrap), scrolls: wrap.scrollWidth > wrap.clientWidth, arm: box(arm)};
+    wrap.style.maxWidth = '150px';  // a table wider than its panel (long owners, many columns)
+    wrap.scrollLeft = wrap.scrollWidth;  // as far right as it goes
+    const scrolled = {wrap: box(wrap), scrolls: wrap.scrollWidth > wrap.clientWidth,
+                      arm: box(arm), last: box(heads[heads.length - 1])};
+    wrap.scrollLeft = 0;
+    wrap.style.maxWidth = '';
+    const states = [...document.querySelectorAll('#device-table [data-field=state] td')];
+    const ids = [...document.querySelectorAll('#device-table [data-device] td')];
+    return {panel: box(fit), idle, scrolled, states: states.map(box),
+            line: ids.length ? box(ids[0]) : null};
+}"""
+
+
+def inside(cell: list[float], frame: list[float]) -> bool:
+    return cell[0] >= frame[0] - 1 and cell[1] <= frame[1] + 1
+
+
+def test_the_fleet_and_devices_tables_fit_the_panel_at_1024_px(
+    fleet: FleetHarness,  # noqa: F811
+    browser: Browser,
+) -> None:
+    """The fleet table was 626 px in a 364 px panel with no visible scrollbar (owner and age
+    out of view); the devices' state wrapped to 4-5 lines (issue 26 item 8, issue 25)."""
+    browser.page.set_viewport_size(NARROW)
+    with viewer_of(fleet) as viewer:
+        open_page(browser, viewer.url)
+        page = browser.page
+        wait_until(lambda: page.locator("#fleet-table tr[data-arm]").count() == 1, 20.0)
+        wait_until(lambda: "walk" in page.locator("#device-table").inner_text(), 30.0)
+        geometry = page.evaluate(GEOMETRY)
+        browser.save_page("31-tables-1024")
+        idle, scrolled = geometry["idle"], geometry["scrolled"]
+        assert inside(idle["wrap"], geometry["panel"]), geometry
+        assert inside(idle["arm"], idle["wrap"]), geometry
+        assert not idle["scrolls"], f"an idle fleet's table does not fit the panel: {geometry}"
+        # Wider than its frame, it scrolls inside it, and the arm id stays in view.
+        assert scrolled["scrolls"] and inside(scrolled["last"], scrolled["wrap"]), geometry
+        assert inside(scrolled["arm"], scrolled["wrap"]), f"the arm id scrolled away: {geometry}"
+        for state in geometry["states"]:
+            assert state[2] < 1.6 * geometry["line"][2], f"a device's state wraps: {geometry}"
