@@ -4,12 +4,15 @@ viewer items): the first view and "Fit view" frame every pose the joint limits a
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import numpy.typing as npt
 
 from fleet.d1.limits import JOINT_RANGE_DEG
+from fleet.record.reader import read_recording
 from tests.browser import Browser
-from tests.harness import FleetHarness, wait_until
+from tests.harness import FleetHarness, free_port, wait_until
 from tests.test_viewer_devices import fleet  # noqa: F401  (router, sim, agent: arm + devices)
 from tests.test_viewer_shift import BrowserCamera, open_page, viewer_of
 from viewer.app import Viewer
@@ -187,3 +190,26 @@ def test_the_fleet_and_devices_tables_fit_the_panel_at_1024_px(
         assert inside(scrolled["arm"], scrolled["wrap"]), f"the arm id scrolled away: {geometry}"
         for state in geometry["states"]:
             assert state[2] < 1.6 * geometry["line"][2], f"a device's state wraps: {geometry}"
+
+
+def test_the_replay_button_shows_the_icon_of_what_a_click_does(
+    tmp_path: Path, browser: Browser
+) -> None:
+    """The button read "Pause" under a play icon while a recording played (issue 26 item 11)."""
+    from tests.test_viewer_replay import write_recording
+    from viewer.replay import replay_source
+
+    path = tmp_path / "shift.mcap"
+    write_recording(path)
+    with Viewer(replay=replay_source(read_recording(path)), port=free_port()) as viewer:
+        browser.page.goto(viewer.url)
+        button = browser.page.get_by_role("button", name="Play")
+        button.click()
+        shown = """() => {
+            const b = [...document.querySelectorAll('button')]
+                .find(b => b.textContent.includes('Pause'));
+            const svg = b && b.querySelector('svg');
+            return svg ? svg.getAttribute('class') : (b ? 'no svg: ' + b.outerHTML : null);
+        }"""
+        icon = wait_until(lambda: browser.page.evaluate(shown), 30.0)  # while it plays (5 s)
+        assert "icon-tabler-player-pause" in icon, f"the Pause button shows {icon}"
