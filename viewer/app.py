@@ -19,6 +19,7 @@ import threading
 import time
 from collections.abc import Sequence
 
+import numpy as np
 import viser
 
 from fleet.devices import kind_of
@@ -46,6 +47,19 @@ DEFAULT_PORT = 8080
 DEFAULT_RATE_HZ = 20.0
 """Scene updates per second at most; feedback is 10 Hz, so this never falls behind it."""
 PANEL_RATE_HZ = 4.0
+
+
+def shows_initial_camera(server: viser.ViserServer, camera: viser.CameraHandle) -> bool:
+    """Whether ``camera``'s report shows the server's initial camera. viser 1.1.1's browser
+    reports its own default pose first ((3, 3, 3) looking at the origin) and applies the
+    initial camera later, in a React effect that also runs when the scene's up direction
+    arrives; a fit sent before that effect was undone by it, so the first view sometimes
+    kept the initial camera's assumed aspect and differed from "Fit view" (issue 26)."""
+    initial = server.initial_camera
+    return bool(
+        np.allclose(camera.position, initial.position, atol=1e-3)
+        and np.allclose(camera.look_at, initial.look_at, atol=1e-3)
+    )
 
 
 class Viewer:
@@ -166,11 +180,12 @@ class Viewer:
         self.panels.notify(title, body, is_error)
 
     def _on_connect(self, client: viser.ClientHandle) -> None:
-        """Frame the fleet for this browser once it has told its canvas size (its first camera
-        message): the initial camera assumed an aspect, this one knows it."""
+        """Frame the fleet for this browser once it has told its canvas size (a camera
+        message) and shows the initial camera: the initial camera assumed an aspect, this one
+        knows it."""
 
-        def first_camera(_camera: viser.CameraHandle) -> None:
-            if client.client_id in self._framed:
+        def first_camera(camera: viser.CameraHandle) -> None:
+            if client.client_id in self._framed or not shows_initial_camera(self.server, camera):
                 return
             self._framed.add(client.client_id)
             self.scene.fit(client)

@@ -1,4 +1,5 @@
 """Framing the fleet: where the camera goes so every arm fills the view (at start and on "Fit").
+What is framed is every arm's whole reach (viewer/reach.py), not the pose of the moment.
 
 A fixed viewing direction (from the front right, above: the view an operator expects), the
 target at the centre of the arms' bounding box, and the distance that puts the farthest point

@@ -51,6 +51,33 @@ READOUTS_PER_TICK = 12
 arm every tick; a 200-arm fleet refreshes each arm's readout about every 4 s."""
 
 
+CELL = "padding:0 3px;white-space:nowrap"
+"""A table cell: narrow padding (the fleet table fits the panel at 1024 px), never wrapped."""
+STICKY = "position:sticky;left:0;z-index:1;"
+"""The arm / device id column stays in view while the table scrolls sideways."""
+BODY = "var(--mantine-color-body)"
+"""The panel's own background (a sticky cell must hide what scrolls under it)."""
+SCROLLS = "max-width:100%;overflow-x:auto;scrollbar-width:thin"
+
+
+def _cells(texts: list[str], background: str) -> str:
+    """A row's ``<td>``s, the first (the id) sticky on ``background``."""
+    first = f"<td style='{STICKY}{CELL};background:{background}'>{html.escape(texts[0])}</td>"
+    return first + "".join(f"<td style='{CELL}'>{html.escape(t)}</td>" for t in texts[1:])
+
+
+def _head(names: tuple[str, ...], titles: tuple[str, ...] = ()) -> str:
+    """A header row's ``<th>``s (``titles``: tooltips), the first sticky."""
+    cells = []
+    for k, name in enumerate(names):
+        title = f" title='{titles[k]}'" if titles else ""
+        sticky = STICKY if k == 0 else ""
+        cells.append(
+            f"<th{title} style='{sticky}{CELL};text-align:left;background:{BODY}'>{name}</th>"
+        )
+    return "".join(cells)
+
+
 def _yes(value: bool | None, yes: str = "yes", no: str = "no") -> str:
     return "?" if value is None else (yes if value else no)
 
@@ -78,11 +105,9 @@ def fleet_row(
         age,
     ]
     # nowrap: "0.4 s" broke over two lines, and a STOPPED row pushed the age out of view
-    tds = "".join(
-        f"<td style='padding:0 6px;white-space:nowrap'>{html.escape(c)}</td>" for c in cells
-    )
     colour = "#f3d0d0" if (status is not None and status.estopped) else ""
     colour = "#dddddd" if not online else colour
+    tds = _cells(cells, colour or BODY)
     style = f" style='background:{colour}'" if colour else ""
     online_attr = "yes" if online else "no"
     return f"<tr data-arm='{html.escape(arm)}' data-online='{online_attr}'{style}>{tds}</tr>"
@@ -102,22 +127,22 @@ def devices_html(snapshot: Snapshot) -> str:
             view.mount or "-",
             link,
             "STOPPED" if stopped else "no",
-            view.summary,
             age_text(view.age_s),
         ]
-        tds = "".join(
-            f"<td style='padding:0 6px{'' if k == 5 else ';white-space:nowrap'}'>"
-            f"{html.escape(c)}</td>"
-            for k, c in enumerate(cells)  # only the kind's summary (5) may wrap
-        )
+        summary = view.summary
+        tds = _cells(cells, "#f3d0d0" if stopped else BODY)
+        # The kind's summary on a line of its own under the row: squeezed into a column
+        # beside six others it wrapped to 4-5 lines.
+        line = f"<td colspan='{len(cells)}' style='padding:0 3px 2px 12px'>"
+        line += f"{html.escape(summary)}</td>"
         style = " style='background:#f3d0d0'" if stopped else ""
-        rows.append(f"<tr data-device='{html.escape(view.device)}'{style}>{tds}</tr>")
-    head = "".join(
-        f"<th style='padding:0 6px;text-align:left'>{h}</th>"
-        for h in ("device", "kind", "on", "link", "stop", "state", "age")
-    )
+        rows.append(
+            f"<tbody data-device='{html.escape(view.device)}'{style}><tr>{tds}</tr>"
+            f"<tr data-field='state'>{line}</tr></tbody>"
+        )
+    head = _head(("device", "kind", "on", "link", "stop", "age"))
     return (
-        "<div style='overflow-x:auto'><table id='device-table' style='font-size:0.8em'>"
+        f"<div style='{SCROLLS}'><table id='device-table' style='font-size:0.8em'>"
         f"<tr>{head}</tr>{''.join(rows)}</table></div>"
     )
 
@@ -125,21 +150,20 @@ def devices_html(snapshot: Snapshot) -> str:
 class FleetTable:
     """The fleet panel's HTML table; rows are rebuilt only when their inputs changed."""
 
-    HEAD = "".join(
-        f"<th style='padding:0 6px;text-align:left'>{h}</th>"
-        for h in (
-            "arm",
-            "agent",
-            "link",
-            "enabled",
-            "powered",
-            "error",
-            "stop",
-            "contact",
-            "owner",
-            "age",
-        )
+    COLUMNS = (
+        ("arm", "arm"),
+        ("agent", "agent"),
+        ("link", "link"),
+        ("en", "enabled"),
+        ("pwr", "powered"),
+        ("err", "error"),
+        ("stop", "stop"),
+        ("contact", "contact"),
+        ("owner", "owner"),
+        ("age", "age"),
     )
+    """(header, its meaning as a tooltip): short headers, so the table fits the panel."""
+    HEAD = _head(tuple(h for h, _ in COLUMNS), tuple(title for _, title in COLUMNS))
 
     def __init__(self) -> None:
         self._rows: dict[str, tuple[object, str]] = {}
@@ -168,7 +192,7 @@ class FleetTable:
         head = f"<tr>{self.HEAD}</tr>"
         table = f"<table id='fleet-table' style='font-size:0.8em'>{head}{body}</table>"
         why = f"<div id='stop-reasons' style='font-size:0.8em'>{''.join(reasons)}</div>"
-        return f"<div style='overflow-x:auto'>{table}</div>{why}"  # scrolls rather than clips
+        return f"<div style='{SCROLLS}'>{table}</div>{why}"  # scrolls rather than clips
 
 
 class FleetPanels:

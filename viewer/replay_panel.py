@@ -76,7 +76,9 @@ class ReplayControls:
         if shown == self._shown:
             return
         self._shown = shown
+        # The icon says what a click does, as the label does (it kept the play icon).
         self.play.label = "Pause" if timeline.playing else "Play"
+        self.play.icon = viser.Icon.PLAYER_PAUSE if timeline.playing else viser.Icon.PLAYER_PLAY
         self.slider.value = min(max(shown[1], self.slider.min), self.slider.max)
         wall = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(timeline.position_wall_ns / 1e9))
         self.where.content = (

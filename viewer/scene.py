@@ -35,6 +35,7 @@ from viewer.camera import (
     usable_right_edge,
 )
 from viewer.meshes import LinkMesh
+from viewer.reach import reach_points
 from viewer.state import STALE_S, Snapshot
 
 DEADBAND_DEG = 0.05
@@ -162,6 +163,7 @@ class FleetScene:
         scene.add_frame("/world", axes_length=0.15, axes_radius=0.006)
         wxyz, pos = self._poses(np.zeros((n, 7)))
         self._corners = np.stack([_box_corners(mesh.vertices) for mesh in meshes])  # (K, 8, 3)
+        self.reach = self._reach_points(configs)
         self._set_initial_camera()
         self._links = [
             scene.add_batched_meshes_simple(
@@ -193,19 +195,40 @@ class FleetScene:
             for i, arm in enumerate(self.arms)
         ]
 
+    def _reach_points(self, configs: Sequence[Placement]) -> npt.NDArray[np.float64]:
+        """(M, 3) world points around every arm's reach (viewer/reach.py): arms that share a
+        joint sign and gripper reading share one hull, turned to each base."""
+        hulls: dict[tuple[tuple[float, ...], tuple[float, float]], npt.NDArray[np.float64]] = {}
+        out = []
+        for i in range(len(self.arms)):
+            key = (tuple(self.joint_sign[i]), (self.gripper_deg[i, 0], self.gripper_deg[i, 1]))
+            if key not in hulls:
+                hulls[key] = reach_points(
+                    self.model, self._link_index, self._corners, key[0], key[1]
+                )
+            hull = hulls[key]
+            out.append(hull @ self.base[i, :3, :3].T + self.base[i, :3, 3])
+        return np.vstack(out) if out else np.zeros((0, 3))
+
+    def view_points(self) -> npt.NDArray[np.float64]:
+        """(M, 3) points the camera frames (at start and on "Fit view"): every arm's whole reach
+        and its label at its highest, so an arm at any pose its joint limits allow stays in
+        view; the same whatever pose the arms are in now."""
+        labels = self.base[:, :3, 3] + [0.0, 0.0, LABEL_HEIGHT_M + 0.03]
+        return np.vstack([self.reach, labels])
+
     def _set_initial_camera(self) -> None:
         """Where a new browser's camera starts (and viser's "reset view" returns to)."""
         camera = self.server.initial_camera
         camera.fov = FOV_RAD
-        points = self.frame_points(self._drawn_deg)
         right = usable_right_edge(DEFAULT_WIDTH_PX)
-        position, target = fit_view(points, FOV_RAD, DEFAULT_ASPECT, right)
+        position, target = fit_view(self.view_points(), FOV_RAD, DEFAULT_ASPECT, right)
         camera.position = tuple(position)
         camera.look_at = tuple(target)
 
     def frame_points(self, angles_deg: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-        """(M, 3) points the camera must see: the corners of every link's bounding box, each
-        arm at ``angles_deg`` (N, 7), and every arm's label."""
+        """(M, 3) the corners of every link's bounding box, each arm at ``angles_deg`` (N, 7),
+        and every arm's label."""
         q = wire_to_q(angles_deg, self.joint_sign, self.gripper_deg)
         world = self.base[:, None] @ forward(self.model, q)[:, self._link_index]  # (N, K, 4, 4)
         corners = np.einsum("nkij,kcj->nkci", world[..., :3, :3], self._corners)
@@ -219,13 +242,12 @@ class FleetScene:
         self._set_initial_camera()
 
     def fit(self, client: viser.ClientHandle) -> None:
-        """Frame every arm, in its drawn pose, in ``client``'s view (its canvas' aspect, the
-        part the control panel leaves free)."""
+        """Frame every arm's whole reach (``view_points``) in ``client``'s view (its canvas'
+        aspect, the part the control panel leaves free): the first view and "Fit view" alike."""
         camera = client.camera
         camera.fov = FOV_RAD
-        points = self.frame_points(self._drawn_deg.copy())
         right = usable_right_edge(camera.image_width)
-        position, target = fit_view(points, FOV_RAD, camera.aspect, right)
+        position, target = fit_view(self.view_points(), FOV_RAD, camera.aspect, right)
         camera.up_direction = (0.0, 0.0, 1.0)
         # position first: viser moves look_at with it; then look_at turns the camera in place
         camera.position = tuple(position)

@@ -15,6 +15,17 @@ other way, the wrapper is never called and ``start_server`` refuses to run the v
 (``AccessNotInstalled``): it fails closed, never open. tests/e2e/test_viewer_access.py checks the
 version and the behaviour, so an upgrade of viser fails the suite loudly.
 
+**Keys on a focused slider.** viser 1.1.1's client moves the camera with the arrow keys (and
+W/A/S/D/Q/E) from a ``keydown`` listener on ``document`` that skips only INPUT, TEXTAREA,
+SELECT and contentEditable targets (``CameraControls.tsx``, ``utils/isFormElement.ts``).
+Mantine's slider thumb is a ``<div role="slider">``, so an arrow key that jogged an arm also
+orbited the camera and the arm left the view. viser has no setting for this (no
+Python option turns the keyboard camera off, and its camera lock is for gizmo drags) and runs no
+script of ours, so the page it serves gets one small script (``PAGE_SCRIPT``): a ``keydown``
+listener on ``<html>``, which the event reaches after the slider's own (React's, on the root
+element) and before viser's on ``document``, stops the slider's keys there. Nothing in viser is
+changed; the page is rewritten on its way out, like the guard's headers.
+
 **Share tunnel.** viser's share button asks the server (``ShareUrlRequest``) to open a public
 tunnel to share.viser.studio: anyone who can reach that URL could then use the viewer. The button
 is hidden (``configure_theme(show_share_button=False)`` in panels.py) and, since any connected
@@ -24,6 +35,7 @@ the viewer process opens no outbound connection.
 
 from __future__ import annotations
 
+import gzip
 import logging
 import threading
 from collections.abc import Iterator
@@ -33,8 +45,10 @@ from typing import Any
 import rich
 import viser
 import websockets.asyncio.server
+from websockets.asyncio.server import ServerConnection
+from websockets.http11 import Request, Response
 
-from fleet.web.access import AccessGuard
+from fleet.web.access import AccessGuard, ProcessRequest
 from fleet.web.refusals import Refusals
 
 log = logging.getLogger("viewer.server")
@@ -82,6 +96,58 @@ class ViewerServer(viser.ViserServer):
         """Nothing to disconnect: no tunnel is ever opened."""
 
 
+SLIDER_KEYS = (
+    "ArrowLeft",
+    "ArrowRight",
+    "ArrowUp",
+    "ArrowDown",
+    "Home",
+    "End",
+    "PageUp",
+    "PageDown",
+)
+"""The keys Mantine's slider uses (viser's camera moves on the four arrows)."""
+
+PAGE_SCRIPT = (
+    "<script>/* d1-fleet: a key on a focused slider moves the slider only, never the camera"
+    " (viewer/server.py) */"
+    'document.documentElement.addEventListener("keydown",function(e){'
+    "var t=e.target;"
+    "if(t instanceof Element&&t.closest('[role=\"slider\"]')&&"
+    f"{list(SLIDER_KEYS)!r}.indexOf(e.key)>=0)e.stopPropagation();}});</script>"
+).encode()
+
+
+def with_page_script(inner: ProcessRequest | None) -> ProcessRequest:
+    """viser's ``process_request`` with ``PAGE_SCRIPT`` put into the HTML page it serves
+    (gzipped or not; each rewritten page computed once)."""
+    pages: dict[tuple[bytes, str], bytes] = {}  # viser's cached page (hash kept) -> ours
+
+    def process_request(connection: ServerConnection, request: Request) -> Response | None:
+        response = inner(connection, request) if inner is not None else None
+        if response is None or response.status_code != 200:
+            return response
+        if not response.headers.get("Content-Type", "").startswith("text/html"):
+            return response
+        encoding = response.headers.get("Content-Encoding", "identity")
+        key = (bytes(response.body), encoding)
+        if key not in pages:
+            page = gzip.decompress(key[0]) if encoding == "gzip" else key[0]
+            at = page.rfind(b"</head>")  # the page's own, after viser's inline bundle
+            if at < 0:
+                log.warning("viser's page has no </head>: arrow keys on a slider move the camera")
+            else:
+                page = page[:at] + PAGE_SCRIPT + page[at:]
+            pages[key] = gzip.compress(page) if encoding == "gzip" else page
+        body = pages[key]
+        del response.headers["Content-Length"]
+        response.headers["Content-Length"] = str(len(body))
+        response.body = body
+        return response
+
+    return process_request
+
+
 @contextmanager
 def _guarded_serve(guard: AccessGuard) -> Iterator[None]:
     """While inside, every ``websockets.asyncio.server.serve`` call gets ``guard`` in front of
@@ -90,7 +156,8 @@ def _guarded_serve(guard: AccessGuard) -> Iterator[None]:
         original = websockets.asyncio.server.serve
 
         def serve(*args: Any, **kwargs: Any) -> websockets.asyncio.server.serve:
-            kwargs["process_request"] = guard.process_request(kwargs.get("process_request"))
+            inner = with_page_script(kwargs.get("process_request"))
+            kwargs["process_request"] = guard.process_request(inner)
             guard.installed += 1
             return original(*args, **kwargs)
 

@@ -45,7 +45,7 @@ from fleet.guard import ThreadGuard
 from fleet.web.access import AccessPolicy, request_view
 from fleet.web.refusals import Refusals
 
-log = logging.getLogger("viewer.foxglove")
+log = logging.getLogger("fleet.foxglove")
 
 SUBPROTOCOLS = ("foxglove.sdk.v1", "foxglove.websocket.v1")
 FOXGLOVE_APP_ORIGIN = "https://app.foxglove.dev"

@@ -105,8 +105,8 @@ class BrowserCamera:
 
 
 def arm_points(viewer: Viewer) -> npt.NDArray[np.float64]:
-    """The corners of every link's box, every arm as drawn, in the world."""
-    return viewer.scene.frame_points(viewer.scene._drawn_deg.copy())
+    """The points the viewer frames: every arm's whole reach (and its label), in the world."""
+    return viewer.scene.view_points()
 
 
 # ---------------------------------------------------------------------- fit, share
@@ -392,7 +392,7 @@ def test_the_viewer_shows_a_mounted_gripper_opening_and_the_g1s_fsm(
             page = browser.page
 
             def row(device: str) -> str:
-                found = page.locator(f"#device-table tr[data-device='{device}']")
+                found = page.locator(f"#device-table [data-device='{device}']")
                 return found.inner_text() if found.count() else ""
 
             wait_until(lambda: "walk" in row("h1"), 30.0)  # fsm 500, named from seed 004

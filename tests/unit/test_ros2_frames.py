@@ -1,5 +1,5 @@
 """``fleet ros2``'s plain-Python TF frames (fleet/ros2/frames.py) against the viewer's numpy
-kinematics (viewer/kinematics.py, the definition): every link's world pose composed from our
+kinematics (fleet/scene3d/kinematics.py, the definition): every link's world pose composed from our
 static and moving transforms is the viewer's, at random poses, signs and gripper ranges."""
 
 from __future__ import annotations

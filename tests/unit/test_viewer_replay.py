@@ -9,62 +9,23 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fleet.inventory import load_inventory
 from fleet.record.errors import RecordError
 from fleet.record.layout import (
-    LAYOUT_METADATA,
     layout_from_keys,
     layout_from_metadata,
-    layout_metadata,
-    layout_of,
 )
 from fleet.record.reader import read_recording
-from fleet.record.writer import RecordingWriter
 from fleet.wire import keys
 from fleet.wire import messages as m
 from fleet.wire.messages import encode
+from testkit.recordings import write_recording
 from viewer.camera import UP, camera_axes, fit_view, usable_right_edge
 from viewer.confirm import FLEET, Confirmations
 from viewer.events import MAX_EVENTS, EventLog
 from viewer.replay import ReplayTimeline, replay_source
 from viewer.state import ViewerFleet
 
-INVENTORY = Path(__file__).resolve().parents[2] / "inventory.toml"
 SPACE = keys.KeySpace("lab")
-
-
-def write_recording(path: Path, layout: bool = True) -> None:
-    """a1's joint 0 going 0 -> 50 deg over 5 s at 10 Hz, its status at 4 Hz, a stop latched at
-    3 s (with the request), and a contact at 4 s."""
-    metadata = {LAYOUT_METADATA: layout_metadata(layout_of(load_inventory(INVENTORY)))}
-    writer = RecordingWriter(path, metadata if layout else None)
-    t0 = 1_700_000_000_000_000_000
-    seq = 0
-
-    def add(key: str, channel: str, payload: object, at_s: float) -> None:
-        nonlocal seq
-        seq += 1
-        writer.add(key, channel, encode(payload), t0 + int(at_s * 1e9), seq)
-
-    for k in range(51):
-        at = k * 0.1
-        angles = [k * 1.0, 0, 0, 0, 0, 0, 0]
-        add(SPACE.arm("a1", keys.JOINTS), keys.JOINTS, m.Joints(t0, angles, k + 1), at)
-        if k % 2 == 0:
-            stopped = at >= 3.0
-            status = m.ArmStatus(
-                stamp_ns=t0, link="ok", estopped=stopped, stop_reason="snag" if stopped else None
-            )
-            add(SPACE.arm("a1", keys.STATUS), keys.STATUS, status, at)
-    stop = m.StopRequest(stamp_ns=t0, source="ann", stop_id="s1", reason="snag")
-    for repeat in range(5):  # repeated until acknowledged: one event
-        add(SPACE.estop, keys.ESTOP, stop, 2.95 + repeat * 0.01)
-    contact = m.ContactEvent(
-        stamp_ns=t0, joint=2, state="confirmed", method="stall", error_deg=6.0, confidence=0.9
-    )
-    add(SPACE.arm("a1", keys.CONTACT), keys.CONTACT, contact, 4.0)
-    add(SPACE.arm("a1", keys.RAW_COMMAND), keys.RAW_COMMAND, {"seq": 1}, 4.1)  # not shown
-    writer.finish()
 
 
 def test_the_timeline_scrubs_both_ways_plays_at_speed_and_stops_at_the_end(tmp_path: Path) -> None:
