@@ -34,15 +34,15 @@ FOLDERS = ("unit", "e2e", "browser", "netlab")
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Each test marked by its folder. Every browser test on one xdist worker: two
-    software-rendered Chromiums at once on this 2-core machine made a page take over 30 s to
-    answer a click."""
+    """Each test marked by its folder. Every browser test (its folder, or the fixture) on one
+    xdist worker: two software-rendered Chromiums at once on this 2-core machine made a page take
+    over 30 s to answer a click."""
     for item in items:
         parts = item.nodeid.split("::")[0].split("/")
         folder = parts[1] if len(parts) > 2 and parts[0] == "tests" else None
         if folder in FOLDERS:
             item.add_marker(getattr(pytest.mark, folder))
-        if "browser" in getattr(item, "fixturenames", ()):
+        if folder == "browser" or "browser" in getattr(item, "fixturenames", ()):
             item.add_marker(pytest.mark.xdist_group("browser"))
 
 
