@@ -11,7 +11,8 @@ Publisher QoS, and why:
 - ``status`` and ``diag``: DROP, DATA_HIGH: both repeat (4 Hz, 1 Hz), so a lost sample is
   replaced within 0.25 s; BLOCK let one subscriber that stopped reading (a frozen viewer) stall
   the router for every other session (measured on the test bed: 5-10 s without joints).
-- ``estop/ack``: BLOCK, REAL_TIME: a stop's acknowledgment must arrive, and first.
+- ``estop/ack``: BLOCK, REAL_TIME: a stop's acknowledgment must arrive, and first; and a
+  best-effort express copy on the datagram path (``fleet/wire/stoppath.py``, issue 24).
 - command replies go back on the query itself.
 Callbacks run under the agent's guard: they only decode and hand off to the bounded inboxes
 (``inbox.py``); they never block. The per-arm stop, reset and matching callbacks run directly on
@@ -36,6 +37,7 @@ from fleet.guard import ThreadGuard
 from fleet.inventory import Inventory
 from fleet.security.session import open_session
 from fleet.wire import keys
+from fleet.wire.stoppath import TwoPathPublisher
 
 JSON = zenoh.Encoding.APPLICATION_JSON
 
@@ -54,10 +56,10 @@ class ArmPublishers:
     diag: zenoh.Publisher
     raw_feedback: zenoh.Publisher
     raw_command: zenoh.Publisher
-    stop_ack: zenoh.Publisher
+    stop_ack: TwoPathPublisher
     raw_feedback_matched: bool = False
 
-    def all(self) -> tuple[zenoh.Publisher, ...]:
+    def all(self) -> tuple[zenoh.Publisher | TwoPathPublisher, ...]:
         """Every publisher (for undeclaring)."""
         return (
             self.joints,
@@ -142,7 +144,7 @@ class ZenohRelay:
             self._queryables.append(
                 self.session.declare_queryable(self.keys.commands(arm), on_query(arm))
             )
-        self.device_publishers: dict[str, dict[str, zenoh.Publisher]] = {}
+        self.device_publishers: dict[str, dict[str, zenoh.Publisher | TwoPathPublisher]] = {}
         for device, kind in devices.items():
             self.device_publishers[device] = self._declare_device_publishers(kind, device)
             commands_key = f"{self.keys.device(kind, device, keys.CMD)}/*"
@@ -153,10 +155,12 @@ class ZenohRelay:
         for token in tokens:
             self._tokens.append(self.session.liveliness().declare_token(token))
 
-    def _declare_device_publishers(self, kind: str, device: str) -> dict[str, zenoh.Publisher]:
-        """state and diag: DROP (they repeat); contact and estop/ack: BLOCK (events)."""
+    def _declare_device_publishers(
+        self, kind: str, device: str
+    ) -> dict[str, zenoh.Publisher | TwoPathPublisher]:
+        """state and diag: DROP (they repeat); contact: BLOCK (events); estop/ack: both paths."""
         drop, block = zenoh.CongestionControl.DROP, zenoh.CongestionControl.BLOCK
-        return {
+        publishers: dict[str, zenoh.Publisher | TwoPathPublisher] = {
             channel: self.session.declare_publisher(
                 self.keys.device(kind, device, channel),
                 encoding=JSON,
@@ -166,12 +170,14 @@ class ZenohRelay:
             for channel, congestion, priority in (
                 (keys.STATE, drop, zenoh.Priority.DATA_HIGH),
                 (keys.CONTACT, block, zenoh.Priority.DATA_HIGH),
-                (keys.ESTOP_ACK, block, zenoh.Priority.REAL_TIME),
                 (keys.DIAG, drop, zenoh.Priority.DATA),
             )
         }
+        ack_key = self.keys.device(kind, device, keys.ESTOP_ACK)
+        publishers[keys.ESTOP_ACK] = TwoPathPublisher(self.session, ack_key)
+        return publishers
 
-    def stop_ack(self, unit: str) -> zenoh.Publisher:
+    def stop_ack(self, unit: str) -> zenoh.Publisher | TwoPathPublisher:
         """The ``estop/ack`` publisher of arm or device ``unit``."""
         pubs = self.publishers.get(unit)
         return pubs.stop_ack if pubs is not None else self.device_publishers[unit][keys.ESTOP_ACK]
@@ -204,7 +210,7 @@ class ZenohRelay:
             diag=pub(keys.DIAG, drop, data),
             raw_feedback=pub(keys.RAW_FEEDBACK, drop, data),
             raw_command=pub(keys.RAW_COMMAND, block, data),
-            stop_ack=pub(keys.ESTOP_ACK, block, zenoh.Priority.REAL_TIME),
+            stop_ack=TwoPathPublisher(self.session, self.keys.arm(arm, keys.ESTOP_ACK)),
         )
 
     @staticmethod

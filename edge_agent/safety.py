@@ -45,6 +45,9 @@ class ActiveStop:
     last_sent_s: float = 0.0
     detail: str | None = None
     """Why the stop's command was not written (a hold with no fresh pose), for its ack."""
+    stamp_ns: int | None = None
+    """When its sender put it (its ``stamp_ns``; None for the agent's own stops): a reset put
+    before it does not release it (``reset``)."""
 
     @property
     def done(self) -> bool:
@@ -109,8 +112,10 @@ class ArmSafety:
         now_s: float,
         now_ns: int,
         action: str = "hold",
+        stamp_ns: int | None = None,
     ) -> bool:
-        """Latch a stop; False if this stop is already latched or was reset (a repeat)."""
+        """Latch a stop; False if this stop is already latched or was reset (a repeat).
+        ``stamp_ns``: when its sender put it."""
         if (
             stop_id in self.reset_stop_ids
             or stop_id in self.superseded_ids  # a repeat of a stop acted on while latched
@@ -122,7 +127,7 @@ class ArmSafety:
         else:
             self.superseded_ids.append(self.stop.stop_id)  # reset releases it too
             del self.superseded_ids[:-SUPERSEDED_IDS_KEPT]
-        self.stop = ActiveStop(stop_id, source, reason, now_ns, now_s, action)
+        self.stop = ActiveStop(stop_id, source, reason, now_ns, now_s, action, stamp_ns=stamp_ns)
         self.last_reason = (f"stopped by {source}" + (f": {reason}" if reason else ""))[:1000]
         self.watched_by = None
         self.lease = None  # a stop ends every ownership: whoever resets decides who goes next
@@ -181,8 +186,22 @@ class ArmSafety:
         stop.confirmed_ns = now_ns
         return True
 
-    def reset(self) -> ActiveStop | None:
-        """Release the latch (operator action); returns the stop that was released."""
+    def reset(self, stamp_ns: int | None = None) -> ActiveStop | None:
+        """Release the latch (operator action); returns the stop that was released.
+
+        A reset stamped (``stamp_ns``, its sender's clock) before the latched stop was put
+        releases nothing: a stop's datagram copy can overtake a reset still on its way over
+        TCP, and that reset must not release the newer stop (nor, by remembering its id, make
+        the stop's own reliable copy a "repeat"). Hosts keep NTP time (as for command
+        lifetimes); a stop host's clock running ahead fails safe: the reset has to be sent
+        again."""
+        if (
+            stamp_ns is not None
+            and self.stop is not None
+            and self.stop.stamp_ns is not None
+            and self.stop.stamp_ns > stamp_ns
+        ):
+            return None
         stop, self.stop = self.stop, None
         if stop is not None:
             for stop_id in (*self.superseded_ids, stop.stop_id):

@@ -125,7 +125,7 @@ class SafetyLoop:
 
     def _on_reset(self, event: ResetEvent) -> None:
         for arm in self._targets(event.arm):
-            self.reset(arm, event.request.source)
+            self.reset(arm, event.request.source, event.request.stamp_ns)
 
     def _on_heartbeat(self, source: str, beat: m.Heartbeat, arrived_s: float) -> None:
         with self._lock:
@@ -168,7 +168,13 @@ class SafetyLoop:
                     continue
                 action = slot.stop_action
                 if not safety.latch(
-                    request.stop_id, request.source, request.reason, now, now_ns, action
+                    request.stop_id,
+                    request.source,
+                    request.reason,
+                    now,
+                    now_ns,
+                    action,
+                    request.stamp_ns,
                 ):
                     continue
                 if isinstance(slot, ArmSlot):
@@ -278,12 +284,13 @@ class SafetyLoop:
             detail=stop.detail,
         )
 
-    def reset(self, arm: str, source: str) -> None:
-        """Release the latch; the fresh measured pose becomes the target, so nothing moves."""
+    def reset(self, arm: str, source: str, stamp_ns: int | None = None) -> None:
+        """Release the latch (unless the stop was put after the reset, ``stamp_ns``: see
+        ``ArmSafety.reset``); the fresh measured pose becomes the target, so nothing moves."""
         now, now_ns = time.monotonic(), time.time_ns()
         with self._lock:
             slot = self._slots[arm]
-            released = slot.safety.reset()
+            released = slot.safety.reset(stamp_ns)
             if released is None:
                 return
             slot.safety.last_reason = f"reset by {source[:128]}"

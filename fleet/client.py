@@ -21,7 +21,7 @@ from fleet.devices.base import DeviceReply
 from fleet.devices.driver import error_reply
 from fleet.inventory import Inventory
 from fleet.security.session import open_session
-from fleet.wire import keys, payloads
+from fleet.wire import keys, payloads, stoppath
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, ErrorInfo, encode
 
@@ -55,11 +55,9 @@ def _no_reply(arm: str, why: str) -> m.CommandReply:
     )
 
 
-STOP_QOS: dict[str, object] = {
-    "congestion_control": zenoh.CongestionControl.BLOCK,
-    "priority": zenoh.Priority.REAL_TIME,
-}
-"""Stops and resets: never dropped under congestion, and sent ahead of everything else."""
+STOP_QOS = stoppath.RELIABLE_QOS
+"""Stops and resets: never dropped under congestion, and sent ahead of everything else (a
+stop also goes the datagram path: ``fleet/wire/stoppath.py``)."""
 
 
 def default_source() -> str:
@@ -86,6 +84,8 @@ class FleetClient:
         self.principal = inventory.principal
         self._stamp_lock = threading.Lock()
         self._last_stamp_ns = 0
+        self._stop_pubs: dict[str, stoppath.TwoPathPublisher] = {}  # guarded by _stop_lock
+        self._stop_lock = threading.Lock()
         if session is None:
             session = open_session(inventory, connect_timeout_s=connect_timeout_s)
         self.session = session
@@ -204,8 +204,10 @@ class FleetClient:
 
         The stop is re-put every 100 ms with the same ``stop_id`` until every targeted arm
         acknowledged it (Zenoh's reliability is hop by hop, not end to end); agents ignore the
-        repeats. With ``wait_still`` it also waits for each arm to be seen still. Returns the
-        last ack per arm (None: no ack within ``timeout_s``: is that arm's agent running?).
+        repeats. Each put goes both paths (``fleet/wire/stoppath.py``), and for the first 50 ms
+        the datagram path repeats it every 10 ms. With ``wait_still`` it also waits for each
+        arm to be seen still. Returns the last ack per arm (None: no ack within ``timeout_s``:
+        is that arm's agent running?).
         ``request``: a stop already put once (its repeats and acks are handled here).
         """
         if arm is not None and arm in self.inventory.devices:
@@ -253,16 +255,23 @@ class FleetClient:
         for kind in sorted({label.partition("/")[0] for label in devices}):
             ack_key = self.keys.device(kind, "*", keys.ESTOP_ACK)
             subscribers.append(self.session.declare_subscriber(ack_key, on_device_ack))
-        deadline = time.monotonic() + timeout_s
+        started = time.monotonic()
+        deadline = started + timeout_s
+        next_put = started
         try:
             while True:
                 with lock:
                     unacked = any(a is None for a in acks.values())
-                if unacked:
+                now = time.monotonic()
+                if unacked and now >= next_put:
                     self.put_stop(request, arm)
-                if complete() or time.monotonic() >= deadline:
+                    next_put = now + 0.1
+                elif unacked and now - started <= stoppath.BURST_S:
+                    self.put_stop(request, arm, datagram_only=True)
+                if complete() or now >= deadline:
                     break
-                time.sleep(0.1)
+                burst = now - started < stoppath.BURST_S
+                time.sleep(stoppath.BURST_INTERVAL_S if burst else 0.1)
         finally:
             for subscriber in subscribers:
                 subscriber.undeclare()
@@ -325,10 +334,21 @@ class FleetClient:
             return self.keys.device(kind, unit, channel)
         return self.keys.arm(self.inventory.arm(unit).id, channel)
 
-    def put_stop(self, request: m.StopRequest, arm: str | None = None) -> None:
-        """Put ``request`` once on the fleet's (or one arm's or device's) stop key."""
+    def put_stop(
+        self, request: m.StopRequest, arm: str | None = None, datagram_only: bool = False
+    ) -> None:
+        """Put ``request`` once on the fleet's (or one arm's or device's) stop key, on both
+        paths (or only the datagram path: a fast repeat)."""
         key = self.keys.estop if arm is None else self.unit_key(arm, keys.ESTOP)
-        self.session.put(key, encode(request), encoding=JSON, **STOP_QOS)
+        with self._stop_lock:
+            publisher = self._stop_pubs.get(key)
+            if publisher is None:
+                publisher = self._stop_pubs[key] = stoppath.TwoPathPublisher(self.session, key)
+        data = encode(request)
+        if datagram_only:
+            publisher.put_datagram(data)
+        else:
+            publisher.put(data)
 
     def reset(self, arm: str | None = None, source: str | None = None) -> None:
         """Release the stop latch of one arm or device (or of every one; an arm's reset
@@ -402,6 +422,11 @@ class FleetClient:
 
     def close(self) -> None:
         """Close the session if this client opened it (idempotent)."""
+        with self._stop_lock:
+            publishers, self._stop_pubs = list(self._stop_pubs.values()), {}
+        if not self.session.is_closed():
+            for publisher in publishers:
+                publisher.undeclare()
         if self._own_session and not self.session.is_closed():
             self.session.close()
 

@@ -15,10 +15,10 @@ from collections.abc import Callable
 
 import zenoh
 
-from fleet.client import JSON, STOP_QOS
 from fleet.wire import keys
 from fleet.wire import messages as m
 from fleet.wire.messages import encode
+from fleet.wire.stoppath import TwoPathPublisher
 
 log = logging.getLogger("fleet.heartbeat")
 
@@ -32,7 +32,7 @@ def _no_stops() -> dict[str, m.StopRequest]:
 
 def beat_until(
     stopping: threading.Event,
-    publisher: zenoh.Publisher,
+    publisher: zenoh.Publisher | TwoPathPublisher,
     sender: str,
     period_s: float,
     stops: Callable[[], dict[str, m.StopRequest]] = _no_stops,
@@ -63,7 +63,7 @@ class Liveness:
     ) -> None:
         self.owner = owner
         key = space.heartbeat_of(principal)  # the router lets only `principal` publish it
-        self._pub = session.declare_publisher(key, encoding=JSON, **STOP_QOS)
+        self._pub = TwoPathPublisher(session, key)  # both paths: see fleet/wire/stoppath.py
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="liveness", daemon=True)
         self._thread.start()

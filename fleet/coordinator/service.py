@@ -21,7 +21,7 @@ from concurrent.futures import ThreadPoolExecutor
 import msgspec
 import zenoh
 
-from fleet.client import STOP_QOS, FleetClient, start_at_ns
+from fleet.client import FleetClient, start_at_ns
 from fleet.coordinator.contact_actions import perform
 from fleet.coordinator.contact_policy import Action, ContactPolicy
 from fleet.coordinator.desk import RequestDesk, error_reply
@@ -37,6 +37,7 @@ from fleet.security.session import open_session
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, encode
+from fleet.wire.stoppath import TwoPathPublisher
 
 log = logging.getLogger("fleet.coordinator")
 JSON = zenoh.Encoding.APPLICATION_JSON
@@ -80,8 +81,10 @@ class Coordinator:
         self.client = FleetClient(inventory, self.session)
         self._declared: list[zenoh.Subscriber[None] | zenoh.Queryable[None]] = []
         self._declare()
-        self._heartbeat_pub = self.session.declare_publisher(
-            self.keys.heartbeat_of(inventory.principal), encoding=JSON, **STOP_QOS
+        # Both paths (issue 24): a beat held up by a TCP retransmission (>= 200 ms, doubling)
+        # tripped agents' 0.5 s watchdogs under loss; its datagram copy is not held up.
+        self._heartbeat_pub = TwoPathPublisher(
+            self.session, self.keys.heartbeat_of(inventory.principal)
         )
         self._state_pub = self.session.declare_publisher(self.keys.state, encoding=JSON)
         self._report_pub = self.session.declare_publisher(self.keys.stop_report, encoding=JSON)

@@ -75,6 +75,7 @@ def open_session(inventory: Inventory, connect_timeout_s: float = 10.0) -> zenoh
             inventory.endpoints,
             connect_timeout_s=connect_timeout_s,
             credentials=credentials(inventory, inventory.principal),
+            datagram=inventory.datagram,
         )
     except RouterUnreachable as exc:
         if inventory.security.enabled:
@@ -95,6 +96,7 @@ def router_config(
         listen=listen,
         connect=connect or [],
         credentials=credentials(inventory, ROUTER_PRINCIPAL, router=True),
+        datagram=inventory.datagram,
     )
     if inventory.security.enabled:
         config.insert_json5("access_control", json.dumps(access_control(inventory)))

@@ -62,8 +62,48 @@ with 4 keep-alives per lease detects a vanished peer in about 3 s without flappi
 2-core host. Agent and arm liveness is watched faster by heartbeats, not by this lease."""
 
 
+KEEP_ALIVES_PER_LEASE = 10
+"""Keep-alives per lease, each link (sent only on a link that carried nothing else meanwhile).
+Zenoh's default 4 lost in a row closes a link: at 30 % loss per network link (51 % per
+client-router path) that is 7 % per lease on the datagram link, which carries nothing but stops,
+acks and heartbeats; 10 make it 0.1 %, for 3 idle keep-alives a second."""
+
 ROUTER_BLOCK_WAIT_S = 0.5
 """How long a router waits for a session that stops reading before it closes it."""
+
+
+@dataclass(frozen=True)
+class Datagram:
+    """The datagram path of stops (issue 24): beside each ``tcp/`` endpoint a ``udp/`` one on
+    the same address and port, joined into one Zenoh session per router (multilink: Zenoh sends
+    each message on the link whose reliability matches it, so best-effort stop copies take UDP
+    and everything else TCP). ``dscp``: the DSCP code point (0-63) marked on the datagram
+    link's packets (None: unmarked)."""
+
+    enabled: bool = True
+    dscp: int | None = None
+
+
+def datagram_twin(endpoint: str, dscp: int | None = None) -> str | None:
+    """The ``udp/`` endpoint beside a ``tcp/`` one (None for any other protocol: a TLS link's
+    twin would be unauthenticated)."""
+    proto, _, rest = endpoint.partition("/")
+    if proto != "tcp" or not rest:
+        return None
+    address = rest.split("#", 1)[0].split("?", 1)[0]
+    marks = f"#dscp={dscp << 2}" if dscp is not None else ""  # Zenoh takes the IP TOS byte
+    return f"udp/{address}{marks}"
+
+
+def _connect_groups(endpoints: list[str], datagram: Datagram | None) -> list[object]:
+    """Each endpoint, or with its datagram twin as one group of links to the same router."""
+    groups: list[object] = []
+    for endpoint in endpoints:
+        twin = datagram_twin(endpoint, datagram.dscp) if datagram and datagram.enabled else None
+        groups.append(
+            endpoint if twin is None else {"strategy": "allOf", "locators": [endpoint, twin]}
+        )
+    return groups
 
 
 def zenoh_config(
@@ -72,16 +112,21 @@ def zenoh_config(
     listen: list[str] | tuple[str, ...] = (),
     connect_timeout_s: float = 10.0,
     credentials: Credentials | None = None,
+    datagram: Datagram | None = None,
 ) -> zenoh.Config:
-    """A Zenoh config with multicast scouting off and only the given endpoints."""
+    """A Zenoh config with multicast scouting off and only the given endpoints (and, with
+    ``datagram``, their datagram twins)."""
     config: zenoh.Config = zenoh.Config()
     config.insert_json5("mode", json.dumps(mode))
     config.insert_json5("scouting/multicast/enabled", "false")
     config.insert_json5("scouting/gossip/enabled", "true" if mode == "router" else "false")
-    config.insert_json5("connect/endpoints", json.dumps(list(connect)))
-    config.insert_json5("listen/endpoints", json.dumps(list(listen)))
+    config.insert_json5("connect/endpoints", json.dumps(_connect_groups(list(connect), datagram)))
+    on = datagram is not None and datagram.enabled
+    twins = [datagram_twin(e, datagram.dscp) for e in listen] if datagram and on else []
+    config.insert_json5("listen/endpoints", json.dumps([*listen, *(t for t in twins if t)]))
+    config.insert_json5("transport/unicast/max_links", "2")  # a reliable and a datagram link
     config.insert_json5("transport/link/tx/lease", json.dumps(int(LEASE_S * 1000)))
-    config.insert_json5("transport/link/tx/keep_alive", "4")
+    config.insert_json5("transport/link/tx/keep_alive", str(KEEP_ALIVES_PER_LEASE))
     if mode == "router":
         # A session that stops reading (a frozen viewer) fills the router's queue towards it;
         # on a BLOCK message the router waits this long before closing that session, and routes
@@ -106,11 +151,16 @@ def open_client(
     endpoints: list[str] | tuple[str, ...],
     connect_timeout_s: float = 10.0,
     credentials: Credentials | None = None,
+    datagram: Datagram | None = None,
 ) -> zenoh.Session:
     """A client session connected to the fleet's router(s); RouterUnreachable if none answers
     (or none accepts our credentials)."""
     config = zenoh_config(
-        "client", connect=endpoints, connect_timeout_s=connect_timeout_s, credentials=credentials
+        "client",
+        connect=endpoints,
+        connect_timeout_s=connect_timeout_s,
+        credentials=credentials,
+        datagram=datagram,
     )
     try:
         return zenoh.open(config)
