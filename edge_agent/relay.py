@@ -11,8 +11,11 @@ Publisher QoS, and why:
 - ``status`` and ``diag``: DROP, DATA_HIGH: both repeat (4 Hz, 1 Hz), so a lost sample is
   replaced within 0.25 s; BLOCK let one subscriber that stopped reading (a frozen viewer) stall
   the router for every other session (measured on the test bed: 5-10 s without joints).
-- ``estop/ack``: BLOCK, REAL_TIME: a stop's acknowledgment must arrive, and first; and a
-  best-effort express copy on the datagram path (``fleet/wire/stoppath.py``, issue 24).
+- ``estop/ack``: REAL_TIME, on both paths (``fleet/wire/stoppath.py``, issue 24), DROP: an
+  ack goes with every repeat of its stop (the sender repeats until confirmed), and a put that
+  waited for room in a TCP link backed off by loss held the safety thread (measured: seconds).
+- ``raw/command``: DROP for the same reason (it is put from the safety thread after a stop's
+  DDS write); a recorder may miss a mirror while the link to the router is congested.
 - command replies go back on the query itself.
 Callbacks run under the agent's guard: they only decode and hand off to the bounded inboxes
 (``inbox.py``); they never block. The per-arm stop, reset and matching callbacks run directly on
@@ -35,9 +38,9 @@ import zenoh
 from edge_agent.inbox import CommandInbox, SafetyInbox
 from fleet.guard import ThreadGuard
 from fleet.inventory import Inventory
-from fleet.security.session import open_session
+from fleet.security.session import open_datagram_session, open_session
 from fleet.wire import keys
-from fleet.wire.stoppath import TwoPathPublisher
+from fleet.wire.stoppath import DatagramSession, TwoPathPublisher
 
 JSON = zenoh.Encoding.APPLICATION_JSON
 
@@ -96,6 +99,10 @@ class ZenohRelay:
         devices = devices or {}
         self.keys = keys.KeySpace(inventory.fleet)
         self.session = open_session(inventory)
+        # The stops' datagram path (issue 24): stops and heartbeats also arrive over UDP, acks
+        # also leave that way; opened here, before anything is announced.
+        self.datagram = DatagramSession(lambda: open_datagram_session(inventory))
+        datagram = self.datagram.open()
         safety, commands = inboxes
         wrap = guard.wrap
 
@@ -112,27 +119,49 @@ class ZenohRelay:
         def on_query(arm: str):  # type: ignore[no-untyped-def]
             return wrap(lambda query: commands.on_query(arm, query), "cmd")
 
+        on_heartbeat = wrap(
+            lambda sample: safety.on_heartbeat(
+                principal_of(sample.key_expr), sample.payload.to_bytes()
+            ),
+            "heartbeat",
+        )
         sub = self.session.declare_subscriber
         self._subscribers: list[zenoh.Subscriber[None]] = [
             sub(self.keys.estop, on_stop(None)),
             sub(self.keys.reset, on_reset(None)),
-            sub(
-                self.keys.heartbeat,
-                wrap(
-                    lambda sample: safety.on_heartbeat(
-                        principal_of(sample.key_expr), sample.payload.to_bytes()
-                    ),
-                    "heartbeat",
-                ),
-            ),
+            sub(self.keys.heartbeat, on_heartbeat),
         ]
+        stop_keys: list[tuple[str, str | None]] = [(self.keys.estop, None)]
         for arm in [*arm_ids, *(mounts or [])]:
-            self._subscribers.append(sub(self.keys.arm(arm, keys.ESTOP), on_stop(arm)))
+            stop_keys.append((self.keys.arm(arm, keys.ESTOP), arm))
             self._subscribers.append(sub(self.keys.arm(arm, keys.RESET), on_reset(arm)))
         for device, kind in devices.items():
             estop, reset = (self.keys.device(kind, device, c) for c in (keys.ESTOP, keys.RESET))
-            self._subscribers.append(sub(estop, on_stop(device)))
+            stop_keys.append((estop, device))
             self._subscribers.append(sub(reset, on_reset(device)))
+        for key, unit in stop_keys[1:]:
+            self._subscribers.append(sub(key, on_stop(unit)))
+        # Resets never take the datagram path: a reset must not overtake the stop before it.
+        self._datagram_subscribers: list[zenoh.Subscriber[None]] = []
+        if datagram is not None:
+            # Wildcards only, on this session: Zenoh sends a put's key as "declared resource +
+            # suffix" when the session declared a prefix of it (a subscriber on arm/a1/estop
+            # makes arm/a1/estop/ack refer to it), and a datagram referring to a declaration
+            # lost on the way is dropped by the router for good ("unknown scope").
+            units = dict(stop_keys)
+            safety_stop = safety.on_stop
+
+            def on_datagram_stop(sample: zenoh.Sample) -> None:
+                key = str(sample.key_expr)
+                if key in units:
+                    safety_stop(units[key], sample.payload.to_bytes())
+
+            self._datagram_subscribers += [
+                datagram.declare_subscriber(self.keys.heartbeat, on_heartbeat),
+                datagram.declare_subscriber(
+                    f"{self.keys.prefix}/**/{keys.ESTOP}", direct(wrap(on_datagram_stop, "estop"))
+                ),
+            ]
         self.publishers: dict[str, ArmPublishers] = {}
         self._matching: list[zenoh.MatchingListener[None]] = []
         self._tokens: list[zenoh.LivelinessToken] = []
@@ -174,7 +203,7 @@ class ZenohRelay:
             )
         }
         ack_key = self.keys.device(kind, device, keys.ESTOP_ACK)
-        publishers[keys.ESTOP_ACK] = TwoPathPublisher(self.session, ack_key)
+        publishers[keys.ESTOP_ACK] = TwoPathPublisher(self.session, self.datagram, ack_key)
         return publishers
 
     def stop_ack(self, unit: str) -> zenoh.Publisher | TwoPathPublisher:
@@ -202,15 +231,17 @@ class ZenohRelay:
                 priority=priority,
             )
 
-        drop, block = zenoh.CongestionControl.DROP, zenoh.CongestionControl.BLOCK
+        drop = zenoh.CongestionControl.DROP
         data, high = zenoh.Priority.DATA, zenoh.Priority.DATA_HIGH
         return ArmPublishers(
             joints=pub(keys.JOINTS, drop, data),
             status=pub(keys.STATUS, drop, high),
             diag=pub(keys.DIAG, drop, data),
             raw_feedback=pub(keys.RAW_FEEDBACK, drop, data),
-            raw_command=pub(keys.RAW_COMMAND, block, data),
-            stop_ack=TwoPathPublisher(self.session, self.keys.arm(arm, keys.ESTOP_ACK)),
+            raw_command=pub(keys.RAW_COMMAND, drop, data),
+            stop_ack=TwoPathPublisher(
+                self.session, self.datagram, self.keys.arm(arm, keys.ESTOP_ACK)
+            ),
         )
 
     @staticmethod
@@ -246,4 +277,8 @@ class ZenohRelay:
             for publisher in device_pubs.values():
                 publisher.undeclare()
         self.device_publishers.clear()
+        for subscriber in self._datagram_subscribers:
+            subscriber.undeclare()
+        self._datagram_subscribers.clear()
+        self.datagram.close()
         self.session.close()

@@ -33,11 +33,11 @@ from fleet.guard import ThreadGuard
 from fleet.heartbeat import beat_until
 from fleet.inventory import Inventory, InventoryError
 from fleet.security.config import COMMANDERS
-from fleet.security.session import open_session
+from fleet.security.session import open_datagram_session, open_session
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, encode
-from fleet.wire.stoppath import TwoPathPublisher
+from fleet.wire.stoppath import DatagramSession, TwoPathPublisher
 
 log = logging.getLogger("fleet.coordinator")
 JSON = zenoh.Encoding.APPLICATION_JSON
@@ -78,13 +78,15 @@ class Coordinator:
         self._pending_actions = 0  # guarded by lock
         self._next_diag = 0.0  # heartbeat thread only
         self.session = open_session(inventory)
-        self.client = FleetClient(inventory, self.session)
+        self.datagram = DatagramSession(lambda: open_datagram_session(inventory))
+        self.datagram.open()  # the stops' datagram path (issue 24), before the first beat
+        self.client = FleetClient(inventory, self.session, datagram=self.datagram)
         self._declared: list[zenoh.Subscriber[None] | zenoh.Queryable[None]] = []
         self._declare()
         # Both paths (issue 24): a beat held up by a TCP retransmission (>= 200 ms, doubling)
         # tripped agents' 0.5 s watchdogs under loss; its datagram copy is not held up.
         self._heartbeat_pub = TwoPathPublisher(
-            self.session, self.keys.heartbeat_of(inventory.principal)
+            self.session, self.datagram, self.keys.heartbeat_of(inventory.principal)
         )
         self._state_pub = self.session.declare_publisher(self.keys.state, encoding=JSON)
         self._report_pub = self.session.declare_publisher(self.keys.stop_report, encoding=JSON)
@@ -338,6 +340,8 @@ class Coordinator:
             entity.undeclare()
         for publisher in (self._heartbeat_pub, self._state_pub, self._report_pub, self._diag_pub):
             publisher.undeclare()
+        self.client.close()
+        self.datagram.close()
         self.session.close()
 
     def __enter__(self) -> Coordinator:

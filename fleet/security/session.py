@@ -15,7 +15,13 @@ import zenoh
 
 from fleet.inventory import Inventory, InventoryError
 from fleet.security.acl import access_control, payload_limits
-from fleet.wire.session import Credentials, RouterUnreachable, open_client, zenoh_config
+from fleet.wire.session import (
+    Credentials,
+    RouterUnreachable,
+    open_client,
+    open_datagram,
+    zenoh_config,
+)
 
 ROUTER_PRINCIPAL = "router"
 PASSWORD_ENV = "D1_FLEET_PASSWORD"
@@ -75,7 +81,6 @@ def open_session(inventory: Inventory, connect_timeout_s: float = 10.0) -> zenoh
             inventory.endpoints,
             connect_timeout_s=connect_timeout_s,
             credentials=credentials(inventory, inventory.principal),
-            datagram=inventory.datagram,
         )
     except RouterUnreachable as exc:
         if inventory.security.enabled:
@@ -84,6 +89,17 @@ def open_session(inventory: Inventory, connect_timeout_s: float = 10.0) -> zenoh
                 "accepted by the router?)"
             ) from None
         raise
+
+
+def open_datagram_session(
+    inventory: Inventory, connect_timeout_s: float = 10.0
+) -> zenoh.Session | None:
+    """The datagram session of stops (``fleet.wire.session.Datagram``) beside the session of
+    ``open_session``; None in secure modes: UDP carries no TLS, so it could not be
+    authenticated, and stops there take the reliable (TLS) path only (README "Security")."""
+    if inventory.security.enabled:
+        return None
+    return open_datagram(inventory.endpoints, inventory.datagram, connect_timeout_s)
 
 
 def router_config(

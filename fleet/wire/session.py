@@ -74,11 +74,17 @@ ROUTER_BLOCK_WAIT_S = 0.5
 
 @dataclass(frozen=True)
 class Datagram:
-    """The datagram path of stops (issue 24): beside each ``tcp/`` endpoint a ``udp/`` one on
-    the same address and port, joined into one Zenoh session per router (multilink: Zenoh sends
-    each message on the link whose reliability matches it, so best-effort stop copies take UDP
-    and everything else TCP). ``dscp``: the DSCP code point (0-63) marked on the datagram
-    link's packets (None: unmarked)."""
+    """The datagram path of stops (issue 24): beside each ``tcp/`` endpoint the router also
+    listens on ``udp/`` at the same address and port, and each process opens a second, small
+    Zenoh session over UDP only (``open_datagram``) for the best-effort copies of stops, acks
+    and heartbeats. ``dscp``: the DSCP code point (0-63) marked on its packets (None: none).
+
+    Why a session of its own, not a second link of the one session (Zenoh multilink, measured
+    first): a multilink session sends reliable messages on the UDP link once its TCP link died
+    (at 30 % loss within seconds: TCP's backed-off retransmissions outlast the lease), and
+    never reopens the TCP link: after the loss the session stayed on UDP, reliable in name
+    only. Two sessions fail separately: the TCP session closes and reopens as before, the
+    datagram session keeps carrying stops."""
 
     enabled: bool = True
     dscp: int | None = None
@@ -95,15 +101,11 @@ def datagram_twin(endpoint: str, dscp: int | None = None) -> str | None:
     return f"udp/{address}{marks}"
 
 
-def _connect_groups(endpoints: list[str], datagram: Datagram | None) -> list[object]:
-    """Each endpoint, or with its datagram twin as one group of links to the same router."""
-    groups: list[object] = []
-    for endpoint in endpoints:
-        twin = datagram_twin(endpoint, datagram.dscp) if datagram and datagram.enabled else None
-        groups.append(
-            endpoint if twin is None else {"strategy": "allOf", "locators": [endpoint, twin]}
-        )
-    return groups
+def datagram_twins(endpoints: list[str] | tuple[str, ...], datagram: Datagram | None) -> list[str]:
+    """The datagram twins of ``endpoints`` (none when ``datagram`` is off)."""
+    if datagram is None or not datagram.enabled:
+        return []
+    return [t for t in (datagram_twin(e, datagram.dscp) for e in endpoints) if t is not None]
 
 
 def zenoh_config(
@@ -114,17 +116,15 @@ def zenoh_config(
     credentials: Credentials | None = None,
     datagram: Datagram | None = None,
 ) -> zenoh.Config:
-    """A Zenoh config with multicast scouting off and only the given endpoints (and, with
-    ``datagram``, their datagram twins)."""
+    """A Zenoh config with multicast scouting off and only the given endpoints (a router with
+    ``datagram`` also listens on their datagram twins)."""
     config: zenoh.Config = zenoh.Config()
     config.insert_json5("mode", json.dumps(mode))
     config.insert_json5("scouting/multicast/enabled", "false")
     config.insert_json5("scouting/gossip/enabled", "true" if mode == "router" else "false")
-    config.insert_json5("connect/endpoints", json.dumps(_connect_groups(list(connect), datagram)))
-    on = datagram is not None and datagram.enabled
-    twins = [datagram_twin(e, datagram.dscp) for e in listen] if datagram and on else []
-    config.insert_json5("listen/endpoints", json.dumps([*listen, *(t for t in twins if t)]))
-    config.insert_json5("transport/unicast/max_links", "2")  # a reliable and a datagram link
+    config.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    twins = datagram_twins(listen, datagram) if mode == "router" else []
+    config.insert_json5("listen/endpoints", json.dumps([*listen, *twins]))
     config.insert_json5("transport/link/tx/lease", json.dumps(int(LEASE_S * 1000)))
     config.insert_json5("transport/link/tx/keep_alive", str(KEEP_ALIVES_PER_LEASE))
     if mode == "router":
@@ -151,16 +151,11 @@ def open_client(
     endpoints: list[str] | tuple[str, ...],
     connect_timeout_s: float = 10.0,
     credentials: Credentials | None = None,
-    datagram: Datagram | None = None,
 ) -> zenoh.Session:
     """A client session connected to the fleet's router(s); RouterUnreachable if none answers
     (or none accepts our credentials)."""
     config = zenoh_config(
-        "client",
-        connect=endpoints,
-        connect_timeout_s=connect_timeout_s,
-        credentials=credentials,
-        datagram=datagram,
+        "client", connect=endpoints, connect_timeout_s=connect_timeout_s, credentials=credentials
     )
     try:
         return zenoh.open(config)
@@ -170,3 +165,25 @@ def open_client(
             f"no Zenoh router answered on {', '.join(endpoints)} within {connect_timeout_s:g} s; "
             "is `fleet router` running? (--connect-timeout S waits longer)"
         ) from None
+
+
+def open_datagram(
+    endpoints: list[str] | tuple[str, ...], datagram: Datagram, connect_timeout_s: float = 10.0
+) -> zenoh.Session | None:
+    """The datagram session beside a client session (``Datagram``), or None when there is no
+    datagram twin (TLS endpoints, ``datagram = false``) or no router answers on UDP (an older
+    router: stops then take the reliable path only, as before; logged)."""
+    twins = datagram_twins(endpoints, datagram)
+    if not twins:
+        return None
+    config = zenoh_config("client", connect=twins, connect_timeout_s=connect_timeout_s)
+    try:
+        return zenoh.open(config)
+    except zenoh.ZError as exc:
+        log.warning(
+            "no datagram path for stops: no router answered on %s (%s); stops take the "
+            "reliable path only",
+            ", ".join(twins),
+            str(exc)[:200],
+        )
+        return None
