@@ -221,7 +221,8 @@ class Coordinator:
             log.warning("a stop on %s did not decode: %s", event.arm or "all", event.why[:200])
         elif event.kind == "stop" and event.stop is not None:
             request = event.stop
-            if self.stops.on_stop(event.arm or FLEET, request):
+            new = not self.stops.knows(request.stop_id)  # its repeats are not logged again
+            if self.stops.on_stop(event.arm or FLEET, request) and new:
                 log.warning(
                     "stop %s by %s on %s: %s",
                     request.stop_id[:24],
