@@ -15,6 +15,7 @@ import zenoh
 
 from fleet.inventory import Inventory, InventoryError
 from fleet.security.acl import access_control, payload_limits
+from fleet.wire.keys import KeySpace
 from fleet.wire.session import (
     Credentials,
     RouterUnreachable,
@@ -22,6 +23,7 @@ from fleet.wire.session import (
     open_datagram,
     zenoh_config,
 )
+from fleet.wire.stoppath import stop_qos_overwrite
 
 ROUTER_PRINCIPAL = "router"
 PASSWORD_ENV = "D1_FLEET_PASSWORD"
@@ -114,6 +116,7 @@ def router_config(
         credentials=credentials(inventory, ROUTER_PRINCIPAL, router=True),
         datagram=inventory.datagram,
     )
+    config.insert_json5("qos/network", json.dumps(stop_qos_overwrite(KeySpace(inventory.fleet))))
     if inventory.security.enabled:
         config.insert_json5("access_control", json.dumps(access_control(inventory)))
         config.insert_json5("low_pass_filter", json.dumps(payload_limits(inventory)))

@@ -23,6 +23,8 @@ from collections.abc import Callable
 
 import zenoh
 
+from fleet.wire import keys
+
 log = logging.getLogger("fleet.stoppath")
 
 JSON = zenoh.Encoding.APPLICATION_JSON
@@ -149,3 +151,24 @@ class TwoPathPublisher:
         if not self._undeclared:
             self._undeclared = True
             self.reliable.undeclare()
+
+
+def stop_qos_overwrite(space: keys.KeySpace) -> list[dict[str, object]]:
+    """The routers' QoS overwrite (Zenoh ``qos/network``) that pins the stops' QoS centrally:
+    every stop, stop ack and heartbeat put through a fleet router leaves it at real-time
+    priority and express, whatever its publisher asked for (a third-party client's plain
+    ``put`` on a stop key included). Reliability and congestion control are not overwritable
+    (Zenoh 1.10); the two paths keep theirs."""
+    return [
+        {
+            "id": "d1_fleet_stops",
+            "messages": ["put"],
+            "key_exprs": [
+                space.estop,
+                f"{space.prefix}/**/{keys.ESTOP}",
+                f"{space.prefix}/**/{keys.ESTOP_ACK}",
+                space.heartbeat,
+            ],
+            "overwrite": {"priority": "real_time", "express": True},
+        }
+    ]
