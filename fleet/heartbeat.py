@@ -42,11 +42,11 @@ def beat_until(
     latched stops to repeat, ``after(seq, stamp_ns)`` runs after each beat. Fixed rate: a late
     beat is followed by the next on schedule, not by a burst.
 
-    On two paths (``TwoPathPublisher``) each beat's datagram copy is sent again half a period
-    later: at 10 % loss per link (34 % from coordinator to agent) five beats lost in a row, a
-    false watchdog stop at ``watchdog_s`` 0.5 s, would come every 20-30 s on one copy; with two
-    copies spaced apart, ten in a row about once in 40 minutes, and the TCP copies, late by a
-    retransmission, mostly fill such a gap."""
+    On two paths (``TwoPathPublisher``) a beat's datagram copy goes half a period after its TCP
+    copy, so an agent hears a beat every 50 ms while both paths work, and a beat held up by a
+    TCP retransmission leaves no gap the datagram copies do not fill. One datagram copy, not
+    two: each beat heard costs the agent a thread hand-off (measured on loopback, agent idle
+    CPU with a coordinator beating: 1.15 % with TCP only, 1.6 % with two datagram copies)."""
     seq = 0
     next_beat = time.monotonic()
     while not stopping.is_set():
@@ -54,7 +54,10 @@ def beat_until(
         if stopping.is_set():
             return  # stopped (a thread failed) while composing: not one more beat
         data = encode(beat)
-        publisher.put(data)
+        if isinstance(publisher, TwoPathPublisher):
+            publisher.reliable.put(data)
+        else:
+            publisher.put(data)
         if after is not None:
             after(seq, beat.stamp_ns)
         seq += 1
