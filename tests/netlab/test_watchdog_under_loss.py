@@ -35,12 +35,17 @@ def test_no_false_watchdog_stop_at_10_pct_loss(lab1: LabFleet) -> None:
     try:
         lab1.lab.impair_all(loss=LOSS, delay_ms=DELAY_MS)
         deadline = time.monotonic() + DURATION_S
+        seen = dict(before)
         while time.monotonic() < deadline:
             angle = 30.0 if moves % 2 == 0 else -30.0
             move = {"op": "move_joints", "angles_deg": [angle, 0, 0, 0, 0, 0, 0], "mode": 1}
             moved = client.call("multi", _timeout=30.0, target="all", command=move, sync=True)
             moves += 1
             ok += bool(moved["reply"]["ok"])
+            now = _watchdog_stops(lab1)
+            if now != seen:  # counted; reset so that the arms move (and are watched) again
+                seen = now
+                client.call("reset_wait", _timeout=40.0, timeout_s=30.0)
     finally:
         lab1.lab.clear()
     tripped = {a: n - before[a] for a, n in _watchdog_stops(lab1).items() if n > before[a]}
