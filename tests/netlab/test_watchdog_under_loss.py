@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import os
 import time
+from collections import Counter
 
 from tests.netlab.checks import restore
 from tests.netlab.fleetlab import LabFleet
@@ -32,6 +33,7 @@ def test_no_false_watchdog_stop_at_10_pct_loss(lab1: LabFleet) -> None:
     restore(lab1, client)
     before = _watchdog_stops(lab1)
     moves = ok = 0
+    refusals: Counter[str] = Counter()
     try:
         lab1.lab.impair_all(loss=LOSS, delay_ms=DELAY_MS)
         deadline = time.monotonic() + DURATION_S
@@ -42,6 +44,9 @@ def test_no_false_watchdog_stop_at_10_pct_loss(lab1: LabFleet) -> None:
             moved = client.call("multi", _timeout=30.0, target="all", command=move, sync=True)
             moves += 1
             ok += bool(moved["reply"]["ok"])
+            error = moved["reply"].get("error")
+            if error:
+                refusals[f"{error.get('code')} {str(error.get('message'))[:80]}"] += 1
             now = _watchdog_stops(lab1)
             if now != seen:  # counted; reset so that the arms move (and are watched) again
                 seen = now
@@ -52,6 +57,7 @@ def test_no_false_watchdog_stop_at_10_pct_loss(lab1: LabFleet) -> None:
     print(
         f"\nwatchdog at {LOSS:.0%} + {DELAY_MS:g} ms per link for {DURATION_S:g} s "
         f"(load average {os.getloadavg()[0]:.1f}): {sum(tripped.values())} watchdog stops "
-        f"{tripped or ''}; {ok}/{moves} synchronized moves served"
+        f"{tripped or ''}; {ok}/{moves} synchronized moves served; refused: "
+        f"{refusals.most_common(3)}"
     )
     assert not tripped, f"false watchdog stops under {LOSS:.0%} loss: {tripped}"
