@@ -11,7 +11,11 @@ Publisher QoS, and why:
 - ``status`` and ``diag``: DROP, DATA_HIGH: both repeat (4 Hz, 1 Hz), so a lost sample is
   replaced within 0.25 s; BLOCK let one subscriber that stopped reading (a frozen viewer) stall
   the router for every other session (measured on the test bed: 5-10 s without joints).
-- ``estop/ack``: BLOCK, REAL_TIME: a stop's acknowledgment must arrive, and first.
+- ``estop/ack``: REAL_TIME, on both paths (``fleet/wire/stoppath.py``), DROP: an
+  ack goes with every repeat of its stop (the sender repeats until confirmed), and a put that
+  waited for room in a TCP link backed off by loss held the safety thread (measured: seconds).
+- ``raw/command``: DROP for the same reason (it is put from the safety thread after a stop's
+  DDS write); a recorder may miss a mirror while the link to the router is congested.
 - command replies go back on the query itself.
 Callbacks run under the agent's guard: they only decode and hand off to the bounded inboxes
 (``inbox.py``); they never block. The per-arm stop, reset and matching callbacks run directly on
@@ -34,9 +38,10 @@ from edge_agent.inbox import CommandInbox, SafetyInbox
 from fleet.control import direct
 from fleet.guard import ThreadGuard
 from fleet.inventory import Inventory
-from fleet.security.session import open_session
+from fleet.security.session import open_datagram_session, open_session
 from fleet.wire import keys
 from fleet.wire.payloads import DEVICE_PAYLOADS
+from fleet.wire.stoppath import DatagramSession, TwoPathPublisher
 
 JSON = zenoh.Encoding.APPLICATION_JSON
 
@@ -50,10 +55,10 @@ class ArmPublishers:
     diag: zenoh.Publisher
     raw_feedback: zenoh.Publisher
     raw_command: zenoh.Publisher
-    stop_ack: zenoh.Publisher
+    stop_ack: TwoPathPublisher
     raw_feedback_matched: bool = False
 
-    def all(self) -> tuple[zenoh.Publisher, ...]:
+    def all(self) -> tuple[zenoh.Publisher | TwoPathPublisher, ...]:
         """Every publisher (for undeclaring)."""
         return (
             self.joints,
@@ -90,6 +95,10 @@ class ZenohRelay:
         devices = devices or {}
         self.keys = keys.KeySpace(inventory.fleet)
         self.session = open_session(inventory)
+        # The stops' datagram path: stops and heartbeats also arrive over UDP, acks
+        # also leave that way; opened here, before anything is announced.
+        self.datagram = DatagramSession(lambda: open_datagram_session(inventory))
+        datagram = self.datagram.open()
         safety, commands = inboxes
         wrap = guard.wrap
 
@@ -106,27 +115,54 @@ class ZenohRelay:
         def on_query(arm: str):  # type: ignore[no-untyped-def]
             return wrap(lambda query: commands.on_query(arm, query), "cmd")
 
+        on_heartbeat = wrap(
+            lambda sample: safety.on_heartbeat(  # length checked before any copy
+                principal_of(sample.key_expr), sample.payload
+            ),
+            "heartbeat",
+        )
         sub = self.session.declare_subscriber
         self._subscribers: list[zenoh.Subscriber[None]] = [
             sub(self.keys.estop, on_stop(None)),
             sub(self.keys.reset, on_reset(None)),
-            sub(
-                self.keys.heartbeat,
-                wrap(
-                    lambda sample: safety.on_heartbeat(  # length checked before any copy
-                        principal_of(sample.key_expr), sample.payload
-                    ),
-                    "heartbeat",
-                ),
-            ),
         ]
+        stop_keys: list[tuple[str, str | None]] = [(self.keys.estop, None)]
         for arm in [*arm_ids, *(mounts or [])]:
-            self._subscribers.append(sub(self.keys.arm(arm, keys.ESTOP), on_stop(arm)))
+            stop_keys.append((self.keys.arm(arm, keys.ESTOP), arm))
             self._subscribers.append(sub(self.keys.arm(arm, keys.RESET), on_reset(arm)))
         for device, kind in devices.items():
             estop, reset = (self.keys.device(kind, device, c) for c in (keys.ESTOP, keys.RESET))
-            self._subscribers.append(sub(estop, on_stop(device)))
+            stop_keys.append((estop, device))
             self._subscribers.append(sub(reset, on_reset(device)))
+        for key, unit in stop_keys[1:]:
+            self._subscribers.append(sub(key, on_stop(unit)))
+        self._subscribers.append(sub(self.keys.heartbeat, on_heartbeat))
+        # Resets never take the datagram path: a reset must not overtake the stop before it.
+        self._datagram_subscribers: list[zenoh.Subscriber[None]] = []
+        if datagram is not None:
+            # Wildcards only, on this session: Zenoh sends a put's key as "declared resource +
+            # suffix" when the session declared a prefix of it (a subscriber on arm/a1/estop
+            # makes arm/a1/estop/ack refer to it), and a datagram referring to a declaration
+            # lost on the way is dropped by the router for good ("unknown scope").
+            units = dict(stop_keys)
+            safety_stop = safety.on_stop
+
+            def on_datagram_stop(sample: zenoh.Sample) -> None:
+                key = str(sample.key_expr)
+                if key in units:
+                    safety_stop(units[key], sample.payload.to_bytes())
+
+            self._datagram_subscribers += [
+                # On the receive thread (``direct``): decoding a beat and keeping the newest
+                # per source is microseconds, and the router routes every copy to both of the
+                # agent's heartbeat subscriptions (measured: a thread hand-off per beat on both
+                # raised the idle agent's CPU more). The TCP one stays: if this session is down
+                # or lost its declaration, beats still arrive.
+                datagram.declare_subscriber(self.keys.heartbeat, direct(on_heartbeat)),
+                datagram.declare_subscriber(
+                    f"{self.keys.prefix}/**/{keys.ESTOP}", direct(wrap(on_datagram_stop, "estop"))
+                ),
+            ]
         self.publishers: dict[str, ArmPublishers] = {}
         self._matching: list[zenoh.MatchingListener[None]] = []
         self._tokens: list[zenoh.LivelinessToken] = []
@@ -138,7 +174,7 @@ class ZenohRelay:
             self._queryables.append(
                 self.session.declare_queryable(self.keys.commands(arm), on_query(arm))
             )
-        self.device_publishers: dict[str, dict[str, zenoh.Publisher]] = {}
+        self.device_publishers: dict[str, dict[str, zenoh.Publisher | TwoPathPublisher]] = {}
         for device, kind in devices.items():
             self.device_publishers[device] = self._declare_device_publishers(kind, device)
             commands_key = f"{self.keys.device(kind, device, keys.CMD)}/*"
@@ -149,13 +185,15 @@ class ZenohRelay:
         for token in tokens:
             self._tokens.append(self.session.liveliness().declare_token(token))
 
-    def _declare_device_publishers(self, kind: str, device: str) -> dict[str, zenoh.Publisher]:
-        """state, lowstate (a G1's) and diag: DROP (they repeat); contact and estop/ack: BLOCK
-        (events)."""
+    def _declare_device_publishers(
+        self, kind: str, device: str
+    ) -> dict[str, zenoh.Publisher | TwoPathPublisher]:
+        """state, lowstate (a G1's) and diag: DROP (they repeat); contact: BLOCK (events);
+        estop/ack: both paths."""
         drop, block = zenoh.CongestionControl.DROP, zenoh.CongestionControl.BLOCK
         lowstate = keys.LOWSTATE in DEVICE_PAYLOADS.get(kind, {})
         extra = ((keys.LOWSTATE, drop, zenoh.Priority.DATA),) if lowstate else ()
-        return {
+        publishers: dict[str, zenoh.Publisher | TwoPathPublisher] = {
             channel: self.session.declare_publisher(
                 self.keys.device(kind, device, channel),
                 encoding=JSON,
@@ -165,13 +203,15 @@ class ZenohRelay:
             for channel, congestion, priority in (
                 (keys.STATE, drop, zenoh.Priority.DATA_HIGH),
                 (keys.CONTACT, block, zenoh.Priority.DATA_HIGH),
-                (keys.ESTOP_ACK, block, zenoh.Priority.REAL_TIME),
                 (keys.DIAG, drop, zenoh.Priority.DATA),
                 *extra,
             )
         }
+        ack_key = self.keys.device(kind, device, keys.ESTOP_ACK)
+        publishers[keys.ESTOP_ACK] = TwoPathPublisher(self.session, self.datagram, ack_key)
+        return publishers
 
-    def stop_ack(self, unit: str) -> zenoh.Publisher:
+    def stop_ack(self, unit: str) -> zenoh.Publisher | TwoPathPublisher:
         """The ``estop/ack`` publisher of arm or device ``unit``."""
         pubs = self.publishers.get(unit)
         return pubs.stop_ack if pubs is not None else self.device_publishers[unit][keys.ESTOP_ACK]
@@ -196,15 +236,17 @@ class ZenohRelay:
                 priority=priority,
             )
 
-        drop, block = zenoh.CongestionControl.DROP, zenoh.CongestionControl.BLOCK
+        drop = zenoh.CongestionControl.DROP
         data, high = zenoh.Priority.DATA, zenoh.Priority.DATA_HIGH
         return ArmPublishers(
             joints=pub(keys.JOINTS, drop, data),
             status=pub(keys.STATUS, drop, high),
             diag=pub(keys.DIAG, drop, data),
             raw_feedback=pub(keys.RAW_FEEDBACK, drop, data),
-            raw_command=pub(keys.RAW_COMMAND, block, data),
-            stop_ack=pub(keys.ESTOP_ACK, block, zenoh.Priority.REAL_TIME),
+            raw_command=pub(keys.RAW_COMMAND, drop, data),
+            stop_ack=TwoPathPublisher(
+                self.session, self.datagram, self.keys.arm(arm, keys.ESTOP_ACK)
+            ),
         )
 
     @staticmethod
@@ -240,4 +282,8 @@ class ZenohRelay:
             for publisher in device_pubs.values():
                 publisher.undeclare()
         self.device_publishers.clear()
+        for subscriber in self._datagram_subscribers:
+            subscriber.undeclare()
+        self._datagram_subscribers.clear()
+        self.datagram.close()
         self.session.close()

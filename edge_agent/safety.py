@@ -50,6 +50,9 @@ class ActiveStop:
     last_sent_s: float = 0.0
     detail: str | None = None
     """Why the stop's command was not written (a hold with no fresh pose), for its ack."""
+    stamp_ns: int | None = None
+    """When its sender put it (its ``stamp_ns``; None for the agent's own stops): a reset put
+    before it does not release it (``reset``)."""
 
     @property
     def done(self) -> bool:
@@ -94,6 +97,10 @@ class ArmSafety:
     watched_by: str | None = None
     watched_since_s: float = 0.0
     last_reason: str | None = None
+    newest_stamp_ns: int | None = None
+    """The newest sender's stamp of the stops acted on since the last reset (see ``reset``)."""
+    reset_stamp_ns: int | None = None
+    """The newest sender's stamp of a reset acted on: a stop put before it is stale."""
     causes: dict[tuple[str, str], None] = field(default_factory=dict)
     """(source, reason) of every stop active since the latch, in arrival order (at most
     STOP_CAUSES_KEPT); ``more_causes`` counts the others."""
@@ -118,14 +125,19 @@ class ArmSafety:
         now_s: float,
         now_ns: int,
         action: str = "hold",
+        stamp_ns: int | None = None,
     ) -> bool:
-        """Latch a stop; False if this stop is already latched or was reset (a repeat)."""
+        """Latch a stop; False if this stop is already latched or was reset (a repeat).
+        ``stamp_ns``: when its sender put it."""
         if (
             stop_id in self.reset_stop_ids
             or stop_id in self.superseded_ids  # a repeat of a stop acted on while latched
             or (self.stop is not None and self.stop.stop_id == stop_id)
         ):
             return False
+        if self._stale(stamp_ns):
+            return False  # put before a reset that was acted on: that reset released it
+        self._saw_stamp(stamp_ns)
         if self.stop is None:
             self.standstill.clear()
             self.causes.clear()
@@ -133,18 +145,39 @@ class ArmSafety:
         else:
             self.superseded_ids.append(self.stop.stop_id)  # reset releases it too
             del self.superseded_ids[:-SUPERSEDED_IDS_KEPT]
-        self.stop = ActiveStop(stop_id, source, reason, now_ns, now_s, action)
+        self.stop = ActiveStop(stop_id, source, reason, now_ns, now_s, action, stamp_ns=stamp_ns)
         self._add_cause(source, reason)
         self.watched_by = None
         self.lease = None  # a stop ends every ownership: whoever resets decides who goes next
         return True
 
-    def note_also_stopped_by(self, stop_id: str, source: str = "", reason: str = "") -> None:
+    def _stale(self, stamp_ns: int | None) -> bool:
+        """A stop put before the newest reset acted on: late (a copy on the other path, or
+        held up) and released by that reset already. Bounded where the id tables are not: a
+        flood of stop ids cannot push an old stop's id out and let its late copy latch."""
+        reset = self.reset_stamp_ns
+        return stamp_ns is not None and reset is not None and stamp_ns <= reset
+
+    def _saw_stamp(self, stamp_ns: int | None) -> None:
+        """The newest sender's stamp of any stop acted on since the last reset (latched,
+        superseded or noted): a reset older than it releases nothing. Copies of one stop on two
+        paths arrive in either order, so the latched stop is not always the newest one."""
+        if stamp_ns is not None and (
+            self.newest_stamp_ns is None or stamp_ns > self.newest_stamp_ns
+        ):
+            self.newest_stamp_ns = stamp_ns
+
+    def note_also_stopped_by(
+        self, stop_id: str, source: str = "", reason: str = "", stamp_ns: int | None = None
+    ) -> None:
         """While latched, ``stop_id`` (repeated by a heartbeat) also asks for this stop: the
         reset releases it with the latched one, so its repeats do not latch again; its
         ``source`` and ``reason`` join the stop's causes."""
         if stop_id in self.reset_stop_ids or stop_id in self.superseded_ids:
             return
+        if self._stale(stamp_ns):
+            return
+        self._saw_stamp(stamp_ns)
         self.superseded_ids.append(stop_id)
         del self.superseded_ids[:-SUPERSEDED_IDS_KEPT]
         if source and self.stop is not None:
@@ -213,9 +246,28 @@ class ArmSafety:
         stop.confirmed_ns = now_ns
         return True
 
-    def reset(self) -> ActiveStop | None:
-        """Release the latch (operator action); returns the stop that was released."""
+    def reset(self, stamp_ns: int | None = None) -> ActiveStop | None:
+        """Release the latch (operator action); returns the stop that was released.
+
+        A reset stamped (``stamp_ns``, its sender's clock) before any stop acted on since the
+        last reset was put (the latched one, or one it superseded or noted) releases nothing: a
+        stop's datagram copy can overtake a reset still on its way over TCP, and the copies of
+        two stops can arrive in either order, so the latched stop is not always the newest; such
+        a reset must not release the newer stop (nor, by remembering its id, make the stop's own
+        reliable copy a "repeat"). Hosts keep NTP time (as for command
+        lifetimes); a stop host's clock running ahead fails safe: the reset has to be sent
+        again."""
+        if (
+            stamp_ns is not None
+            and self.stop is not None
+            and self.newest_stamp_ns is not None
+            and self.newest_stamp_ns > stamp_ns
+        ):
+            return None
         stop, self.stop = self.stop, None
+        self.newest_stamp_ns = None
+        if stamp_ns is not None and (self.reset_stamp_ns is None or stamp_ns > self.reset_stamp_ns):
+            self.reset_stamp_ns = stamp_ns
         if stop is not None:
             for stop_id in (*self.superseded_ids, stop.stop_id):
                 self.reset_stop_ids[stop_id] = None

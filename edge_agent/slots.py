@@ -21,6 +21,7 @@ from edge_agent.tracker import ArmTracker
 from fleet.d1.seq import SeqAllocator
 from fleet.devices.driver import DeviceDriver
 from fleet.wire import messages as m
+from fleet.wire.stoppath import TwoPathPublisher
 
 
 @dataclass
@@ -76,5 +77,5 @@ Unit = ArmSlot | DeviceSlot
 class Outbox:
     """I/O collected under the lock, performed after it is released."""
 
-    puts: list[tuple[zenoh.Publisher, bytes | str]] = field(default_factory=list)
+    puts: list[tuple[zenoh.Publisher | TwoPathPublisher, bytes | str]] = field(default_factory=list)
     replies: list[tuple[zenoh.Query, m.CommandReply]] = field(default_factory=list)

@@ -123,7 +123,7 @@ class SafetyLoop:
 
     def _on_reset(self, event: ResetEvent) -> None:
         for arm in self._targets(event.arm):
-            self.reset(arm, event.request.source)
+            self.reset(arm, event.request.source, event.request.stamp_ns)
 
     def _on_heartbeat(self, source: str, beat: m.Heartbeat, arrived_s: float) -> None:
         with self._lock:
@@ -162,11 +162,19 @@ class SafetyLoop:
                     # A heartbeat repeating another stop of an arm already stopped: nothing to
                     # do physically; remembered so that the reset releases it too (a flood of
                     # such repeats must cost a list entry, not a stop write each).
-                    safety.note_also_stopped_by(request.stop_id, request.source, request.reason)
+                    safety.note_also_stopped_by(
+                        request.stop_id, request.source, request.reason, request.stamp_ns
+                    )
                     continue
                 action = slot.stop_action
                 if not safety.latch(
-                    request.stop_id, request.source, request.reason, now, now_ns, action
+                    request.stop_id,
+                    request.source,
+                    request.reason,
+                    now,
+                    now_ns,
+                    action,
+                    request.stamp_ns,
                 ):
                     continue
                 self._stops[arm].latched(slot, now, out)
@@ -231,13 +239,14 @@ class SafetyLoop:
             detail=stop.detail,
         )
 
-    def reset(self, arm: str, source: str) -> None:
-        """Release the latch; nothing moves (``UnitStops.released``: an arm holds its fresh
+    def reset(self, arm: str, source: str, stamp_ns: int | None = None) -> None:
+        """Release the latch (unless the stop was put after the reset, ``stamp_ns``: see
+        ``ArmSafety.reset``); nothing moves (``UnitStops.released``: an arm holds its fresh
         measured pose, a device stays as the stop left it)."""
         now, now_ns = time.monotonic(), time.time_ns()
         with self._lock:
             slot = self._slots[arm]
-            released = slot.safety.reset()
+            released = slot.safety.reset(stamp_ns)
             if released is None:
                 return
             slot.safety.last_reason = f"reset by {source[:128]}"

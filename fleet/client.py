@@ -10,7 +10,7 @@ import socket
 import threading
 import time
 import uuid
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from typing import Any, TypeVar
 
 import msgspec
@@ -20,8 +20,8 @@ from fleet.devices import kind_of
 from fleet.devices.base import DeviceReply
 from fleet.devices.driver import error_reply
 from fleet.inventory import Inventory
-from fleet.security.session import open_session
-from fleet.wire import keys, payloads
+from fleet.security.session import open_datagram_session, open_session
+from fleet.wire import keys, payloads, stoppath
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, ErrorInfo, encode
 
@@ -55,11 +55,9 @@ def _no_reply(arm: str, why: str) -> m.CommandReply:
     )
 
 
-STOP_QOS: dict[str, object] = {
-    "congestion_control": zenoh.CongestionControl.BLOCK,
-    "priority": zenoh.Priority.REAL_TIME,
-}
-"""Stops and resets: never dropped under congestion, and sent ahead of everything else."""
+STOP_QOS = stoppath.RELIABLE_QOS
+"""Stops and resets: never dropped under congestion, and sent ahead of everything else (a
+stop also goes the datagram path: ``fleet/wire/stoppath.py``)."""
 
 
 def default_source() -> str:
@@ -79,6 +77,7 @@ class FleetClient:
         inventory: Inventory,
         session: zenoh.Session | None = None,
         connect_timeout_s: float = 10.0,
+        datagram: stoppath.DatagramSession | None = None,
     ) -> None:
         self.inventory = inventory
         self.keys = keys.KeySpace(inventory.fleet)
@@ -86,9 +85,18 @@ class FleetClient:
         self.principal = inventory.principal
         self._stamp_lock = threading.Lock()
         self._last_stamp_ns = 0
+        self._stop_pubs: dict[str, stoppath.TwoPathPublisher] = {}  # guarded by _stop_lock
+        self._stop_lock = threading.Lock()
+        self._ack_subscribers: list[zenoh.Subscriber[None]] = []  # guarded by _stop_lock
+        self._ack_waiters: dict[str, Callable[[str, m.StopAck], None]] = {}  # by stop_id
         if session is None:
             session = open_session(inventory, connect_timeout_s=connect_timeout_s)
         self.session = session
+        self._own_datagram = datagram is None
+        if datagram is None:  # the stops' datagram path (issue 24), opened beside
+            datagram = stoppath.DatagramSession(lambda: open_datagram_session(inventory))
+            datagram.start()
+        self.datagram = datagram
 
     # ------------------------------------------------------------------ commands
 
@@ -203,9 +211,11 @@ class FleetClient:
         acknowledgments (devices are named ``<kind>/<id>`` in the result).
 
         The stop is re-put every 100 ms with the same ``stop_id`` until every targeted arm
-        acknowledged it (Zenoh's reliability is hop by hop, not end to end); agents ignore the
-        repeats. With ``wait_still`` it also waits for each arm to be seen still. Returns the
-        last ack per arm (None: no ack within ``timeout_s``: is that arm's agent running?).
+        acknowledged it, and with ``wait_still`` until each was seen still (Zenoh's reliability
+        is hop by hop, not end to end; each repeat earns a fresh ack); agents ignore the
+        repeats. Each put goes both paths (``fleet/wire/stoppath.py``), and for the first 250 ms
+        the datagram path repeats it every 10 ms. Returns the last ack per arm (None: no ack
+        within ``timeout_s``: is that arm's agent running?).
         ``request``: a stop already put once (its repeats and acks are handled here).
         """
         if arm is not None and arm in self.inventory.devices:
@@ -224,50 +234,75 @@ class FleetClient:
         acks: dict[str, m.StopAck | None] = dict.fromkeys([*arms, *devices])
         lock = threading.Lock()
 
-        def on_ack(sample: zenoh.Sample) -> None:
-            try:
-                ack = payloads.STOP_ACK.decode(sample.payload.to_bytes())
-                arm = self.keys.parse_arm_key(str(sample.key_expr)).arm  # the key, not the payload
-            except (payloads.PayloadError, keys.KeyError_):
+        def on_ack(label: str, ack: m.StopAck) -> None:
+            if ack.stop_id != request.stop_id or label not in acks:
                 return
-            if ack.stop_id == request.stop_id and arm in acks:
-                with lock:
-                    acks[arm] = ack
-
-        def on_device_ack(sample: zenoh.Sample) -> None:
-            key = str(sample.key_expr)
-            label = key[len(self.keys.prefix) + 1 :].removesuffix(f"/{keys.ESTOP_ACK}")
-            try:
-                ack = payloads.STOP_ACK.decode(sample.payload.to_bytes())
-            except payloads.PayloadError:
-                return
-            if ack.stop_id == request.stop_id and label in devices:
-                with lock:
+            with lock:
+                held = acks[label]
+                if held is None or not held.done:  # the two paths may deliver out of order
                     acks[label] = ack
 
         def complete() -> bool:
             with lock:
                 return all(a is not None and (a.done or not wait_still) for a in acks.values())
 
-        subscribers = [self.session.declare_subscriber(self.keys.all_arms(keys.ESTOP_ACK), on_ack)]
-        for kind in sorted({label.partition("/")[0] for label in devices}):
-            ack_key = self.keys.device(kind, "*", keys.ESTOP_ACK)
-            subscribers.append(self.session.declare_subscriber(ack_key, on_device_ack))
-        deadline = time.monotonic() + timeout_s
+        self.watch_stop_acks()
+        with self._stop_lock:
+            self._ack_waiters[request.stop_id] = on_ack
+        started = time.monotonic()
+        deadline = started + timeout_s
+        next_put = started
         try:
             while True:
-                with lock:
-                    unacked = any(a is None for a in acks.values())
-                if unacked:
+                # Until every unit confirmed (acked, and still with ``wait_still``): the agent
+                # answers each repeat with a fresh ack, so a lost "still" ack is sent again.
+                unacked = not complete()
+                now = time.monotonic()
+                if unacked and now >= next_put:
                     self.put_stop(request, arm)
-                if complete() or time.monotonic() >= deadline:
+                    next_put = now + 0.1
+                elif unacked and now - started <= stoppath.BURST_S:
+                    self.put_stop(request, arm, datagram_only=True)
+                if complete() or now >= deadline:
                     break
-                time.sleep(0.1)
+                burst = now - started < stoppath.BURST_S
+                time.sleep(stoppath.BURST_INTERVAL_S if burst else 0.1)
         finally:
-            for subscriber in subscribers:
-                subscriber.undeclare()
+            with self._stop_lock:
+                if self._ack_waiters.get(request.stop_id) is on_ack:
+                    del self._ack_waiters[request.stop_id]
         with lock:
             return dict(acks)
+
+    def watch_stop_acks(self) -> None:
+        """Subscribe to every stop acknowledgment once, on both paths, for the life of the
+        client (idempotent; ``estop`` calls it). A subscription declared with each stop would
+        reach the router over TCP: under loss, after the acks it waits for."""
+        key = f"{self.keys.prefix}/**/{keys.ESTOP_ACK}"
+        with self._stop_lock:
+            if not self._ack_subscribers:
+                self._ack_subscribers.append(
+                    self.session.declare_subscriber(key, self._on_stop_ack)
+                )
+            datagram = self.datagram.session
+            if datagram is not None and len(self._ack_subscribers) == 1:
+                self._ack_subscribers.append(datagram.declare_subscriber(key, self._on_stop_ack))
+
+    def _on_stop_ack(self, sample: zenoh.Sample) -> None:
+        """An ack of an arm (labelled by its id) or a device (``<kind>/<id>``), handed to the
+        ``estop`` waiting for its stop (the label from the key, not the payload)."""
+        label = str(sample.key_expr)[len(self.keys.prefix) + 1 :].removesuffix(f"/{keys.ESTOP_ACK}")
+        kind, _, unit = label.partition("/")
+        if kind == keys.ARM:
+            label = unit
+        try:
+            ack = payloads.STOP_ACK.decode(sample.payload.to_bytes())
+        except payloads.PayloadError:
+            return
+        with self._stop_lock:
+            waiter = self._ack_waiters.get(ack.stop_id)
+        if waiter is not None:
+            waiter(label, ack)
 
     def device_snapshot(self, wait_s: float = 1.2) -> dict[str, Any]:
         """``<kind>/<id>`` -> the newest decoded state of every device (None: none heard
@@ -325,10 +360,23 @@ class FleetClient:
             return self.keys.device(kind, unit, channel)
         return self.keys.arm(self.inventory.arm(unit).id, channel)
 
-    def put_stop(self, request: m.StopRequest, arm: str | None = None) -> None:
-        """Put ``request`` once on the fleet's (or one arm's or device's) stop key."""
+    def put_stop(
+        self, request: m.StopRequest, arm: str | None = None, datagram_only: bool = False
+    ) -> None:
+        """Put ``request`` once on the fleet's (or one arm's or device's) stop key, on both
+        paths (or only the datagram path: a fast repeat)."""
         key = self.keys.estop if arm is None else self.unit_key(arm, keys.ESTOP)
-        self.session.put(key, encode(request), encoding=JSON, **STOP_QOS)
+        with self._stop_lock:
+            publisher = self._stop_pubs.get(key)
+            if publisher is None:
+                publisher = self._stop_pubs[key] = stoppath.TwoPathPublisher(
+                    self.session, self.datagram, key
+                )
+        data = encode(request)
+        if datagram_only:
+            publisher.put_datagram(data)
+        else:
+            publisher.put(data)
 
     def reset(self, arm: str | None = None, source: str | None = None) -> None:
         """Release the stop latch of one arm or device (or of every one; an arm's reset
@@ -402,6 +450,18 @@ class FleetClient:
 
     def close(self) -> None:
         """Close the session if this client opened it (idempotent)."""
+        with self._stop_lock:
+            publishers, self._stop_pubs = list(self._stop_pubs.values()), {}
+            acks, self._ack_subscribers = self._ack_subscribers, []
+        if not self.session.is_closed():
+            for publisher in publishers:
+                publisher.undeclare()
+            if acks:
+                acks[0].undeclare()
+        if len(acks) > 1 and self.datagram.session is not None:
+            acks[1].undeclare()
+        if self._own_datagram:
+            self.datagram.close()
         if self._own_session and not self.session.is_closed():
             self.session.close()
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any, Literal, NamedTuple, get_args
+from typing import Annotated, Any, Literal, NamedTuple, get_args
 
 import msgspec
 from msgspec import Struct
@@ -37,6 +37,7 @@ from fleet.security_config import (
 )
 from fleet.tomlfile import TomlError, brief, decode_toml, read_text
 from fleet.wire.keys import KeyError_, check_name
+from fleet.wire.session import Datagram
 
 DEFAULT_INVENTORY = "inventory.toml"
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
@@ -73,6 +74,11 @@ class ZenohSection(Struct, frozen=True, forbid_unknown_fields=True):
     """``[zenoh]``: the router listens on ``endpoints``; every other process connects to them."""
 
     endpoints: list[str] = msgspec.field(default_factory=lambda: [DEFAULT_ENDPOINT])
+    datagram: bool = True
+    """Stops, their acks and heartbeats also go best-effort over a UDP link beside each
+    ``tcp/`` endpoint (issue 24; README "Reliability"). Never on ``tls/`` endpoints."""
+    stop_dscp: Annotated[int, msgspec.Meta(ge=0, le=63)] | None = None
+    """DSCP code point marked on the datagram link's packets (46: EF), for a lab's switches."""
 
 
 class DdsSection(Struct, frozen=True, forbid_unknown_fields=True):
@@ -182,6 +188,8 @@ class Inventory(Struct, frozen=True):
     principals: dict[str, Role] = {}
     principal: str = "operator"
     """Who this process acts as (``--principal``; each process has its default)."""
+    datagram: Datagram = Datagram()
+    """The datagram path of stops (``[zenoh] datagram``, ``stop_dscp``)."""
     devices: dict[str, DeviceBase] = {}
     """Devices beside the arms (``fleet/devices``: grippers, G1s), by id; ids are unique
     across arms and devices."""
@@ -497,6 +505,7 @@ def parse_inventory(text: str, path: str = DEFAULT_INVENTORY) -> Inventory:
         path=path,
         fleet=fleet.name,
         endpoints=zenoh.endpoints,
+        datagram=Datagram(zenoh.datagram, zenoh.stop_dscp),
         domain_id=dds.domain_id,
         peers=dds.peers,
         arms=arms,

@@ -128,7 +128,9 @@ class Player:
             poses = self._start_poses(watch, ready_s)
             check_motion(self.script, poses, self.ranges)
             client = self.client
-            liveness = Liveness(client.session, client.keys, self.owner, client.principal)
+            liveness = Liveness(
+                client.session, client.keys, self.owner, client.principal, client.datagram
+            )
             stop.wait(0.3)  # the agents hear a beat before the first move: the watchdog arms
             timeline = Timeline(self.script, poses)
             self._run(timeline, watch, stop)

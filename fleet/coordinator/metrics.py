@@ -5,6 +5,7 @@ only appends to a bounded deque)."""
 from __future__ import annotations
 
 import collections
+import logging
 import time
 from typing import TYPE_CHECKING, Any
 
@@ -16,6 +17,8 @@ from fleet.wire import payloads
 if TYPE_CHECKING:
     from fleet.coordinator.service import Coordinator
 
+log = logging.getLogger("fleet.coordinator")
+
 STEPS = ("received", "dds_written", "still")
 SEEN_LIMIT = 4096
 
@@ -24,7 +27,9 @@ def coordinator_collectors(coordinator: Coordinator) -> list[Any]:
     """Counters, arms online, and stop latency histograms per step (stamp -> received,
     -> DDS written, -> still), each arm's step counted once per stop."""
     sinks = {step: LatencySink() for step in STEPS}
+    last_sinks = {step: LatencySink() for step in STEPS}
     seen: collections.OrderedDict[tuple[str, str, str], None] = collections.OrderedDict()
+    fleet_arms = frozenset(coordinator.inventory.arms)
 
     def on_report(sample: zenoh.Sample) -> None:
         try:
@@ -41,6 +46,25 @@ def coordinator_collectors(coordinator: Coordinator) -> list[Any]:
                 if len(seen) > SEEN_LIMIT:
                     seen.popitem(last=False)
                 sinks[step].add(value / 1000.0)
+        # A fleet-wide figure (issue 24): once every arm of the inventory reported a step of
+        # this stop, its slowest arm's time, counted once per stop and step.
+        if not fleet_arms or not fleet_arms <= report.arms.keys():
+            return
+        for step in STEPS:
+            values = [getattr(report.arms[a], f"{step}_ms") for a in fleet_arms]
+            key = (report.stop_id, "*", step)
+            if any(v is None for v in values) or key in seen:
+                continue
+            seen[key] = None
+            slowest = max(fleet_arms, key=lambda a: getattr(report.arms[a], f"{step}_ms"))
+            last_sinks[step].add(max(v for v in values if v is not None) / 1000.0)
+            if step == "still":
+                log.info(
+                    "stop %s: every arm still after %.0f ms, the last %s",
+                    report.stop_id[:24],
+                    max(v for v in values if v is not None),
+                    slowest,
+                )
 
     # Kept by the collector; undeclared with the session when the coordinator closes.
     subscriber = coordinator.session.declare_subscriber(coordinator.keys.stop_report, on_report)
@@ -85,6 +109,13 @@ def coordinator_collectors(coordinator: Coordinator) -> list[Any]:
                 sinks[step].family(
                     f"d1_stop_{step}_latency_seconds",
                     f"from a stop's stamp to its {step.replace('_', ' ')} on an arm",
+                )
+            )
+            metrics.append(
+                last_sinks[step].family(
+                    f"d1_stop_last_arm_{step}_latency_seconds",
+                    f"from a stop's stamp to its {step.replace('_', ' ')} on the last arm of "
+                    "the fleet (each stop every arm reported)",
                 )
             )
         return metrics

@@ -21,7 +21,7 @@ from concurrent.futures import ThreadPoolExecutor
 import msgspec
 import zenoh
 
-from fleet.client import STOP_QOS, FleetClient, start_at_ns
+from fleet.client import FleetClient, start_at_ns
 from fleet.control import direct
 from fleet.coordinator.contact_actions import perform
 from fleet.coordinator.contact_policy import Action, ContactPolicy
@@ -33,11 +33,12 @@ from fleet.devices import kind_of
 from fleet.guard import ThreadGuard
 from fleet.heartbeat import beat_until
 from fleet.inventory import Inventory, InventoryError
-from fleet.security.session import open_session
+from fleet.security.session import open_datagram_session, open_session
 from fleet.security_config import COMMANDERS
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, encode
+from fleet.wire.stoppath import DatagramSession, TwoPathPublisher
 
 log = logging.getLogger("fleet.coordinator")
 JSON = zenoh.Encoding.APPLICATION_JSON
@@ -78,11 +79,15 @@ class Coordinator:
         self._pending_actions = 0  # guarded by lock
         self._next_diag = 0.0  # heartbeat thread only
         self.session = open_session(inventory)
-        self.client = FleetClient(inventory, self.session)
+        self.datagram = DatagramSession(lambda: open_datagram_session(inventory))
+        self.datagram.open()  # the stops' datagram path (issue 24), before the first beat
+        self.client = FleetClient(inventory, self.session, datagram=self.datagram)
         self._declared: list[zenoh.Subscriber[None] | zenoh.Queryable[None]] = []
         self._declare()
-        self._heartbeat_pub = self.session.declare_publisher(
-            self.keys.heartbeat_of(inventory.principal), encoding=JSON, **STOP_QOS
+        # Both paths (issue 24): a beat held up by a TCP retransmission (>= 200 ms, doubling)
+        # tripped agents' 0.5 s watchdogs under loss; its datagram copy is not held up.
+        self._heartbeat_pub = TwoPathPublisher(
+            self.session, self.datagram, self.keys.heartbeat_of(inventory.principal)
         )
         self._state_pub = self.session.declare_publisher(self.keys.state, encoding=JSON)
         self._report_pub = self.session.declare_publisher(self.keys.stop_report, encoding=JSON)
@@ -218,7 +223,8 @@ class Coordinator:
             log.warning("a stop on %s did not decode: %s", event.arm or "all", event.why[:200])
         elif event.kind == "stop" and event.stop is not None:
             request = event.stop
-            if self.stops.on_stop(event.arm or FLEET, request):
+            new = not self.stops.knows(request.stop_id)  # its repeats are not logged again
+            if self.stops.on_stop(event.arm or FLEET, request) and new:
                 log.warning(
                     "stop %s by %s on %s%s",
                     request.stop_id[:24],
@@ -338,6 +344,8 @@ class Coordinator:
             entity.undeclare()
         for publisher in (self._heartbeat_pub, self._state_pub, self._report_pub, self._diag_pub):
             publisher.undeclare()
+        self.client.close()
+        self.datagram.close()
         self.session.close()
 
     def __enter__(self) -> Coordinator:

@@ -45,6 +45,10 @@ class StopBook:
                 del self._fanouts[next(iter(self._fanouts))]
         return True
 
+    def knows(self, stop_id: str) -> bool:
+        """True when the fan-out of ``stop_id`` is on record (a repeat of a known stop)."""
+        return stop_id in self._fanouts
+
     def on_reset(self, target: str) -> None:
         """A reset of the fleet (``*``: clears everything) or of one arm."""
         if target == FLEET:

@@ -1,8 +1,8 @@
 """An arm's joints as ROS TF frames, in plain Python. Pure: no I/O, no numpy.
 
 One arm's eight moving joints cost a few microseconds this way; the viewer's vectorised numpy
-kinematics (``viewer/kinematics.py``, built for 200 arms at once) costs a millisecond per call
-on one arm, which was most of ``fleet ros2``'s time per sample (issue 27's profile). The
+kinematics (``fleet/scene3d/kinematics.py``, built for 200 arms at once) costs a millisecond
+per call on one arm, which was most of ``fleet ros2``'s time per sample (a profile). The
 numbers are the same: ``tests/test_ros2_frames.py`` checks both against each other.
 
 As robot_state_publisher does, fixed joints are ``/tf_static`` (sent once) and only the moving
@@ -23,7 +23,7 @@ Pose = tuple[float, float, float, float, float, float, float]
 """x, y, z, qx, qy, qz, qw: a TransformStamped's numbers in wire order."""
 
 FINGER_TRAVEL_M = 0.033
-"""As viewer/kinematics.py: the URDF's finger joints run 0 (open) .. 0.033 m (closed)."""
+"""As fleet/scene3d/kinematics.py: the URDF's finger joints run 0 (open) .. 0.033 m (closed)."""
 
 
 @dataclass(frozen=True)
@@ -108,8 +108,8 @@ def wire_to_q(
     angles_deg: Sequence[float], joint_sign: Sequence[float], gripper_deg: tuple[float, float]
 ) -> list[float]:
     """One arm's 7 wire angles -> its 8 URDF joint values (radians, then the two fingers in
-    metres), as ``viewer.kinematics.wire_to_q`` defines it for arrays (the definition, with the
-    why, is there; this is its one-arm form and is tested equal to it)."""
+    metres), as ``fleet.scene3d.kinematics.wire_to_q`` defines it for arrays (the definition,
+    with the why, is there; this is its one-arm form and is tested equal to it)."""
     k = math.pi / 180.0
     a = angles_deg
     q = [joint_sign[i] * a[i] * k for i in range(6)]

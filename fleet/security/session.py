@@ -16,7 +16,15 @@ import zenoh
 from fleet.files import FileReadError, read_regular
 from fleet.inventory import Inventory, InventoryError
 from fleet.security.acl import access_control, payload_limits
-from fleet.wire.session import Credentials, RouterUnreachable, open_client, zenoh_config
+from fleet.wire.keys import KeySpace
+from fleet.wire.session import (
+    Credentials,
+    RouterUnreachable,
+    open_client,
+    open_datagram,
+    zenoh_config,
+)
+from fleet.wire.stoppath import stop_qos_overwrite
 
 ROUTER_PRINCIPAL = "router"
 PASSWORD_ENV = "D1_FLEET_PASSWORD"
@@ -87,6 +95,17 @@ def open_session(inventory: Inventory, connect_timeout_s: float = 10.0) -> zenoh
         raise
 
 
+def open_datagram_session(
+    inventory: Inventory, connect_timeout_s: float = 10.0
+) -> zenoh.Session | None:
+    """The datagram session of stops (``fleet.wire.session.Datagram``) beside the session of
+    ``open_session``; None in secure modes: UDP carries no TLS, so it could not be
+    authenticated, and stops there take the reliable (TLS) path only (README "Security")."""
+    if inventory.security.enabled:
+        return None
+    return open_datagram(inventory.endpoints, inventory.datagram, connect_timeout_s)
+
+
 def router_config(
     inventory: Inventory, listen: list[str], connect: list[str] | None = None
 ) -> zenoh.Config:
@@ -97,9 +116,11 @@ def router_config(
         listen=listen,
         connect=connect or [],
         credentials=credentials(inventory, ROUTER_PRINCIPAL, router=True),
+        datagram=inventory.datagram,
     )
     # Payload limits in every mode: an open fleet's heartbeat flood must not reach the agents.
     config.insert_json5("low_pass_filter", json.dumps(payload_limits(inventory)))
+    config.insert_json5("qos/network", json.dumps(stop_qos_overwrite(KeySpace(inventory.fleet))))
     if inventory.security.enabled:
         config.insert_json5("access_control", json.dumps(access_control(inventory)))
         max_message = str(inventory.security.max_payload_bytes * 2)

@@ -102,7 +102,9 @@ class Mirror:
             self.client.session, self.client.keys, [self.leader, *self.followers], self._on_joints
         )
         client = self.client
-        liveness = Liveness(client.session, client.keys, self.owner, client.principal)
+        liveness = Liveness(
+            client.session, client.keys, self.owner, client.principal, client.datagram
+        )
         deadline = None if for_s is None else time.monotonic() + for_s
         try:
             stop.wait(0.3)  # the agents hear a beat first: followers are watched from move one

@@ -58,12 +58,56 @@ def _apply(config: zenoh.Config, mode: Mode, credentials: Credentials) -> None:
 
 LEASE_S = 3.0
 """Zenoh transport lease. The default (10 s) would let a dead agent look alive for 10 s; 3 s
-with 4 keep-alives per lease detects a vanished peer in about 3 s without flapping on a loaded
-2-core host. Agent and arm liveness is watched faster by heartbeats, not by this lease."""
+with ``KEEP_ALIVES_PER_LEASE`` keep-alives detects a vanished peer in about 3 s without flapping
+on a loaded 2-core host. Agent and arm liveness is watched faster by heartbeats. Not lengthened
+for loss (issue 24): at 30 % loss per link TCP's backed-off retransmissions outlast any sensible
+lease, so the TCP session closes and reopens as before, and stops take the datagram session."""
 
+
+KEEP_ALIVES_PER_LEASE = 10
+"""Keep-alives per lease, each link (sent only on a link that carried nothing else meanwhile).
+Zenoh's default 4 lost in a row closes a link: at 30 % loss per network link (51 % per
+client-router path) that is 7 % per lease on the datagram link, which carries nothing but stops,
+acks and heartbeats; 10 make it 0.1 %, for 3 idle keep-alives a second."""
 
 ROUTER_BLOCK_WAIT_S = 0.5
 """How long a router waits for a session that stops reading before it closes it."""
+
+
+@dataclass(frozen=True)
+class Datagram:
+    """The datagram path of stops (issue 24): beside each ``tcp/`` endpoint the router also
+    listens on ``udp/`` at the same address and port, and each process opens a second, small
+    Zenoh session over UDP only (``open_datagram``) for the best-effort copies of stops, acks
+    and heartbeats. ``dscp``: the DSCP code point (0-63) marked on its packets (None: none).
+
+    Why a session of its own, not a second link of the one session (Zenoh multilink, measured
+    first): a multilink session sends reliable messages on the UDP link once its TCP link died
+    (at 30 % loss within seconds: TCP's backed-off retransmissions outlast the lease), and
+    never reopens the TCP link: after the loss the session stayed on UDP, reliable in name
+    only. Two sessions fail separately: the TCP session closes and reopens as before, the
+    datagram session keeps carrying stops."""
+
+    enabled: bool = True
+    dscp: int | None = None
+
+
+def datagram_twin(endpoint: str, dscp: int | None = None) -> str | None:
+    """The ``udp/`` endpoint beside a ``tcp/`` one (None for any other protocol: a TLS link's
+    twin would be unauthenticated)."""
+    proto, _, rest = endpoint.partition("/")
+    if proto != "tcp" or not rest:
+        return None
+    address = rest.split("#", 1)[0].split("?", 1)[0]
+    marks = f"#dscp={dscp << 2}" if dscp is not None else ""  # Zenoh takes the IP TOS byte
+    return f"udp/{address}{marks}"
+
+
+def datagram_twins(endpoints: list[str] | tuple[str, ...], datagram: Datagram | None) -> list[str]:
+    """The datagram twins of ``endpoints`` (none when ``datagram`` is off)."""
+    if datagram is None or not datagram.enabled:
+        return []
+    return [t for t in (datagram_twin(e, datagram.dscp) for e in endpoints) if t is not None]
 
 
 def zenoh_config(
@@ -72,16 +116,19 @@ def zenoh_config(
     listen: list[str] | tuple[str, ...] = (),
     connect_timeout_s: float = 10.0,
     credentials: Credentials | None = None,
+    datagram: Datagram | None = None,
 ) -> zenoh.Config:
-    """A Zenoh config with multicast scouting off and only the given endpoints."""
+    """A Zenoh config with multicast scouting off and only the given endpoints (a router with
+    ``datagram`` also listens on their datagram twins)."""
     config: zenoh.Config = zenoh.Config()
     config.insert_json5("mode", json.dumps(mode))
     config.insert_json5("scouting/multicast/enabled", "false")
     config.insert_json5("scouting/gossip/enabled", "true" if mode == "router" else "false")
     config.insert_json5("connect/endpoints", json.dumps(list(connect)))
-    config.insert_json5("listen/endpoints", json.dumps(list(listen)))
+    twins = datagram_twins(listen, datagram) if mode == "router" else []
+    config.insert_json5("listen/endpoints", json.dumps([*listen, *twins]))
     config.insert_json5("transport/link/tx/lease", json.dumps(int(LEASE_S * 1000)))
-    config.insert_json5("transport/link/tx/keep_alive", "4")
+    config.insert_json5("transport/link/tx/keep_alive", str(KEEP_ALIVES_PER_LEASE))
     if mode == "router":
         # A session that stops reading (a frozen viewer) fills the router's queue towards it;
         # on a BLOCK message the router waits this long before closing that session, and routes
@@ -120,3 +167,25 @@ def open_client(
             f"no Zenoh router answered on {', '.join(endpoints)} within {connect_timeout_s:g} s; "
             "is `fleet router` running? (--connect-timeout S waits longer)"
         ) from None
+
+
+def open_datagram(
+    endpoints: list[str] | tuple[str, ...], datagram: Datagram, connect_timeout_s: float = 10.0
+) -> zenoh.Session | None:
+    """The datagram session beside a client session (``Datagram``), or None when there is no
+    datagram twin (TLS endpoints, ``datagram = false``) or no router answers on UDP (an older
+    router: stops then take the reliable path only, as before; logged)."""
+    twins = datagram_twins(endpoints, datagram)
+    if not twins:
+        return None
+    config = zenoh_config("client", connect=twins, connect_timeout_s=connect_timeout_s)
+    try:
+        return zenoh.open(config)
+    except zenoh.ZError as exc:
+        log.warning(
+            "no datagram path for stops: no router answered on %s (%s); stops take the "
+            "reliable path only",
+            ", ".join(twins),
+            str(exc)[:200],
+        )
+        return None

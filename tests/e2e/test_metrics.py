@@ -101,6 +101,9 @@ def test_every_process_serves_metrics_on_loopback(tmp_path: Path) -> None:
         assert all(ack is not None for ack in acks.values())
         stops = wait_until(lambda: _stop_counted(ports["coordinator"]), 10.0)
         assert value(stops, "d1_stop_received_latency_seconds_count") == 2.0  # one per arm
+        # The fleet-wide figure: one per stop, the slowest arm's (issue 24).
+        last = wait_until(lambda: _last_arm_counted(ports["coordinator"]), 10.0)
+        assert value(last, "d1_stop_last_arm_received_latency_seconds_count") == 1.0
         assert value(stops, "d1_coordinator_arm_online", arm="a2") == 1.0
         assert value(scrape(ports["agent"]), "d1_agent_estopped", arm="a2") == 1.0
         # The reports count up as the simulator runs (the whole test may take under 2 s).
@@ -127,3 +130,9 @@ def _stop_counted(port: int) -> Samples | None:
     samples = scrape(port)
     count = value(samples, "d1_stop_received_latency_seconds_count") or 0
     return samples if count >= 2 else None
+
+
+def _last_arm_counted(port: int) -> Samples | None:
+    samples = scrape(port)
+    count = value(samples, "d1_stop_last_arm_received_latency_seconds_count") or 0
+    return samples if count >= 1 else None

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 from collections import Counter
+from pathlib import Path
 from typing import Any
 
 from fleet.d1 import protocol
@@ -101,3 +102,21 @@ def joint_moves(seen: list[tuple[int, int, object]], joint: int) -> Counter[floa
         for _t, _seq, c in seen
         if isinstance(c, protocol.SetJointAngle) and c.joint == joint
     )
+
+
+def datagram_linked(fleet: LabFleet, names: list[str], port: int = 7447) -> dict[str, bool]:
+    """Process name -> whether it holds a connected UDP socket to a router's Zenoh ``port``
+    (the stop's datagram path, issue 24): read from ``/proc/<pid>/net/udp`` as the process
+    sees its namespace (state 01: a connected datagram socket)."""
+    linked: dict[str, bool] = {}
+    for name in names:
+        pid = fleet.lab.harness.processes[name].pid
+        try:
+            rows = Path(f"/proc/{pid}/net/udp").read_text().splitlines()[1:]
+        except OSError:
+            linked[name] = False
+            continue
+        linked[name] = any(
+            row.split()[2].endswith(f":{port:04X}") and row.split()[3] == "01" for row in rows
+        )
+    return linked

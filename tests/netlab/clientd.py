@@ -244,6 +244,7 @@ def main() -> int:
     inventory = load_inventory(sys.argv[1])
     encoder = msgspec.json.Encoder()
     with FleetClient(inventory) as client:
+        client.watch_stop_acks()  # as a long-lived client (the viewer) has it before a stop
         daemon = Daemon(client)
         for line in sys.stdin:
             request = msgspec.json.decode(line)

@@ -63,6 +63,37 @@ def test_a_reset_releases_the_stop_and_its_repeats_never_latch_again() -> None:
     assert safety.reset() is not None and safety.reset() is None
 
 
+def test_a_late_datagram_copy_of_a_reset_stop_never_latches_again() -> None:
+    """Issue 24: a stop's copies come on two paths and a burst; any copy arriving after the
+    reset (the UDP copy behind, or a replay of it) is a repeat of a reset stop."""
+    safety = _safety()
+    assert safety.latch("s1", "op", "", 0.0, 0, stamp_ns=1_000)
+    assert not safety.latch("s1", "op", "", 0.01, 10, stamp_ns=1_000), "a duplicate acted on"
+    assert safety.reset(stamp_ns=2_000) is not None
+    for k in range(30):  # the rest of the burst, the reliable copy, a replay minutes later
+        assert not safety.latch("s1", "op", "", 0.1 + k, 0, stamp_ns=1_000)
+    assert not safety.latched
+
+
+def test_a_reset_put_before_a_stop_does_not_release_it() -> None:
+    """Issue 24: a stop's datagram copy can overtake a reset still on its way over TCP; that
+    older reset must neither release the newer stop nor make its own reliable copy a repeat."""
+    safety = _safety()
+    assert safety.latch("s2", "op", "", 0.0, 0, stamp_ns=2_000)
+    assert safety.reset(stamp_ns=1_000) is None, "a reset older than the stop released it"
+    assert safety.latched and safety.is_current("s2")
+    assert not safety.latch("s2", "op", "", 0.1, 0, stamp_ns=2_000)  # its copy: a repeat
+    assert safety.reset(stamp_ns=3_000) is not None  # a reset put after it releases it
+    assert not safety.latched
+    assert safety.reset(stamp_ns=None) is None  # nothing latched: nothing released
+
+
+def test_the_agents_own_stops_are_released_by_any_reset() -> None:
+    safety = _safety()
+    assert safety.latch("watchdog-1", "watchdog", "", 0.0, 0)  # no sender stamp
+    assert safety.reset(stamp_ns=1) is not None
+
+
 def test_a_newer_stop_supersedes_and_one_reset_releases_both() -> None:
     safety = _safety()
     _latch(safety, "s1")

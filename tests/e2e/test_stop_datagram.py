@@ -1,0 +1,77 @@
+"""Issue 24, bad input on the stops' datagram path, on real stacks (router, simulated arm,
+agent on loopback): duplicated, replayed and flooded stop datagrams. A duplicate is acted on
+once, a replay of a reset stop never latches again, and a flood of replays does not hold up a
+genuine stop. (A forged stop still only stops: anyone may stop, on either path.)"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+from fleet.client import FleetClient
+from fleet.wire import messages as m
+from fleet.wire.session import open_datagram
+from fleet.wire.stoppath import DATAGRAM_QOS, JSON
+from testkit.harness import FleetHarness, wait_until
+
+FLOOD_S = 3.0
+
+
+def _estopped(client: FleetClient) -> bool | None:
+    status, _joints = client.snapshot(["a1"], wait_s=1.0)["a1"]
+    return None if status is None else status.estopped
+
+
+def test_duplicated_replayed_and_flooded_stop_datagrams(fleet_harness: FleetHarness) -> None:
+    h = fleet_harness
+    h.start_router()
+    h.start_sim()
+    h.start_agent("a1")
+    client = h.client()
+    wait_until(lambda: h.all_links_ok(client), 30.0)
+    rogue = open_datagram(h.inventory.endpoints, h.inventory.datagram)
+    assert rogue is not None, "the router does not listen on the datagram twin"
+    key = client.keys.estop
+    try:
+        # Duplicates: one stop, 50 copies on UDP and its own repeats on both paths.
+        request = client.stop_request(reason="duplicated", source="test")
+        data = m.encode(request)
+        for _ in range(50):
+            rogue.put(key, data, encoding=JSON, **DATAGRAM_QOS)  # type: ignore[arg-type]
+        acks = client.estop(request=request, timeout_s=10.0)
+        assert acks["a1"] is not None and acks["a1"].done, acks
+        assert h.log("agent").count("stopped a1 by") == 1, h.log("agent")
+
+        client.reset(source="test")
+        wait_until(lambda: _estopped(client) is False, 10.0)
+
+        # Replays of the reset stop, as a flood, while a genuine stop is put.
+        stop_flood = threading.Event()
+
+        def flood() -> None:
+            while not stop_flood.is_set():
+                rogue.put(key, data, encoding=JSON, **DATAGRAM_QOS)  # type: ignore[arg-type]
+
+        flooder = threading.Thread(target=flood, name="flood", daemon=True)
+        flooder.start()
+        try:
+            deadline = time.monotonic() + FLOOD_S / 2
+            while time.monotonic() < deadline:  # an observation window, not a wait for a state
+                assert _estopped(client) is False, "a replayed stop latched again after reset"
+            genuine = client.stop_request(reason="genuine", source="test")
+            acks = client.estop(request=genuine, timeout_s=10.0)
+        finally:
+            stop_flood.set()
+            flooder.join(timeout=5.0)
+        ack = acks["a1"]
+        assert ack is not None and ack.stop_id == genuine.stop_id, acks
+        received_ms = (ack.received_ns - genuine.stamp_ns) / 1e6
+        print(
+            f"\nunder a flood of replayed datagrams a genuine stop was received in "
+            f"{received_ms:.1f} ms"
+        )
+        assert received_ms <= 400.0, f"a flood held a genuine stop up {received_ms:.0f} ms"
+        assert h.log("agent").count("stopped a1 by") == 2, h.log("agent")
+    finally:
+        rogue.close()
+        client.reset(source="test")
