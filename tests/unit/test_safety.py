@@ -64,7 +64,7 @@ def test_a_reset_releases_the_stop_and_its_repeats_never_latch_again() -> None:
 
 
 def test_a_late_datagram_copy_of_a_reset_stop_never_latches_again() -> None:
-    """Issue 24: a stop's copies come on two paths and a burst; any copy arriving after the
+    """A stop's copies come on two paths and a burst; any copy arriving after the
     reset (the UDP copy behind, or a replay of it) is a repeat of a reset stop."""
     safety = _safety()
     assert safety.latch("s1", "op", "", 0.0, 0, stamp_ns=1_000)
@@ -76,7 +76,7 @@ def test_a_late_datagram_copy_of_a_reset_stop_never_latches_again() -> None:
 
 
 def test_a_reset_put_before_a_stop_does_not_release_it() -> None:
-    """Issue 24: a stop's datagram copy can overtake a reset still on its way over TCP; that
+    """A stop's datagram copy can overtake a reset still on its way over TCP; that
     older reset must neither release the newer stop nor make its own reliable copy a repeat."""
     safety = _safety()
     assert safety.latch("s2", "op", "", 0.0, 0, stamp_ns=2_000)
@@ -86,6 +86,33 @@ def test_a_reset_put_before_a_stop_does_not_release_it() -> None:
     assert safety.reset(stamp_ns=3_000) is not None  # a reset put after it releases it
     assert not safety.latched
     assert safety.reset(stamp_ns=None) is None  # nothing latched: nothing released
+
+
+def test_an_older_stop_arriving_after_a_newer_one_does_not_let_a_reset_release_the_newer() -> None:
+    """Copies on two paths: the newer stop s3 arrives first, then the older s1 (it becomes the
+    latched one), then a reset put between them: the reset is older than s3, so nothing is
+    released, and s3's own later copy finds it still latched."""
+    safety = _safety()
+    assert safety.latch("s3", "op", "", 0.0, 0, stamp_ns=3_000)
+    assert safety.latch("s1", "op", "", 0.1, 0, stamp_ns=1_000)  # supersedes on arrival
+    assert safety.reset(stamp_ns=2_000) is None, "released a stop put after the reset"
+    assert safety.latched
+    assert safety.reset(stamp_ns=4_000) is not None
+    assert not safety.latched
+
+
+def test_a_stop_put_before_the_newest_reset_is_stale_however_many_ids_came_since() -> None:
+    """The id tables are bounded; the stamps are not fooled by a flood of ids: a late copy of a
+    stop put before a reset that was acted on never latches, even once its id is forgotten."""
+    safety = _safety()
+    assert safety.latch("old", "op", "", 0.0, 0, stamp_ns=1_000)
+    assert safety.reset(stamp_ns=2_000) is not None
+    for k in range(1000):  # stops and resets enough to push "old" out of every id table
+        assert safety.latch(f"s{k}", "op", "", 0.0, 0, stamp_ns=3_000 + 2 * k)
+        assert safety.reset(stamp_ns=3_001 + 2 * k) is not None
+    assert "old" not in safety.reset_stop_ids
+    assert not safety.latch("old", "op", "", 1.0, 0, stamp_ns=1_000), "a stale copy latched"
+    assert safety.latch("new", "op", "", 1.0, 0, stamp_ns=10_000)
 
 
 def test_the_agents_own_stops_are_released_by_any_reset() -> None:
