@@ -42,6 +42,11 @@ DEADBAND_DEG = 0.05
 """Joint changes smaller than this are not drawn (feedback jitter would resend every tick)."""
 
 LABEL_HEIGHT_M = 0.72
+"""The highest a label goes above its base (an arm reaching straight up); framing uses it."""
+LABEL_ABOVE_M = 0.12
+"""A label floats this far above its arm's highest link origin (the link's own shape below it)."""
+LABEL_STEP_M = 0.02
+"""A label moves only when its height changes by more than this (no resend per sample)."""
 ERROR_MARK_HEIGHT_M = 0.64
 
 # Look codes per arm, in priority order (the first that applies wins).
@@ -194,6 +199,7 @@ class FleetScene:
             )
             for i, arm in enumerate(self.arms)
         ]
+        self._label_z = np.full(n, np.nan)  # drawn label heights above the base (nan: not yet)
 
     def _reach_points(self, configs: Sequence[Placement]) -> npt.NDArray[np.float64]:
         """(M, 3) world points around every arm's reach (viewer/reach.py): arms that share a
@@ -262,6 +268,22 @@ class FleetScene:
         wxyz = matrix_to_wxyz(world[..., :3, :3]).transpose(1, 0, 2)
         return wxyz, world[..., :3, 3].transpose(1, 0, 2)
 
+    def _place_labels(self, pos: npt.NDArray[np.float64]) -> None:
+        """Each label (and error ball) just above its arm's highest link as drawn, not an
+        arm-height above a folded arm; moved only by more than ``LABEL_STEP_M``."""
+        base = self.base[:, :3, 3]
+        above = np.minimum(pos[:, :, 2].max(axis=0) - base[:, 2] + LABEL_ABOVE_M, LABEL_HEIGHT_M)
+        changed = ~(np.abs(above - self._label_z) <= LABEL_STEP_M)  # nan: never placed
+        if not changed.any():
+            return
+        self._label_z[changed] = above[changed]
+        for i in np.flatnonzero(changed):
+            self._labels[i].position = tuple(base[i] + [0.0, 0.0, above[i]])
+        below_label = ERROR_MARK_HEIGHT_M - LABEL_HEIGHT_M  # the ball sits under its label
+        marks = base.copy()
+        marks[:, 2] += above + below_label
+        self._error_marks.batched_positions = marks
+
     def drawn_angles(self, snapshot: Snapshot) -> npt.NDArray[np.float64]:
         """(N, 7) the angles to draw: the arms' own, with a mounted gripper's opening (a
         Dex1-1 on the arm: ``opening_pct``) driving that arm's fingers instead of ``angle6``."""
@@ -302,6 +324,7 @@ class FleetScene:
                         continue  # the base never moves
                     handle.batched_wxyzs = wxyz[k]
                     handle.batched_positions = pos[k]
+                self._place_labels(pos)
             if recolour.any():
                 for k, (mesh, handle) in enumerate(zip(self.meshes, self._links, strict=True)):
                     colors = tinted(mesh.rgb, code)
