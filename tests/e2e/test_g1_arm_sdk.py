@@ -116,7 +116,10 @@ def test_arm_sdk_stream_to_a_fake_g1_on_unitrees_sdk(  # type: ignore[no-untyped
         assert (
             reply.error is not None and "lock standing (4) and the walking" in reply.error.message
         )
-        assert len(_arm_lines(harness)) == before
+        # Nothing of it reached the robot: a message still on its way from the release ramp
+        # may land in the fake's log after ``before`` was read, but the weight never rises.
+        weights = [line["arm"] for line in _arm_lines(harness)[max(before - 1, 0) :]]
+        assert all(b <= a for a, b in zip(weights, weights[1:], strict=False)), weights
     finally:
         states.close()
         lows.close()
