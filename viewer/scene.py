@@ -219,9 +219,11 @@ class FleetScene:
     def view_points(self) -> npt.NDArray[np.float64]:
         """(M, 3) points the camera frames (at start and on "Fit view"): every arm's whole reach
         and its label at its highest, so an arm at any pose its joint limits allow stays in
-        view; the same whatever pose the arms are in now."""
+        view; the same whatever pose the arms are in now; and what other scenes add
+        (``frame_also``: each G1's body)."""
         labels = self.base[:, :3, 3] + [0.0, 0.0, LABEL_HEIGHT_M + 0.03]
-        return np.vstack([self.reach, labels])
+        extra = [points() for points in self.more_points]
+        return np.vstack([self.reach, labels, *extra])
 
     def _set_initial_camera(self) -> None:
         """Where a new browser's camera starts (and viser's "reset view" returns to)."""

@@ -52,3 +52,18 @@ def test_labels_follow_the_arms_height() -> None:
         assert [label.position for label in scene._labels] == before  # noqa: SLF001
     finally:
         server.stop()
+
+
+def test_the_first_view_and_fit_view_frame_what_other_scenes_add() -> None:
+    """The G1s (``frame_also``) are framed with the arms' reach: at start and on Fit view."""
+    urdf = load_urdf()
+    model = ArmModel.from_urdf(urdf)
+    server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
+    try:
+        meshes = link_meshes(urdf, model.links)
+        scene = FleetScene(server, load_inventory(INVENTORY).arms, model, meshes)
+        head = np.array([[-1.0, 2.0, 1.7]])  # a humanoid's head, beside the arms
+        scene.frame_also(lambda: head)
+        assert any(np.allclose(p, head[0]) for p in scene.view_points())
+    finally:
+        server.stop()
