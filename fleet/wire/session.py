@@ -72,6 +72,11 @@ acks and heartbeats; 10 make it 0.1 %, for 3 idle keep-alives a second."""
 
 ROUTER_BLOCK_WAIT_S = 0.5
 """How long a router waits for a session that stops reading before it closes it."""
+RECONNECT_RETRY = {"period_init_ms": 250, "period_max_ms": 1000, "period_increase_factor": 2}
+"""How often a lost router (or a site router's central one) is tried again. Zenoh's default
+backs off to 4 s: a router restarted 1-3 s after it died was found by its clients up to 4 s
+after it listened again (measured: 2.0-3.0 s; with these, 0.0-0.25 s); an arm's joints and
+acks wait for it. One TCP connect a second per session to a dead router costs nothing."""
 
 
 @dataclass(frozen=True)
@@ -125,6 +130,7 @@ def zenoh_config(
     config.insert_json5("scouting/multicast/enabled", "false")
     config.insert_json5("scouting/gossip/enabled", "true" if mode == "router" else "false")
     config.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    config.insert_json5("connect/retry", json.dumps(RECONNECT_RETRY))
     twins = datagram_twins(listen, datagram) if mode == "router" else []
     config.insert_json5("listen/endpoints", json.dumps([*listen, *twins]))
     config.insert_json5("transport/link/tx/lease", json.dumps(int(LEASE_S * 1000)))

@@ -22,6 +22,7 @@ from fleet.scene3d.frames3d import urdf_topic
 from fleet.security_config import Security
 from fleet.tables import PinnedTable
 from fleet.wire import messages as m
+from fleet.wire.stoppath import RELIABLE_QOS
 from testkit.foxglove_client import SUBPROTOCOL, FoxgloveClient
 from testkit.harness import FleetHarness, free_port, wait_until
 
@@ -85,17 +86,19 @@ def test_made_up_names_never_hide_an_inventory_arms_channel(tmp_path: Path) -> N
             fox = FoxgloveClient(bridge.url)
             try:
                 fox.wait_for_topics({urdf_topic("a3")}, 10.0)
-                # The review's attack: 1100 stops for made-up arms, then the real a3's stop.
+                # The review's attack: 1100 stops for made-up arms, then the real a3's stop. BLOCK,
+                # as a stop is put: a plain put is DROP, and Zenoh dropped some of a burst this
+                # long on a loaded host (the eviction count then fell short).
                 for i in range(MAX_KEY_CHANNELS + 100):
-                    client.session.put(f"fleet/test/arm/made{i}/estop", _stop())
+                    client.session.put(f"fleet/test/arm/made{i}/estop", _stop(), **RELIABLE_QOS)
                 wait_until(lambda: bridge._channels.evicted >= 100, 20.0)
                 real = "fleet/test/arm/a3/estop"
-                client.session.put(real, _stop())
+                client.session.put(real, _stop(), **RELIABLE_QOS)
                 fox.wait_for_topics({real}, 10.0)
                 assert len(bridge._channels) <= MAX_KEY_CHANNELS + bridge._channels.pinned_count()
                 # The real arm's channel stays through another flood.
                 for i in range(MAX_KEY_CHANNELS + 100):
-                    client.session.put(f"fleet/test/arm/more{i}/estop", _stop())
+                    client.session.put(f"fleet/test/arm/more{i}/estop", _stop(), **RELIABLE_QOS)
                 wait_until(lambda: bridge._channels.evicted >= 1200, 20.0)
                 assert real in bridge._channels
                 assert real in fox.topics() or fox.wait_for_topics({real}, 5.0)
