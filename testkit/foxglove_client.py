@@ -10,6 +10,7 @@ import struct
 import time
 from typing import Any
 
+import numpy as np
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from websockets.sync.client import ClientConnection, connect
 
@@ -26,6 +27,43 @@ def protobuf_class(schema_name: str, descriptor_set: bytes) -> Any:
     return message_factory.GetMessageClass(pool.FindMessageTypeByName(schema_name))
 
 
+def _matrix(transform: Any) -> Any:
+    """4x4 from a decoded foxglove.FrameTransform (protobuf)."""
+    q, t = transform.rotation, transform.translation
+    w, x, y, z = q.w, q.x, q.y, q.z
+    out = np.eye(4)
+    out[:3, :3] = [
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ]
+    out[:3, 3] = [t.x, t.y, t.z]
+    return out
+
+
+def world_from_links(message: Any) -> dict[str, Any]:
+    """Every child frame's world transform (4x4), composed from a decoded FrameTransforms'
+    parent -> child transforms: what Foxglove's 3D panel places each link at."""
+    edges = {t.child_frame_id: (t.parent_frame_id, _matrix(t)) for t in message.transforms}
+    out: dict[str, Any] = {"world": np.eye(4)}
+
+    def resolve(frame: str) -> Any:
+        if frame not in out:
+            parent, local = edges[frame]
+            out[frame] = resolve(parent) @ local
+        return out[frame]
+
+    for frame in edges:
+        resolve(frame)
+    return out
+
+
+def stamp_ns_of(message: Any) -> int:
+    """The stamp of a decoded FrameTransforms (its first transform's), in ns."""
+    stamp = message.transforms[0].timestamp
+    return int(stamp.seconds) * 1_000_000_000 + int(stamp.nanos)
+
+
 class FoxgloveClient:
     """One connection: the advertised channels, subscriptions, decoded messages."""
 
@@ -40,6 +78,7 @@ class FoxgloveClient:
         self.server_info: dict[str, Any] | None = None
         self.channels: dict[int, dict[str, Any]] = {}
         self._subscriptions: dict[int, int] = {}  # subscription id -> channel id
+        self._classes: dict[int, Any] = {}  # channel id -> its protobuf class (built once)
 
     def read(self, timeout_s: float) -> tuple[int, int, bytes] | None:
         """Handle text messages until a message-data frame (channel id, log time, payload)
@@ -93,7 +132,10 @@ class FoxgloveClient:
         if channel["encoding"] == "json":
             return json.loads(payload)
         assert channel["encoding"] == "protobuf" and channel["schemaEncoding"] == "protobuf"
-        cls = protobuf_class(channel["schemaName"], base64.b64decode(channel["schema"]))
+        cls = self._classes.get(channel_id)
+        if cls is None:  # a descriptor pool per message took ms: a reader fell behind the stream
+            cls = protobuf_class(channel["schemaName"], base64.b64decode(channel["schema"]))
+            self._classes[channel_id] = cls
         return cls.FromString(payload)
 
     def close(self) -> None:

@@ -4,8 +4,10 @@ test runs once per kind, parametrized, never copied."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import contextlib
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import msgspec
@@ -17,12 +19,23 @@ from fleet.g1.messages import SetVelocity
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
 from testkit.collect import Collector
+from testkit.harness import FleetHarness
 
 DEVICES = (
     '[grippers.gl]\nfamily = "go"\nmount = "a1"\n\n'
     '[g1.h1]\nstop_action = "stop_move"\nsim_settle_s = 0.1\n'
 )
 """The inventory lines of the devices beside arm a1 (the harness writes the arm)."""
+
+
+@contextlib.contextmanager
+def devices_fleet(tmp_path: Path) -> Iterator[FleetHarness]:
+    """Router, ``fleet sim`` (a1 and the ``DEVICES``: gl, h1) and one agent serving them all."""
+    with FleetHarness(tmp_path, arms=1, extra=DEVICES) as harness:
+        harness.start_router()
+        harness.start_sim()
+        harness.start("agent", ["-m", "edge_agent", "--interface", "lo"])
+        yield harness
 
 
 @dataclass(frozen=True)

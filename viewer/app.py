@@ -17,7 +17,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 import viser
@@ -27,9 +27,11 @@ from fleet.g1.config import G1Config
 from fleet.guard import ThreadGuard
 from fleet.inventory import Inventory
 from fleet.record.layout import FleetLayout
+from fleet.scene3d.g1_body import G1Placement
 from fleet.scene3d.kinematics import ArmModel, load_urdf
 from fleet.security.session import open_session
 from fleet.web.access import AccessGuard, AccessPolicy, new_token, url_host
+from fleet.wire import keys
 from viewer.commands import Commander
 from viewer.events import REFUSED
 from viewer.g1_scene import G1Scene
@@ -110,6 +112,10 @@ class Viewer:
                 self.state = self.timeline.state
                 placements: FleetLayout | Inventory = replay.layout
                 arms = tuple(replay.layout.arms)
+                g1s: Mapping[str, G1Placement] = {
+                    d: p for d, p in replay.layout.devices.items() if p.kind == keys.G1
+                }
+                device_kinds = {d: p.kind for d, p in replay.layout.devices.items()}
             else:
                 assert inventory is not None
                 self.session = open_session(inventory)
@@ -129,17 +135,16 @@ class Viewer:
                 )
                 placements = inventory
                 arms = tuple(inventory.arms)
+                g1s = {d: c for d, c in inventory.devices.items() if isinstance(c, G1Config)}
+                device_kinds = {d: kind_of(c).key for d, c in inventory.devices.items()}
         except BaseException:
             self.server.stop()
             raise
         self.read_only = self.commander is None or self.commander.read_only
         self.scene = FleetScene(self.server, placements.arms, model, meshes)
+        # The G1s and devices, live from the inventory or laid out in the recording: the same
+        # scenes and panels, fed by the same ViewerFleet.
         self.g1_scene: G1Scene | None = None
-        g1s = {
-            device: config
-            for device, config in (inventory.devices if inventory is not None else {}).items()
-            if isinstance(config, G1Config)
-        }
         if g1s:
             self.g1_scene = G1Scene(self.server, g1s, self.scene.base[:, :3, 3])
             self.scene.frame_also(self.g1_scene.frame_points)
@@ -150,9 +155,7 @@ class Viewer:
             self.state.events,
             self.scene.fit,
             self.timeline,
-            devices=None
-            if inventory is None
-            else {d: kind_of(c).key for d, c in inventory.devices.items()},
+            devices=device_kinds,
         )
         self._framed: set[int] = set()
         self.server.on_client_connect(self._on_connect)

@@ -1,11 +1,13 @@
 """The G1 humanoids in the 3D scene: each drawn from Unitree's g1_29dof kinematics
-(fleet/scene3d/assets/g1_29dof.urdf, primitives only) and posed live from its ``g1/<id>/lowstate``
-(29 joints, rad, Unitree's motor order), tilted by its IMU's roll and pitch.
+(fleet/scene3d/assets/g1_29dof.urdf, primitives only) and posed from its ``g1/<id>/lowstate``
+(29 joints, rad, Unitree's motor order), tilted by its IMU's roll and pitch: live, or from a
+recording (``fleet viewer --replay``), through the same ``render``.
 
 Like the arms (viewer/scene.py): one instanced mesh per link with an instance per G1, forward
 kinematics for all of them in numpy, one ``server.atomic()`` per tick, a deadband so feedback
-jitter never resends. The pelvis stays at its standing height (the viewer does not know where
-the robot walked): the drawing shows the joints and the state, not the odometry.
+jitter never resends. Where a G1 stands and where its links are is fleet/scene3d/g1_body.py's
+(Foxglove shows the same pose): the pelvis at its standing height (the viewer does not know
+where the robot walked), the drawing shows the joints and the state, not the odometry.
 
 Looks (the arms' colours, viewer/scene.py's legend): normal; grey when its lowstate is stale or
 its link is not ok; dark grey before any state; red tint when its stop is latched. The label
@@ -21,34 +23,24 @@ import numpy as np
 import numpy.typing as npt
 import viser
 
-from fleet.g1.config import G1Config
 from fleet.g1.messages import G1LowState, G1State
-from fleet.scene3d.kinematics import (
-    URDF_PATH,
-    ArmModel,
-    base_transforms,
-    forward,
-    load_urdf,
-    matrix_to_wxyz,
-)
+from fleet.scene3d.g1_body import G1_URDF_PATH, G1Body, G1Placement, pose_of
+from fleet.scene3d.kinematics import ArmModel, matrix_to_wxyz
 from viewer.meshes import LinkMesh, link_meshes
 from viewer.scene import NORMAL, OFFLINE, STALE, STOPPED, tinted
 from viewer.state import STALE_S, DeviceView
 
-G1_URDF_PATH = URDF_PATH.parent / "g1_29dof.urdf"
+__all__ = ["G1_URDF_PATH", "G1Scene", "g1_label", "g1_look", "load_g1"]
+
 DEADBAND_RAD = 0.002
 LABEL_ABOVE_M = 0.25
 """The label floats this far above the head's top."""
-SPACING_M = 1.0
-"""G1s without ``base_xyz`` stand this far apart, this far to the left of the arms."""
 
 
 def load_g1() -> tuple[ArmModel, list[LinkMesh], tuple[str, ...]]:
     """The G1's model (columns of ``q``: its 29 joints in motor order) and link meshes."""
-    urdf = load_urdf(G1_URDF_PATH)
-    joints = tuple(j.name for j in urdf.robot.joints if j.type == "revolute")
-    model = ArmModel.from_urdf(urdf, q_joints=joints)
-    return model, link_meshes(urdf, model.links), joints
+    body = G1Body.load()
+    return body.model, link_meshes(body.urdf, body.model.links), body.joints
 
 
 def g1_label(device: str, code: int, state: G1State | None) -> str:
@@ -76,22 +68,6 @@ def g1_look(view: DeviceView) -> int:
     return NORMAL
 
 
-def placements(
-    configs: Mapping[str, G1Config], arm_xyz: npt.NDArray[np.float64]
-) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-    """(G, 3) floor points and (G,) yaw (deg): the inventory's, or a row left of the arms."""
-    x0 = float(arm_xyz[:, 0].mean()) if len(arm_xyz) else 0.0
-    y0 = (float(arm_xyz[:, 1].max()) if len(arm_xyz) else 0.0) + SPACING_M
-    xyz = np.array(
-        [
-            c.base_xyz if c.base_xyz is not None else (x0 + k * SPACING_M, y0, 0.0)
-            for k, c in enumerate(configs.values())
-        ],
-        dtype=float,
-    ).reshape(-1, 3)
-    return xyz, np.array([c.base_yaw_deg for c in configs.values()], dtype=float)
-
-
 class G1Scene:
     """Scene nodes of every G1 of the inventory; ``render(devices)`` draws one tick (viewer
     thread only)."""
@@ -99,24 +75,21 @@ class G1Scene:
     def __init__(
         self,
         server: viser.ViserServer,
-        configs: Mapping[str, G1Config],
+        placements: Mapping[str, G1Placement],
         arm_xyz: npt.NDArray[np.float64],
     ) -> None:
+        """``placements``: each G1's inventory entry (live) or recorded placement (a replay)."""
         self.server = server
-        self.devices = tuple(configs)
-        self.model, self.meshes, self.joints = load_g1()
+        self.devices = tuple(placements)
+        self.body = G1Body.load()
+        self.model, self.joints = self.body.model, self.body.joints
+        self.meshes = link_meshes(self.body.urdf, self.model.links)
         n = len(self.devices)
         self._link_index = [self.model.links.index(mesh.link) for mesh in self.meshes]
         self._q = np.zeros((n, len(self.joints)))
         self._rp = np.zeros((n, 2))  # IMU roll, pitch (rad)
-        floor, yaw = placements(configs, arm_xyz)
-        zero = forward(self.model, np.zeros((1, len(self.joints))))[0]
-        feet = [zero[i, 2, 3] for i, link in enumerate(self.model.links) if "ankle_roll" in link]
-        self.pelvis_height_m = -min(feet) + 0.045  # the foot boxes' soles on the floor
-        self._floor = floor
-        self.base = base_transforms(
-            floor + [0.0, 0.0, self.pelvis_height_m], np.c_[0 * yaw, 0 * yaw, yaw]
-        )
+        self._floor, self.base = self.body.bases(placements, arm_xyz)
+        self.pelvis_height_m = self.body.pelvis_height_m
         self._code = np.full(n, -1, dtype=np.int8)
         self._text = [""] * n
         wxyz, pos = self._poses()
@@ -145,10 +118,7 @@ class G1Scene:
 
     def _world(self) -> npt.NDArray[np.float64]:
         """(G, L, 4, 4) world-from-link of every G1 at its drawn joints and tilt."""
-        n = len(self.devices)
-        rpy_deg = np.degrees(np.c_[self._rp, np.zeros(n)])
-        tilt = base_transforms(np.zeros((n, 3)), rpy_deg)
-        return (self.base @ tilt)[:, None] @ forward(self.model, self._q)
+        return self.body.world(self.base, self._q, self._rp)
 
     def _poses(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
         world = self._world()[:, self._link_index]
@@ -173,12 +143,8 @@ class G1Scene:
             states.append(state)
             code[i] = OFFLINE if view is None else g1_look(view)
             low = None if view is None else view.low
-            if isinstance(low, G1LowState) and len(low.q_rad) == len(self.joints):
-                row = np.asarray(low.q_rad, dtype=float)
-                if np.all(np.isfinite(row)):
-                    q[i] = row
-                if len(low.imu_rpy) == 3 and np.all(np.isfinite(low.imu_rpy)):
-                    rp[i] = low.imu_rpy[:2]
+            if isinstance(low, G1LowState):  # decoded: its schema bounds it (29 finite angles)
+                q[i], rp[i] = pose_of(low)
         moved = np.any(np.abs(q - self._q) > DEADBAND_RAD, axis=1) | np.any(
             np.abs(rp - self._rp) > DEADBAND_RAD, axis=1
         )

@@ -2,10 +2,14 @@
 plays, pauses, scrubs and speeds up, and nothing that could command an arm.
 
 No Zenoh session is opened at all: the recorded samples are fed, in log-time order, through the
-same ``ViewerFleet.ingest`` as live samples, so the scene, the table, the arm panels and the event
-log show a replay exactly as they showed the live fleet. Time is the recording's: an arm's
-joints age is measured against the replay's position, and an arm is online while its agent's
-status is fresh there (a recording holds no liveliness tokens).
+same ``ViewerFleet.ingest`` as live samples, so the scene, the table, the arm and device panels
+and the event log show a replay exactly as they showed the live fleet: a gripper's opening on
+the arm it is mounted on, a G1 posed from its recorded lowstate with its FSM and stop on its
+label (the same ``render`` of viewer/scene.py and viewer/g1_scene.py). A recorded payload that
+does not decode (a damaged or hostile file) is counted in ``ViewerFleet.malformed``, logged
+rate-limited and shown in the replay panel; it is never drawn. Time is the recording's: an
+arm's joints age is measured against the replay's position, and an arm is online while its
+agent's status is fresh there (a recording holds no liveliness tokens).
 
 Threads: the GUI's callbacks only *ask* (``request_seek``, ``set_playing``, ``set_speed``);
 the viewer's render thread applies the requests in ``tick`` and is the only one that moves the
@@ -19,12 +23,19 @@ from __future__ import annotations
 import threading
 from dataclasses import dataclass
 
+from fleet.devices import DeviceKind, kinds
 from fleet.record.errors import RecordError
-from fleet.record.layout import LAYOUT_METADATA, FleetLayout, layout_from_keys, layout_from_metadata
+from fleet.record.layout import (
+    LAYOUT_METADATA,
+    FleetLayout,
+    devices_from_keys,
+    layout_from_keys,
+    layout_from_metadata,
+)
 from fleet.record.reader import Recorded, Recording
 from fleet.wire import keys
 from viewer.events import EventLog
-from viewer.state import INGESTED, Snapshot, ViewerFleet
+from viewer.state import DEVICE_SHOWN, INGESTED, Snapshot, ViewerFleet
 
 SPEEDS = (0.25, 0.5, 1.0, 2.0, 4.0, 8.0)
 """Playback speeds offered (1 = as recorded)."""
@@ -32,13 +43,20 @@ SPEEDS = (0.25, 0.5, 1.0, 2.0, 4.0, 8.0)
 
 @dataclass(frozen=True)
 class ReplaySource:
-    """What a replay shows: the recording's messages the viewer uses, and where arms stand."""
+    """What a replay shows: the recording's messages the viewer uses, and where arms and
+    devices stand."""
 
     path: str
     layout: FleetLayout
     messages: tuple[Recorded, ...]
     layout_recorded: bool
     """False: an older recording without a layout; the arms stand in a row."""
+
+    def device_kinds(self) -> dict[str, tuple[DeviceKind, str]]:
+        """Device id -> (its kind, the arm it is mounted on or ""), as ``ViewerFleet`` takes
+        them live from the inventory."""
+        registry = kinds()
+        return {d: (registry[p.kind], p.mount) for d, p in self.layout.devices.items()}
 
 
 def replay_source(recording: Recording) -> ReplaySource:
@@ -51,20 +69,36 @@ def replay_source(recording: Recording) -> ReplaySource:
         layout = layout_from_keys(r.key for r in recording.messages)
     if layout is None or not layout.arms:
         raise RecordError(f"{recording.path}: no arm's state in this recording: nothing to show")
+    if not layout.devices:  # made before devices were laid out: the keys name them
+        found = devices_from_keys(layout.fleet, (r.key for r in recording.messages))
+        layout = FleetLayout(layout.fleet, layout.arms, found)
     space = keys.KeySpace(layout.fleet)
     fleet_keys = (space.estop, space.reset)
+    shown_keys: dict[str, bool] = {}  # a recording has few distinct keys: parse each once
 
     def shown(key: str) -> bool:
         if key in fleet_keys:
             return True
-        try:
-            parsed = space.parse_arm_key(key)
-        except keys.KeyError_:
-            return False
-        return parsed.arm in layout.arms and parsed.channel in INGESTED
+        if key not in shown_keys:
+            try:
+                parsed = space.parse_key(key)
+            except keys.KeyError_:
+                parsed = None
+            shown_keys[key] = parsed is not None and _shows(layout, parsed)
+        return shown_keys[key]
 
     messages = tuple(r for r in recording.messages if shown(r.key))
     return ReplaySource(recording.path, layout, messages, recorded is not None)
+
+
+def _shows(layout: FleetLayout, key: keys.Key) -> bool:
+    """An arm's channel the viewer shows, or a laid-out device's state or lowstate."""
+    if key.principal:
+        return False
+    if key.kind == keys.ARM:
+        return key.unit in layout.arms and key.channel in INGESTED
+    device = layout.devices.get(key.unit)
+    return device is not None and device.kind == key.kind and key.channel in DEVICE_SHOWN
 
 
 class ReplayTimeline:
@@ -86,6 +120,7 @@ class ReplayTimeline:
             source.layout.fleet,
             clock=lambda: self.position_s,
             online_from_status=True,
+            devices=source.device_kinds(),
         )
         self._lock = threading.Lock()  # guards the requests below (GUI threads write them)
         self._seek_to: float | None = None

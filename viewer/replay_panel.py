@@ -1,4 +1,5 @@
-"""The replay's timeline controls: play/pause, a scrub slider, the speed, and where we are.
+"""The replay's timeline controls: play/pause, a scrub slider, the speed, where we are, and how
+many recorded samples did not decode (a damaged or hostile file: skipped, never drawn).
 
 The controls only ask the timeline (viewer/replay.py); the render thread moves it, and
 ``update`` (panel rate) moves the slider along while playing. A slider update that came from
@@ -35,8 +36,10 @@ class ReplayControls:
                     "stand in a row, not where they stood."
                 )
             )
+            devices = source.layout.devices
+            beside = f", {len(devices)} devices ({', '.join(devices)})" if devices else ""
             gui.add_markdown(
-                f"Replay of `{source.path}`: {len(timeline.arms)} arms, "
+                f"Replay of `{source.path}`: {len(timeline.arms)} arms{beside}, "
                 f"{timeline.duration_s:.1f} s. Nothing here commands an arm.{note}"
             )
             self.play = gui.add_button("Play", icon=viser.Icon.PLAYER_PLAY)
@@ -54,7 +57,7 @@ class ReplayControls:
             )
             self.speed.on_update(self._on_speed)
             self.where = gui.add_html("")
-        self._shown: tuple[bool, float] | None = None
+        self._shown: tuple[bool, float, int] | None = None
 
     def _toggle(self) -> None:
         self.timeline.set_playing(not self.timeline.playing)
@@ -72,7 +75,8 @@ class ReplayControls:
     def update(self) -> None:
         """Follow the timeline: the button's label, the slider, the time readout."""
         timeline = self.timeline
-        shown = (timeline.playing, round(timeline.position_s, 1))
+        malformed = timeline.state.malformed
+        shown = (timeline.playing, round(timeline.position_s, 1), malformed)
         if shown == self._shown:
             return
         self._shown = shown
@@ -81,10 +85,16 @@ class ReplayControls:
         self.play.icon = viser.Icon.PLAYER_PAUSE if timeline.playing else viser.Icon.PLAYER_PLAY
         self.slider.value = min(max(shown[1], self.slider.min), self.slider.max)
         wall = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(timeline.position_wall_ns / 1e9))
+        skipped = (
+            f"<div id='replay-malformed' data-count='{malformed}' style='color:#b00'>"
+            f"{malformed} recorded samples did not decode: skipped (see the log)</div>"
+            if malformed
+            else ""
+        )
         self.where.content = (
             f"<div id='replay-position' data-position='{timeline.position_s:.2f}' "
             f"style='font-size:0.8em'>{timeline.position_s:.1f} s of "
             f"{timeline.duration_s:.1f} s · recorded {wall} · "
             f"{'playing' if timeline.playing else 'paused'} at "
-            f"{speed_label(timeline.speed)}</div>"
+            f"{speed_label(timeline.speed)}</div>{skipped}"
         )

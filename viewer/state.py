@@ -142,10 +142,13 @@ class ViewerFleet:
         self.clear()
 
     def clear(self) -> None:
-        """Forget every arm's state and the event log (a replay scrubbed backwards)."""
+        """Forget every arm's and device's state, the event log and the malformed count (a
+        replay scrubbed backwards counts them again as it re-feeds the file)."""
         n = len(self.arms)
         self.events.clear()
         with self._lock:
+            self.malformed = 0
+            self._last_warning = -math.inf
             self._angles = np.zeros((n, JOINT_COUNT))
             self._joints_at = np.full(n, -math.inf)
             self._status: list[m.ArmStatus | None] = [None] * n

@@ -62,7 +62,6 @@ def run_record(args: argparse.Namespace) -> int:
     stop = shutdown_event()
     with FleetClient(inventory, connect_timeout_s=args.connect_timeout) as client:
         try:
-            layout = layout_of(inventory, arms)
             # Devices: those of the inventory (all of them with ``all``, else those mounted on
             # a recorded arm); their state, grip events and stop acks.
             devices = {
@@ -73,6 +72,7 @@ def run_record(args: argparse.Namespace) -> int:
                 or getattr(config, "mount", "") in arms
                 or d in args.arm
             }
+            layout = layout_of(inventory, arms, devices)
             extras = _extras(layout)
             rec = Recorder(
                 client.session,
@@ -103,10 +103,11 @@ def run_record(args: argparse.Namespace) -> int:
 
 
 def _extras(layout: Any) -> Any:
-    """The 3D channels (URDF, foxglove.FrameTransforms) for Foxglove, next to the keys."""
-    from fleet.scene3d.frames3d import ArmFrames, RecordingExtras  # numpy, yourdfpy, foxglove-sdk
+    """The 3D channels (URDFs, foxglove.FrameTransforms of arms and G1s) for Foxglove, next to
+    the keys."""
+    from fleet.scene3d.frames3d import FleetFrames, RecordingExtras  # numpy, yourdfpy, foxglove
 
-    return RecordingExtras(ArmFrames.load(layout))
+    return RecordingExtras(FleetFrames.load(layout))
 
 
 def open_recording(path: str, command: str) -> Recording | None:

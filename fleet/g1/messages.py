@@ -10,6 +10,8 @@ from fleet.wire.messages import Count, DeviceCommand, StampNs, Text
 from fleet.wire.messages import DeviceRelease as Release
 
 Speed = Annotated[float, Meta(ge=-10.0, le=10.0)]
+JointQ = Annotated[float, Meta(ge=-10.0, le=10.0)]
+"""A G1 joint's angle (rad): its limits are within +-3.1, 10 bounds garbage, never a reading."""
 
 
 class G1State(Struct, frozen=True):
@@ -52,9 +54,15 @@ class G1LowState(Struct, frozen=True):
     ``relay_hz``: the 29 joints' positions (rad, Unitree's motor order) and the IMU."""
 
     stamp_ns: StampNs
-    q_rad: list[float]
-    imu_rpy: list[float]
-    imu_quaternion: list[float]
+    q_rad: Annotated[list[JointQ], Meta(min_length=29, max_length=29)]
+    """Bounded here, so every consumer (viewer, Foxglove, recorder, replay) gets 29 finite
+    angles or a PayloadError: a malformed recorded lowstate is counted, never drawn."""
+    imu_rpy: Annotated[
+        list[Annotated[float, Meta(ge=-10.0, le=10.0)]], Meta(min_length=3, max_length=3)
+    ]
+    imu_quaternion: Annotated[
+        list[Annotated[float, Meta(ge=-2.0, le=2.0)]], Meta(min_length=4, max_length=4)
+    ]
     tick: int
     bad_samples: Count
 
@@ -187,9 +195,6 @@ class ShakeHand(_G1Command, tag="shake_hand", kw_only=True):
     """ShakeHand(stage): SetTaskId(2) to reach out (stage 0), SetTaskId(3) to let go (1)."""
 
     stage: Annotated[int, Meta(ge=0, le=1)] = 0
-
-
-JointQ = Annotated[float, Meta(ge=-10.0, le=10.0)]
 
 
 class ArmTarget(_G1Command, tag="arm_target", kw_only=True):

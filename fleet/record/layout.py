@@ -1,23 +1,26 @@
-"""Where the recorded arms stand: the inventory's base poses (and what their joints read), kept in
-the recording itself.
+"""Where the recorded arms and devices stand: the inventory's base poses (and what the arms'
+joints read, which arm a gripper is mounted on, where a G1 stands), kept in the recording itself.
 
 ``fleet viewer --replay FILE`` draws the arms where they stood without a copy of the inventory
 they were recorded with: ``fleet record`` writes the fleet's layout as an MCAP metadata record
 (``d1-fleet.layout``). A file is hostile input: the layout is decoded with bounds (finite
-coordinates, 7 joint signs of +-1, at most MAX_ARMS_REPORTED arms) or refused with a
-``RecordError``. A recording made before the layout was kept has none: its arms are taken from
-its keys and set in a row (``layout_from_keys``), and the viewer says so.
+coordinates, 7 joint signs of +-1, at most MAX_ARMS_REPORTED arms and devices, device kinds
+the key space knows) or refused with a ``RecordError``. A recording made before the layout was
+kept has none: its arms are taken from its keys and set in a row (``layout_from_keys``), and the
+viewer says so; one made before devices were laid out has its devices taken from its keys
+(``devices_from_keys``).
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 import msgspec
 from msgspec import Meta, Struct
 
 from fleet.d1.limits import GRIPPER_CLOSED_DEG, GRIPPER_OPEN_DEG, JOINT_COUNT
+from fleet.devices import kind_of
 from fleet.inventory import Inventory
 from fleet.record.errors import RecordError
 from fleet.wire import keys
@@ -44,20 +47,37 @@ class ArmPlacement(Struct, frozen=True, forbid_unknown_fields=True):
     gripper_open_deg: Degrees = GRIPPER_OPEN_DEG
 
 
+class DevicePlacement(Struct, frozen=True, forbid_unknown_fields=True):
+    """One device beside the arms: its kind's key word (``gripper``, ``g1``), the arm it is
+    mounted on (``""``: standing alone) and, for a G1, where it stands (``base_xyz`` None: in
+    the row left of the arms, fleet/scene3d/g1_body.py)."""
+
+    kind: Name
+    mount: Name = ""
+    base_xyz: tuple[Metres, Metres, Metres] | None = None
+    base_yaw_deg: Degrees = 0.0
+
+
 class FleetLayout(Struct, frozen=True, forbid_unknown_fields=True):
-    """The recorded fleet: its name and its arms, in inventory order."""
+    """The recorded fleet: its name, its arms and its devices, in inventory order (a recording
+    made before devices were laid out has none)."""
 
     fleet: Name
     arms: Annotated[dict[Name, ArmPlacement], Meta(max_length=MAX_ARMS_REPORTED)]
+    devices: Annotated[dict[Name, DevicePlacement], Meta(max_length=MAX_ARMS_REPORTED)] = {}
 
 
 _DECODER = msgspec.json.Decoder(FleetLayout)
 MAX_LAYOUT_BYTES = 1 << 20
 
 
-def layout_of(inventory: Inventory, arms: Iterable[str] | None = None) -> FleetLayout:
-    """The layout of ``inventory``'s arms (of those in ``arms``, inventory order)."""
+def layout_of(
+    inventory: Inventory, arms: Iterable[str] | None = None, devices: Iterable[str] | None = None
+) -> FleetLayout:
+    """The layout of ``inventory``'s arms and devices (of those in ``arms`` and ``devices``,
+    inventory order)."""
     chosen = None if arms is None else set(arms)
+    chosen_devices = None if devices is None else set(devices)
     return FleetLayout(
         fleet=inventory.fleet,
         arms={
@@ -71,6 +91,23 @@ def layout_of(inventory: Inventory, arms: Iterable[str] | None = None) -> FleetL
             for arm, config in inventory.arms.items()
             if chosen is None or arm in chosen
         },
+        devices={
+            device: device_placement(config)
+            for device, config in inventory.devices.items()
+            if chosen_devices is None or device in chosen_devices
+        },
+    )
+
+
+def device_placement(config: Any) -> DevicePlacement:
+    """A device's placement from its inventory entry (a kind's config Struct: the fields it
+    has; a gripper has a mount, a G1 a base)."""
+    xyz = getattr(config, "base_xyz", None)
+    return DevicePlacement(
+        kind=kind_of(config).key,
+        mount=getattr(config, "mount", ""),
+        base_xyz=None if xyz is None else (float(xyz[0]), float(xyz[1]), float(xyz[2])),
+        base_yaw_deg=getattr(config, "base_yaw_deg", 0.0),
     )
 
 
@@ -89,9 +126,16 @@ def layout_from_metadata(path: str, entries: dict[str, str]) -> FleetLayout:
         layout = _DECODER.decode(text)
     except (msgspec.DecodeError, RecursionError, UnicodeDecodeError) as exc:
         raise RecordError(f"{path}: the recorded fleet layout is malformed: {exc}") from None
-    bad = [name for name in (layout.fleet, *layout.arms) if not keys.is_name(name)]
+    named = (layout.fleet, *layout.arms, *layout.devices)
+    bad = [name for name in named if not keys.is_name(name)]
     if bad:
         raise RecordError(f"{path}: the recorded fleet layout names {bad[0]!r}, not a name")
+    for device, where in layout.devices.items():
+        if where.kind not in keys.DEVICE_KINDS:
+            raise RecordError(
+                f"{path}: the recorded device {device!r} is of kind {where.kind!r}, "
+                f"not one of {', '.join(keys.DEVICE_KINDS)}"
+            )
     for arm, placement in layout.arms.items():
         if placement.gripper_closed_deg == placement.gripper_open_deg:
             raise RecordError(f"{path}: the recorded gripper range of {arm!r} is empty")
@@ -121,3 +165,21 @@ def layout_from_keys(recorded_keys: Iterable[str]) -> FleetLayout | None:
             for i, arm in enumerate(arms)
         },
     )
+
+
+def devices_from_keys(fleet: str, recorded_keys: Iterable[str]) -> dict[str, DevicePlacement]:
+    """For a recording whose layout keeps no devices (made before they were laid out): the
+    devices of ``fleet`` its keys name, in order of appearance, standing alone (a gripper's
+    mount and a G1's base were not kept)."""
+    space = keys.KeySpace(fleet)
+    found: dict[str, DevicePlacement] = {}
+    for key in dict.fromkeys(recorded_keys):  # each distinct key parsed once
+        try:
+            parsed = space.parse_key(key)
+        except keys.KeyError_:
+            continue
+        if parsed.kind in keys.DEVICE_KINDS and parsed.unit not in found:
+            if len(found) >= MAX_ARMS_REPORTED:
+                break
+            found[parsed.unit] = DevicePlacement(kind=parsed.kind)
+    return found

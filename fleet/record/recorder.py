@@ -50,9 +50,10 @@ log = logging.getLogger("fleet.record")
 
 RECORDED_CHANNELS: tuple[str, ...] = (keys.JOINTS, keys.STATUS, keys.CONTACT, keys.RAW_COMMAND)
 RECORDED_CHANNELS += (keys.ESTOP, keys.RESET, keys.ESTOP_ACK, keys.DIAG)
-DEVICE_CHANNELS: tuple[str, ...] = (keys.STATE, keys.CONTACT, keys.ESTOP, keys.RESET)
-DEVICE_CHANNELS += (keys.ESTOP_ACK, keys.DIAG)
-"""A device's keys recorded: its state (at its relay rate), grip events, stops, resets, acks."""
+DEVICE_CHANNELS: tuple[str, ...] = (keys.STATE, keys.CONTACT, keys.LOWSTATE, keys.ESTOP)
+DEVICE_CHANNELS += (keys.RESET, keys.ESTOP_ACK, keys.DIAG)
+"""A device's keys recorded: its state (at its relay rate), grip events, a G1's lowstate (its
+joints: what the replay viewer and Foxglove pose it with), stops, resets, acks."""
 CONTROL_CHANNELS = frozenset({keys.ESTOP, keys.RESET})
 """Stops and resets (the fleet's, each arm's, each device's) are recorded in arrival order
 through the shared intake's ``direct`` callbacks (fleet/control.py: on the Zenoh thread that
@@ -84,8 +85,10 @@ class Extras(Protocol):
     def initial(self) -> list[DerivedMessage]:
         """Messages written once at the start."""
 
-    def derive(self, arm: str | None, channel: str, payload: Any) -> list[DerivedMessage]:
-        """Messages derived from one recorded, decoded sample (logged at its receive time)."""
+    def derive(self, unit: str | None, channel: str, payload: Any) -> list[DerivedMessage]:
+        """Messages derived from one recorded, decoded sample of an arm or device (``channel``
+        its ``payloads.CHANNELS`` kind: ``joints``, ``g1/lowstate``), logged at its receive
+        time."""
 
 
 class Recorder:
@@ -159,14 +162,15 @@ class Recorder:
         ]
         self._subs += [session.declare_subscriber(k, control) for k in (space.estop, space.reset)]
         # Devices: their routes are known up front (a bounded set), so _where finds them.
-        self._device_routes: dict[str, PayloadKind[Any]] = {}
+        self._device_routes: dict[str, tuple[str, str, PayloadKind[Any]]] = {}
         for device, kind in (devices or {}).items():
             decoders = kind.payloads  # the kind's rows of the channel table
             for channel in DEVICE_CHANNELS:
                 if channel not in decoders:  # a kind without it (a G1 reports no grips)
                     continue
                 key = space.device(kind.key, device, channel)
-                self._device_routes[key] = decoders[channel]
+                route = (device, f"{kind.key}/{channel}", decoders[channel])
+                self._device_routes[key] = route
                 on = control if channel in CONTROL_CHANNELS else self._on_sample
                 self._subs.append(session.declare_subscriber(key, on))
         self._thread.start()
@@ -226,16 +230,16 @@ class Recorder:
         self._file.flush()
 
     def _record(self, key: str, payload: bytes, stamp_ns: int) -> None:
-        device = self._device_routes.get(key)
-        if device is not None:
+        route = self._device_routes.get(key)
+        if route is not None:
+            device, channel, decoder = route
             try:
-                device.decode(payload)
+                decoded = decoder.decode(payload)
             except payloads.PayloadError as exc:
                 self._skip(key, str(exc))
                 return
-            count = self.counts.get(key, 0)
-            self._file.add(key, "device", payload, stamp_ns, count % 2**32, device.struct)
-            self.counts[key] = count + 1
+            self._write(key, "device", payload, stamp_ns, decoder.struct)
+            self._derive(device, channel, decoded, stamp_ns)
             return
         where = self._where(key)
         if where is None:
@@ -250,11 +254,19 @@ class Recorder:
         if arm is not None and channel == keys.JOINTS:
             with self._stats_lock:
                 self.seq.add(arm, decoded.seq)
+        self._write(key, channel, payload, stamp_ns)
+        self._derive(arm, channel, decoded, stamp_ns)
+
+    def _write(
+        self, key: str, channel: str, payload: bytes, stamp_ns: int, struct: Any = None
+    ) -> None:
         count = self.counts.get(key, 0)
-        self._file.add(key, channel, payload, stamp_ns, count % 2**32)  # MCAP: a uint32
+        self._file.add(key, channel, payload, stamp_ns, count % 2**32, struct)  # MCAP: a uint32
         self.counts[key] = count + 1
+
+    def _derive(self, unit: str | None, channel: str, decoded: Any, stamp_ns: int) -> None:
         if self._extras is not None:
-            for message in self._extras.derive(arm, channel, decoded):
+            for message in self._extras.derive(unit, channel, decoded):
                 self._file.add_foreign(message, stamp_ns)
 
     def _where(self, key: str) -> tuple[str | None, str] | None:

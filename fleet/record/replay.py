@@ -26,8 +26,9 @@ from fleet.wire import messages as m
 
 REPLAYED_CHANNELS = (keys.JOINTS, keys.STATUS, keys.CONTACT)
 """An arm's state channels that a read-only replay re-publishes."""
-REPLAYED_DEVICE_CHANNELS = (keys.STATE, keys.CONTACT)
-"""A device's (every kind's) state channels that a read-only replay re-publishes."""
+REPLAYED_DEVICE_CHANNELS = (keys.STATE, keys.CONTACT, keys.LOWSTATE)
+"""A device's (every kind's) state channels that a read-only replay re-publishes (a G1's
+lowstate too: a live viewer of the replayed fleet poses it)."""
 APPROACH_SPEED_DEG_S = 30.0
 TEACH_MAX_SPEED_DEG_S = 120.0
 """A recorded motion faster than this (a hand can fling an unloaded arm) is refused on replay;
@@ -151,8 +152,8 @@ def replay_read_only(
     speed: float = 1.0,
 ) -> int:
     """Re-publish the state keys of every kind (arms' joints, status and contacts, devices'
-    state and contacts) under ``fleet/<fleet>/...`` at the recorded pace; returns the number of
-    samples published. Never publishes a command, stop or reset key."""
+    state and contacts, a G1's lowstate) under ``fleet/<fleet>/...`` at the recorded pace;
+    returns the number of samples published. Never publishes a command, stop or reset key."""
     space = keys.KeySpace(fleet)
     state = [(r, p) for r in messages if (p := _replayed(r.key)) is not None]
     if not state:

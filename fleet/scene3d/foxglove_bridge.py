@@ -5,12 +5,14 @@ viewer's protections (issue 28): a per-run token and an Origin allow-list checke
 ``fleet/scene3d/foxglove_gate.py`` in front of the SDK's server, which listens on a private loopback
 port with TLS only the gate trusts. Under ``[security]`` the bridge runs as an observer (what
 it serves is what an observer may read). It publishes:
-- per arm, ``/d1/<arm>/robot_description`` (the URDF, re-sent every second so a late client
-  gets it) and ``/d1/<arm>/transforms`` (``foxglove.FrameTransforms`` from our forward
-  kinematics, under the arm's base pose: frames3d.py), one per joints sample;
+- per arm and per G1, ``/d1/<id>/robot_description`` (the URDF, re-sent every second so a
+  late client gets it) and ``/d1/<id>/transforms`` (``foxglove.FrameTransforms`` from our
+  forward kinematics, under the arm's base pose or the G1's standing pelvis: frames3d.py), one
+  per joints sample of an arm, one per lowstate of a G1 (stamped with the sample's own stamp);
 - the key-space channels themselves, one channel per Zenoh key, JSON with the payload's JSON
   Schema (as ``fleet record`` writes them): joints, status, contact, diag, stop requests
-  (``estop``), acks, reports, resets and the fleet state.
+  (``estop``), acks, reports, resets and the fleet state; each device's state (a G1's FSM and
+  its stop latch, as an arm's status carries its stop) and a G1's lowstate.
 
 Key-space channels live in a ``PinnedTable`` (fleet/tables.py): every channel of the
 inventory's arms and devices and of the fleet itself is always advertised; made-up names share
@@ -39,7 +41,7 @@ from fleet.inventory import Inventory
 from fleet.record.layout import layout_of
 from fleet.record.writer import channel_schema
 from fleet.scene3d.foxglove_gate import FOXGLOVE_APP_ORIGIN, LOOPBACK, FoxgloveGate, PrivateTls
-from fleet.scene3d.frames3d import URDF_SCHEMA, ArmFrames, transforms_topic, urdf_topic
+from fleet.scene3d.frames3d import URDF_SCHEMA, FleetFrames, transforms_topic, urdf_topic
 from fleet.security.session import open_session
 from fleet.tables import PinnedTable
 from fleet.tap import kind_of
@@ -71,7 +73,14 @@ BRIDGED = frozenset(
         *(
             f"{kind}/{channel}"
             for kind in keys.DEVICE_KINDS
-            for channel in (keys.STATE, keys.CONTACT, keys.DIAG, keys.ESTOP, keys.ESTOP_ACK)
+            for channel in (
+                keys.STATE,
+                keys.CONTACT,
+                keys.LOWSTATE,
+                keys.DIAG,
+                keys.ESTOP,
+                keys.ESTOP_ACK,
+            )
             if f"{kind}/{channel}" in payloads.CHANNELS
         ),
     }
@@ -99,7 +108,7 @@ class FoxgloveBridge:
         self.inventory = inventory
         self.host = host
         self.keys = keys.KeySpace(inventory.fleet)
-        self.frames = ArmFrames.load(layout_of(inventory))
+        self.frames = FleetFrames.load(layout_of(inventory))
         self.dropped = 0
         self.bad = 0
         self.published = 0
@@ -131,12 +140,10 @@ class FoxgloveBridge:
             raise
         self.port = self.gate.port
         ctx = self.context
-        self._tf = {
-            a: FrameTransformsChannel(transforms_topic(a), context=ctx) for a in inventory.arms
-        }
+        units = self.frames.units  # the arms and the G1s
+        self._tf = {u: FrameTransformsChannel(transforms_topic(u), context=ctx) for u in units}
         self._urdf = {
-            a: foxglove.Channel(urdf_topic(a), schema=URDF_SCHEMA, context=ctx)
-            for a in inventory.arms
+            u: foxglove.Channel(urdf_topic(u), schema=URDF_SCHEMA, context=ctx) for u in units
         }
         self._channels: PinnedTable[str, foxglove.Channel] = PinnedTable(
             MAX_KEY_CHANNELS, self._is_inventory_key, lambda _key, channel: channel.close()
@@ -191,8 +198,8 @@ class FoxgloveBridge:
 
     def _publish_urdfs(self) -> None:
         stamp_ns = time.time_ns()
-        for arm, channel in self._urdf.items():
-            channel.log(self.frames.urdf_message(arm), log_time=stamp_ns)
+        for unit, channel in self._urdf.items():
+            channel.log(self.frames.urdf_message(unit), log_time=stamp_ns)
 
     def _bridge(self, key: str, data: bytes, stamp_ns: int) -> None:
         kind = kind_of(self.keys, key)
@@ -206,13 +213,11 @@ class FoxgloveBridge:
         channel = self._channel(key, kind)
         channel.log(data, log_time=stamp_ns)
         self.published += 1
-        if kind == keys.JOINTS:
-            arm = self.keys.parse_arm_key(key).arm
-            if arm in self._tf and len(payload.angles_deg) == 7:
-                self._tf[arm].log(
-                    self.frames.transforms(arm, payload.angles_deg, payload.stamp_ns),
-                    log_time=stamp_ns,
-                )
+        unit = self.keys.parse_key(key).unit
+        if unit in self._tf:  # an arm's joints or a G1's lowstate pose it (the same code records)
+            transforms = self.frames.transforms_of(unit, kind, payload)
+            if transforms is not None:
+                self._tf[unit].log(transforms, log_time=stamp_ns)
 
     def _channel(self, key: str, kind: str) -> foxglove.Channel:
         def make(key: str) -> foxglove.Channel:

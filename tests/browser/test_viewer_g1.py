@@ -23,7 +23,7 @@ from fleet.wire import keys
 from testkit.browser import Browser
 from testkit.collect import Collector
 from testkit.harness import FleetHarness, free_port, wait_until
-from testkit.kinds import DEVICES
+from testkit.kinds import devices_fleet
 from testkit.samples import g1_state
 from tests.browser.test_viewer_browser import not_blank
 from tests.browser.test_viewer_shift import open_page
@@ -126,10 +126,7 @@ def test_the_pose_follows_lowstate_and_the_label_the_fsm_and_the_stop(server) ->
 @pytest.fixture(scope="module")
 def fleet(tmp_path_factory: pytest.TempPathFactory) -> Iterator[FleetHarness]:
     """Router, ``fleet sim`` (a1, gl, h1) and one agent for the card."""
-    with FleetHarness(tmp_path_factory.mktemp("g1draw"), arms=1, extra=DEVICES) as harness:
-        harness.start_router()
-        harness.start_sim()
-        harness.start("agent", ["-m", "edge_agent", "--interface", "lo"])
+    with devices_fleet(tmp_path_factory.mktemp("g1draw")) as harness:
         yield harness
 
 

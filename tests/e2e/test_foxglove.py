@@ -23,40 +23,10 @@ from fleet.scene3d.frames3d import ArmFrames, transforms_topic, urdf_topic
 from fleet.scene3d.kinematics import matrix_to_wxyz
 from fleet.web.access import FOXGLOVE_TOKEN_ENV as TOKEN_ENV
 from fleet.wire import messages as m
-from testkit.foxglove_client import FoxgloveClient, protobuf_class
+from testkit.foxglove_client import FoxgloveClient, protobuf_class, world_from_links
 from testkit.harness import FleetHarness, free_port, wait_until
 from testkit.samples import GRIP_STATE
 from viewer.replay import replay_source
-
-
-def _matrix(transform: Any) -> np.ndarray:
-    """4x4 from a decoded foxglove.FrameTransform (protobuf)."""
-    q, t = transform.rotation, transform.translation
-    w, x, y, z = q.w, q.x, q.y, q.z
-    out = np.eye(4)
-    out[:3, :3] = [
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ]
-    out[:3, 3] = [t.x, t.y, t.z]
-    return out
-
-
-def world_from_links(message: Any) -> dict[str, np.ndarray]:
-    """Every child frame's world transform, composed from the parent -> child transforms."""
-    edges = {t.child_frame_id: (t.parent_frame_id, _matrix(t)) for t in message.transforms}
-    out: dict[str, np.ndarray] = {"world": np.eye(4)}
-
-    def resolve(frame: str) -> np.ndarray:
-        if frame not in out:
-            parent, local = edges[frame]
-            out[frame] = resolve(parent) @ local
-        return out[frame]
-
-    for frame in edges:
-        resolve(frame)
-    return out
 
 
 def assert_matches_fk(frames: ArmFrames, arm: str, angles: list[float], message: Any) -> None:

@@ -1,6 +1,6 @@
 """``fleet record`` records the devices beside the arms (issue 14): a gripper's state and a
 G1's state are in the file with their own schemas; ``fleet replay`` read-only re-publishes every
-kind's state (issue 21), and ``fleet viewer --replay`` (arms only) still works on it. Real
+kind's state (issue 21), and ``fleet viewer --replay`` shows the devices too. Real
 processes: a router, ``fleet sim`` (one arm, a gripper, a G1), the arm's agent,
 one devices agent, ``fleet record``."""
 
@@ -78,5 +78,7 @@ def test_devices_recorded_and_replayed(tmp_path: Path) -> None:
         assert not any(k.endswith(("/estop", "/reset")) or "/cmd/" in k for k in replayed)
     from viewer.replay import replay_source
 
-    source = replay_source(recording)  # what `fleet viewer --replay` shows
-    assert source.messages and not any("/gripper/" in r.key for r in source.messages)
+    source = replay_source(recording)  # what `fleet viewer --replay` shows: every kind
+    shown = {r.key for r in source.messages}
+    assert {grip_key, g1_key, space.device("g1", "h1", keys.LOWSTATE)} <= shown
+    assert set(source.layout.devices) == {"gl", "h1"}

@@ -18,12 +18,12 @@ from fleet.record.reader import read_recording
 from fleet.wire import keys
 from fleet.wire import messages as m
 from fleet.wire.messages import encode
-from testkit.recordings import write_recording
+from testkit.recordings import MALFORMED_LOWSTATE_AT_S, write_recording
 from viewer.camera import UP, camera_axes, fit_view, usable_right_edge
 from viewer.confirm import FLEET, Confirmations
 from viewer.events import MAX_EVENTS, EventLog
 from viewer.replay import ReplayTimeline, replay_source
-from viewer.state import ViewerFleet
+from viewer.state import DeviceView, ViewerFleet
 
 SPACE = keys.KeySpace("lab")
 
@@ -178,3 +178,41 @@ def test_the_fit_frames_every_point_in_the_part_the_panel_leaves_free(
         span_y = (y.max() - y.min()) / 2
         near = depth.min() <= 0.5 + 1e-6  # or the camera is as close as it may come
         assert near or max(span_x, span_y) > 0.85, (span_x, span_y)
+
+
+def test_a_replay_feeds_the_gripper_and_the_g1_through_the_live_path(tmp_path: Path) -> None:
+    """The recorded devices reach the snapshot the live viewer draws from (ViewerFleet.ingest);
+    a malformed recorded lowstate is counted, never kept, and recounted after a rebuild."""
+    path = tmp_path / "devices.mcap"
+    write_recording(path, devices=True)
+    source = replay_source(read_recording(path))
+    layout = source.layout
+    assert list(layout.devices) == ["gl", "h1"] and layout.devices["gl"].mount == "a1"
+    assert layout.devices["h1"].kind == "g1"
+    timeline = ReplayTimeline(source)
+
+    def views_at(position_s: float) -> dict[str, DeviceView]:
+        timeline.request_seek(position_s)
+        timeline.tick(0.0)
+        return {v.device: v for v in timeline.snapshot().devices}
+
+    views = views_at(2.0)
+    assert views["gl"].mount == "a1" and views["gl"].state.opening_pct == 40.0
+    assert views["h1"].low.q_rad[15] == pytest.approx(-0.4) and views["h1"].low_age_s < 0.05
+    assert views["h1"].state.fsm_id == 500 and not views["h1"].state.estopped
+    assert timeline.state.malformed == 0
+    views = views_at(4.0)  # past the malformed lowstate and the stop
+    assert timeline.state.malformed == 1
+    assert views["h1"].low.q_rad[15] == pytest.approx(-0.8) and views["h1"].state.estopped
+    views = views_at(MALFORMED_LOWSTATE_AT_S + 0.01)  # backwards: rebuilt, counted once again
+    assert timeline.state.malformed == 1 and len(views["h1"].low.q_rad) == 29
+    views_at(1.0)
+    assert timeline.state.malformed == 0
+
+
+def test_an_older_layout_without_devices_takes_them_from_the_keys(tmp_path: Path) -> None:
+    path = tmp_path / "devices-old.mcap"
+    write_recording(path, layout=False, devices=True)
+    source = replay_source(read_recording(path))
+    assert {d: p.kind for d, p in source.layout.devices.items()} == {"gl": "gripper", "h1": "g1"}
+    assert any(r.key.endswith("/g1/h1/lowstate") for r in source.messages)
