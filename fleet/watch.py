@@ -13,6 +13,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import zenoh
 
@@ -92,33 +93,67 @@ class ArmWatch:
     def problem(self, arm: str, now_s: float) -> str | None:
         """Why ``arm`` must not be commanded now (stopped, link not ok, silent), or None."""
         got = self.latest(arm)
-        status = got.status
-        if status is None or now_s - got.status_at > STATUS_SILENT_S:
-            return f"arm {arm!r} lost its link: no status from its agent for {STATUS_SILENT_S:g} s"
-        if status.estopped:
-            return f"arm {arm!r} is stopped ({status.stop_reason or 'protective stop'})"
-        if status.link != "ok":
-            return f"arm {arm!r} lost its link (link {status.link})"
-        return None
+        return report_problem(f"arm {arm!r}", "status", got.status, got.status_at, now_s)
 
     def wait_ready(self, timeout_s: float) -> str | None:
         """Wait (bounded) for every arm's joints and status; the first problem left, or None."""
-        deadline = time.monotonic() + timeout_s
-        while True:
-            now = time.monotonic()
-            problems = [p for a in self.arms if (p := self.problem(a, now)) is not None]
+
+        def problems(now: float) -> list[str]:
+            found = [p for a in self.arms if (p := self.problem(a, now)) is not None]
             missing = [a for a in self.arms if self.latest(a).joints is None]
-            if missing and not problems:
-                problems = [f"no joints from arm {missing[0]!r} yet; is its agent running?"]
-            if not problems or now >= deadline:
-                return problems[0] if problems else None
-            time.sleep(0.05)
+            if missing and not found:
+                found = [f"no joints from arm {missing[0]!r} yet; is its agent running?"]
+            return found
+
+        return first_problem_left(problems, timeout_s)
 
     def close(self) -> None:
         """Undeclare the subscriptions (idempotent)."""
         subs, self._subs = self._subs, []
         for sub in subs:
             sub.undeclare()
+
+
+class UnitReport(Protocol):
+    """What an agent says of its unit's stop and link (an arm's status, a device's state)."""
+
+    @property
+    def estopped(self) -> bool: ...
+    @property
+    def stop_reason(self) -> str | None: ...
+    @property
+    def link(self) -> str: ...
+
+
+def report_problem(
+    label: str,
+    what: str,
+    report: UnitReport | None,
+    at_s: float,
+    now_s: float,
+    silent_s: float = STATUS_SILENT_S,
+) -> str | None:
+    """Why a unit (``label``: ``arm 'a1'``) must not be commanded by its newest ``report``
+    (``what``: its name, received at ``at_s``): silent, stopped or link not ok; or None."""
+    if report is None or now_s - at_s > silent_s:
+        return f"{label} lost its link: no {what} from its agent for {silent_s:g} s"
+    if report.estopped:
+        return f"{label} is stopped ({report.stop_reason or 'protective stop'})"
+    if report.link != "ok":
+        return f"{label} lost its link (link {report.link})"
+    return None
+
+
+def first_problem_left(problems: Callable[[float], list[str]], timeout_s: float) -> str | None:
+    """Poll ``problems(now)`` (bounded by ``timeout_s``) until there are none; the first one
+    left, or None."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        now = time.monotonic()
+        found = problems(now)
+        if not found or now >= deadline:
+            return found[0] if found else None
+        time.sleep(0.05)
 
 
 def _gripper_contact(event: m.ContactEvent) -> bool | None:

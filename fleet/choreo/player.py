@@ -2,10 +2,12 @@
 
 One thread of ours (the caller's) ticks at 10 Hz: it checks every arm (stopped, link, path
 tolerance, failed replies), advances the pure ``Timeline`` and hands one ``MoveJoints`` (mode 0,
-owner = the player, short lifetime) per arm to a small thread pool: it never waits for a reply
-before the next tick. ``Liveness`` beats with the player's id so the agents hold the arms if the
-player dies. Shutdown order: stop commanding -> hold every arm -> wait until still -> stop the
-heartbeat -> release the leases -> undeclare.
+owner = the player, short lifetime) per D1 arm, and one ``arm_target`` per G1 whose arms the
+script names (``g1_stream.py``), to a small thread pool: it never waits for a reply before the
+next tick. ``Liveness`` beats with the player's id so the agents hold the D1 arms and release
+the G1 arms if the player dies (their watchdog). Shutdown order: stop commanding -> hold every
+D1 arm -> wait until still -> release the G1 arms (weight 1 -> 0) and their lease -> stop the
+heartbeat -> release the D1 leases -> undeclare.
 """
 
 from __future__ import annotations
@@ -21,12 +23,15 @@ from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field
 
+from fleet.choreo.g1_arms import is_g1_arm
+from fleet.choreo.g1_stream import G1Stream
 from fleet.choreo.grip import GripDetector
 from fleet.choreo.script import Pose, Script
 from fleet.choreo.timeline import ArmFacts, Frame, Timeline, max_error_deg
 from fleet.choreo.validate import check_motion
 from fleet.client import FleetClient, start_at_ns
-from fleet.d1.limits import CONTROL_RATE_HZ, GRIPPER_JOINT
+from fleet.d1.limits import CONTROL_RATE_HZ, GRIPPER_JOINT, JointRanges
+from fleet.devices.base import DeviceReply
 from fleet.heartbeat import Liveness
 from fleet.watch import ArmWatch, settle
 from fleet.wire import messages as m
@@ -48,7 +53,8 @@ KEYFRAME_WINDOW_S = 0.4
 class PlayResult:
     """How a play ended. ``keyframe_error_deg``: per finished keyframe, over the arms, the
     largest joint error of the closest sample within KEYFRAME_WINDOW_S after its time came;
-    ``start_skew_ms``: spread of the first DDS writes."""
+    ``start_skew_ms``: spread of the first DDS writes (a G1's: when its agent took the first
+    moving target; its 50 Hz stream writes it within 20 ms)."""
 
     ok: bool
     reason: str
@@ -103,13 +109,24 @@ class Player:
         self.pool = ThreadPoolExecutor(
             max_workers=2 * len(script.arms) + 2, thread_name_prefix="cmd"
         )
-        self.pending: dict[str, deque[Future[m.CommandReply]]] = {a: deque() for a in script.arms}
+        self.d1_arms = [a for a in script.arms if not is_g1_arm(a)]
+        g1_arms = [a for a in script.arms if is_g1_arm(a)]
+        self.g1 = (
+            G1Stream(client, g1_arms, self.owner, self.pool, TARGET_LIFETIME_S) if g1_arms else None
+        )
+        self.pending: dict[str, deque[Future[m.CommandReply]]] = {a: deque() for a in self.d1_arms}
         self.recent: dict[str, deque[Pose]] = {a: deque(maxlen=PATH_WINDOW) for a in script.arms}
-        arms = {a: client.inventory.arm(a) for a in script.arms}
-        self.ranges = {a: c.joint_ranges_deg for a, c in arms.items()}
-        """Each arm's joint ranges: its gripper reads its own way (inventory)."""
+        arms = {a: client.inventory.arm(a) for a in self.d1_arms}
+        self.ranges: dict[str, JointRanges] = {a: c.joint_ranges_deg for a, c in arms.items()}
+        """Each arm's joint ranges: a D1's gripper reads its own way (inventory), a G1 arm's
+        are its G1's."""
+        self.caps: dict[str, float] = {}
+        """Each G1 arm's top speed (deg/s), its G1's own."""
+        if self.g1 is not None:
+            self.ranges.update(self.g1.ranges())
+            self.caps = self.g1.caps()
         self.closing = {a: c.gripper_closing_sign for a, c in arms.items()}
-        self.grip = {a: GripDetector(closing_sign=self.closing[a]) for a in script.arms}
+        self.grip = {a: GripDetector(closing_sign=self.closing[a]) for a in self.d1_arms}
         self._last_seq: dict[str, int] = {}
         # keyframes being measured: (deadline, goal per arm, best error per arm)
         self._keyframes: list[tuple[float, dict[str, Pose], dict[str, float]]] = []
@@ -121,41 +138,75 @@ class Player:
         """Validate, start every arm at once, stream until done or aborted. Raises ScriptError
         (nothing moved) when the script breaks a joint or speed limit from the measured poses."""
         stop = stop or threading.Event()
-        watch = ArmWatch(self.client.session, self.client.keys, self.script.arms)
+        watch = ArmWatch(self.client.session, self.client.keys, self.d1_arms)
         liveness: Liveness | None = None
         started = time.monotonic()
         try:
-            poses = self._start_poses(watch, ready_s)
-            check_motion(self.script, poses, self.ranges)
+            poses = self.start_poses(watch, ready_s)
+            check_motion(self.script, poses, self.ranges, self.caps)
             client = self.client
             liveness = Liveness(
                 client.session, client.keys, self.owner, client.principal, client.datagram
             )
             stop.wait(0.3)  # the agents hear a beat before the first move: the watchdog arms
+            if self.g1 is not None:
+                problem = self.g1.engage(stop)
+                if problem is not None:
+                    raise Abort(f"not started: {problem}")
             timeline = Timeline(self.script, poses)
             self._run(timeline, watch, stop)
             self.result.ok, self.result.reason = True, "completed"
         except Abort as exc:
             self.result.ok, self.result.reason = False, str(exc)
             log.warning("choreography %r aborted: %s", self.script.name, exc)
-            if liveness is not None:  # something may have moved: hold every arm
+            if liveness is not None:  # something may have moved: hold every D1 arm
                 self._hold_all(watch)
         finally:
+            if liveness is not None and self.g1 is not None:
+                self.g1.release()  # before the heartbeat stops: else the watchdog stops it
             if liveness is not None:
                 liveness.close()
                 self._broadcast(lambda a: m.Release(owner=self.owner))
             self.pool.shutdown(wait=False, cancel_futures=True)
             watch.close()
+            if self.g1 is not None:
+                self.g1.close()
             self.result.elapsed_s = round(time.monotonic() - started, 3)
         return self.result
 
+    def check(self, ready_s: float = 3.0) -> None:
+        """Validate the script against the measured poses, moving nothing: ScriptError (a
+        limit or speed problem), Abort (an arm is not ready)."""
+        watch = ArmWatch(self.client.session, self.client.keys, self.d1_arms)
+        try:
+            check_motion(self.script, self.start_poses(watch, ready_s), self.ranges, self.caps)
+        finally:
+            watch.close()
+            if self.g1 is not None:
+                self.g1.close()
+            self.pool.shutdown(wait=False)
+
     # ------------------------------------------------------------------ phases
 
-    def _start_poses(self, watch: ArmWatch, ready_s: float) -> dict[str, Pose]:
+    def start_poses(self, watch: ArmWatch, ready_s: float) -> dict[str, Pose]:
+        """Every arm's measured pose once all are ready (bounded by ``ready_s``); Abort."""
         problem = watch.wait_ready(ready_s)
         if problem is not None:
             raise Abort(f"not started: {problem}")
-        return {a: tuple(watch.latest(a).joints.angles_deg) for a in self.script.arms}  # type: ignore[union-attr]
+        poses = {a: tuple(watch.latest(a).joints.angles_deg) for a in self.d1_arms}  # type: ignore[union-attr]
+        if self.g1 is not None:
+            g1_poses, problem = self.g1.start_poses(ready_s)
+            if problem is not None:
+                raise Abort(f"not started: {problem}")
+            poses.update(g1_poses)
+        return poses
+
+    def _measured(self, watch: ArmWatch, arm: str) -> Pose | None:
+        """An arm's newest measured pose (deg), D1 or G1."""
+        if self.g1 is not None and is_g1_arm(arm):
+            return self.g1.measured(arm)
+        joints = watch.latest(arm).joints
+        return None if joints is None else tuple(joints.angles_deg)
 
     def _run(self, timeline: Timeline, watch: ArmWatch, stop: threading.Event) -> None:
         start_ns = start_at_ns(self.script.start_lead_s)
@@ -177,7 +228,9 @@ class Player:
             if frame.kind == "failed":
                 raise Abort(frame.error or "a wait failed")
             if frame.kind == "done":
-                settle(watch, self.script.arms, timeline.poses, 3.0)
+                settle(watch, self.d1_arms, timeline.poses, 3.0)
+                if self.g1 is not None:
+                    self.g1.settle(timeline.poses, self.script.reach_tolerance_deg, 3.0)
                 self._book_keyframes(frame, watch, timeline, flush=True)
                 return
             self._send(frame)
@@ -189,7 +242,9 @@ class Player:
             tick += 1
 
     def _synchronized_start(self, frame: Frame, start_ns: int) -> float | None:
-        """Every arm gets its first target with the same ``start_at_ns``; returns the skew."""
+        """Every D1 arm gets its first target with the same ``start_at_ns`` (its agent writes
+        it then); every G1 its first moving target at that instant from here (the G1's agent
+        streams at 50 Hz and has no start time); returns the skew of the writes."""
         futures = {
             arm: self.pool.submit(
                 self.client.command,
@@ -201,40 +256,63 @@ class Player:
                     start_at_ns=start_ns,
                 ),
             )
-            for arm in self.script.arms
+            for arm in self.d1_arms
         }
-        replies = {arm: f.result() for arm, f in futures.items()}
-        failed = [r for r in replies.values() if not r.ok]
-        if failed:
-            error = failed[0].error
-            raise Abort(
-                f"arm {failed[0].arm!r} refused the start: {error.message if error else '?'}"
-            )
-        written = [r.written_ns for r in replies.values() if r.written_ns is not None]
+        g1_futures = {}
+        if self.g1 is not None:
+            time.sleep(max(0.0, (start_ns - time.time_ns()) / 1e9))
+            g1_futures = self.g1.submit(frame.targets, time.time_ns())
+        replies = [f.result() for f in futures.values()]
+        for arm, reply in zip(futures, replies, strict=True):
+            if not reply.ok:
+                error = reply.error
+                raise Abort(f"arm {arm!r} refused the start: {error.message if error else '?'}")
+        written = [r.written_ns for r in replies if r.written_ns is not None]
+        for device, future in g1_futures.items():
+            g1_reply = future.result()
+            if not g1_reply.ok:
+                error = g1_reply.error
+                raise Abort(f"g1 {device!r} refused the start: {error.message if error else '?'}")
+            if g1_reply.written_ns is not None:
+                written.append(g1_reply.written_ns)
         return round((max(written) - min(written)) / 1e6, 3) if len(written) > 1 else None
 
     # ------------------------------------------------------------------ per tick
 
     def _check(self, watch: ArmWatch, now: float) -> None:
         """Abort on a stopped or silent arm, a refused command, or an arm off its path."""
-        for arm in self.script.arms:
+        replies: list[m.CommandReply | DeviceReply] = []
+        for arm in self.d1_arms:
             problem = watch.problem(arm, now)
             if problem is not None:
                 raise Abort(problem)
             queue = self.pending[arm]
             while queue and queue[0].done():
-                reply = queue.popleft().result()
-                if not reply.ok and reply.error is not None and overtaken(reply.error):
-                    self.result.overtaken += 1  # a newer target of ours was already taken
-                elif not reply.ok and reply.error is not None:
-                    raise Abort(
-                        f"arm {arm!r} refused a target: [{reply.error.code}] {reply.error.message}"
-                    )
-            joints = watch.latest(arm).joints
-            if joints is None or not self.recent[arm]:
+                replies.append(queue.popleft().result())
+        if self.g1 is not None:
+            problem = self.g1.problem(now)
+            if problem is not None:
+                raise Abort(problem)
+            replies += self.g1.done_replies()
+        for reply in replies:
+            if not reply.ok and reply.error is not None and overtaken(reply.error):
+                self.result.overtaken += 1  # a newer target of ours was already taken
+            elif not reply.ok and reply.error is not None:
+                unit = reply.arm if isinstance(reply, m.CommandReply) else f"g1 {reply.device}"
+                raise Abort(
+                    f"{unit!r} refused a target: [{reply.error.code}] {reply.error.message}"
+                )
+        for arm in self.script.arms:
+            measured = self._measured(watch, arm)
+            if measured is None or not self.recent[arm]:
                 continue
-            measured = tuple(joints.angles_deg)
-            error = min(path_error_deg(measured, t, self.closing[arm]) for t in self.recent[arm])
+            closing = self.closing.get(arm)
+            error = min(
+                max_error_deg(measured, t)
+                if closing is None
+                else path_error_deg(measured, t, closing)
+                for t in self.recent[arm]
+            )
             self.result.max_path_error_deg = max(self.result.max_path_error_deg, round(error, 2))
             if error > self.script.tolerance_deg:
                 raise Abort(
@@ -244,7 +322,9 @@ class Player:
 
     def _facts(self, watch: ArmWatch, timeline: Timeline) -> dict[str, ArmFacts]:
         facts = {}
-        for arm in self.script.arms:
+        if self.g1 is not None:  # a G1 arm has no gripper: never gripped
+            facts = {a: ArmFacts(self.g1.measured(a)) for a in self.script.arms if is_g1_arm(a)}
+        for arm in self.d1_arms:
             latest = watch.latest(arm)
             angles = tuple(latest.joints.angles_deg) if latest.joints is not None else None
             if latest.joints is not None and self._last_seq.get(arm) != latest.joints.seq:
@@ -267,9 +347,9 @@ class Player:
             self._keyframes.append((now + KEYFRAME_WINDOW_S, goal, {}))
         for deadline, goal, best in list(self._keyframes):
             for arm in self.script.arms:
-                joints = watch.latest(arm).joints
-                if joints is not None:
-                    error = max_error_deg(tuple(joints.angles_deg), goal[arm])
+                measured = self._measured(watch, arm)
+                if measured is not None:
+                    error = max_error_deg(measured, goal[arm])
                     best[arm] = min(best.get(arm, error), error)
             if flush or now >= deadline:
                 self._keyframes.remove((deadline, goal, best))
@@ -279,8 +359,11 @@ class Player:
     def _send(self, frame: Frame) -> None:
         stamp = time.time_ns()
         for arm in self.script.arms:
+            self.recent[arm].append(frame.targets[arm])
+        if self.g1 is not None:
+            self.g1.submit(frame.targets, stamp)
+        for arm in self.d1_arms:
             target = frame.targets[arm]
-            self.recent[arm].append(target)
             if len(self.pending[arm]) >= MAX_PENDING:
                 continue  # the agent is behind: skip this tick, the next target supersedes it
             command = m.MoveJoints(
@@ -295,7 +378,7 @@ class Player:
     # ------------------------------------------------------------------ ending
 
     def _broadcast(self, make: Callable[[str], m.ArmCommand]) -> dict[str, m.CommandReply]:
-        futures = {a: self.pool.submit(self.client.command, a, make(a)) for a in self.script.arms}
+        futures = {a: self.pool.submit(self.client.command, a, make(a)) for a in self.d1_arms}
         wait(futures.values(), timeout=5.0)
         return {a: f.result() for a, f in futures.items() if f.done()}
 
@@ -303,7 +386,7 @@ class Player:
         """Hold every arm where it is, then, once still, make that pose the watched target (so
         the agents' watchdog does not trip when the heartbeat stops after a clean abort)."""
         self._broadcast(lambda a: m.Hold(owner=self.owner))
-        still = settle(watch, self.script.arms, None, 1.5)
+        still = settle(watch, self.d1_arms, None, 1.5)
         self._broadcast(
             lambda a: (
                 m.MoveJoints(angles_deg=list(still[a]), mode=0, owner=self.owner)
@@ -311,4 +394,4 @@ class Player:
                 else m.Hold(owner=self.owner)
             )
         )
-        settle(watch, self.script.arms, None, 1.0)
+        settle(watch, self.d1_arms, None, 1.0)

@@ -4,11 +4,13 @@ A script is a list of steps played in order by every arm involved, from one sync
 
 - a **move** step (a keyframe): ``duration_s``, ``easing`` and, per arm, the absolute pose
   (seven angles in degrees, wire ids 0..6, or the name of a ``[poses]`` entry) the arm reaches
-  at the end of the step. Keys may be an arm id, a group of the inventory or ``all``; an arm the
+  at the end of the step. Keys may be an arm id, a group of the inventory, ``all`` (every D1
+  arm) or a G1's arm, ``h1.left`` / ``h1.right`` (``fleet/choreo/g1_arms.py``); an arm the
   step does not name keeps its previous keyframe;
 - a **wait** step: ``wait = "reached"`` (the arms are within ``reach_tolerance_deg`` of their
   current keyframe) or ``wait = "grip"`` (the arms' grippers confirmed a grip), on ``arms``
-  (default: every arm involved), for at most ``timeout_s`` (then the script aborts).
+  (default: every arm involved; for a grip, every D1 arm involved: a G1 arm has no gripper),
+  for at most ``timeout_s`` (then the script aborts).
 
 ``[choreo]`` sets ``loops`` (1; 0 = until stopped), ``tolerance_deg`` (path tolerance while
 playing), ``reach_tolerance_deg``, ``max_speed_deg_s`` and ``start_lead_s``. Errors name the
@@ -23,6 +25,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal, cast
 
+from fleet.choreo.g1_arms import SIDES, arm_name, is_g1_arm, split
 from fleet.d1.limits import JOINT_COUNT
 from fleet.tomlfile import TomlError, brief, decode_toml
 
@@ -150,15 +153,61 @@ def _pose(value: Any, poses: Mapping[str, Pose], source: str, where: str) -> Pos
 
 
 def _resolve(
-    target: str, arms: Sequence[str], groups: Mapping[str, Sequence[str]], source: str, where: str
+    target: str,
+    arms: Sequence[str],
+    groups: Mapping[str, Sequence[str]],
+    source: str,
+    where: str,
+    g1s: Sequence[str] = (),
 ) -> list[str]:
+    """The arms ``target`` names: ``all`` (every D1 arm), a group, an arm, a G1 arm
+    (``h1.left``) or a G1 (both its arms)."""
     if target == "all":
         return list(arms)
     if target in groups:
         return list(groups[target])
     if target in arms:
         return [target]
-    raise _fail(source, where, f"{target!r} is not an arm, a group or 'all' (arms: {list(arms)})")
+    if target in g1s:
+        return [arm_name(target, side) for side in SIDES]
+    parts = split(target)
+    if parts is not None and parts[0] in g1s:
+        return [target]
+    g1_hint = f"; G1 arms: {', '.join(arm_name(g, s) for g in g1s for s in SIDES)}" if g1s else ""
+    raise _fail(
+        source,
+        where,
+        f"{target!r} is not an arm, a group or 'all' (arms: {list(arms)}{g1_hint})",
+    )
+
+
+def _g1_targets(
+    raw: Mapping[str, Any], g1s: Sequence[str], source: str, where: str
+) -> dict[str, Any]:
+    """A step's keys with a G1's table (``h1.left = ...`` is TOML for ``h1 = {left = ...}``)
+    flattened to ``h1.left``; a G1 named without its side is refused."""
+    flat: dict[str, Any] = {}
+    for key, value in raw.items():
+        if key not in g1s and isinstance(value, dict):
+            known = ", ".join(g1s) or "none"
+            why = (
+                f"{key!r} is not a G1 of the inventory (G1s: {known}): only a G1's arms are "
+                "named <g1>.left / <g1>.right"
+            )
+            raise _fail(source, f"{where}.{key}", why)
+        if key not in g1s:
+            flat[key] = value
+            continue
+        sides = ", ".join(arm_name(key, s) for s in SIDES)
+        if not isinstance(value, dict):
+            why = f"{key!r} is a G1: name one of its arms ({sides})"
+            raise _fail(source, f"{where}.{key}", why)
+        for side, pose in value.items():
+            if side not in SIDES:
+                why = f"a G1's arms are {sides}; {arm_name(key, side)!r} is none of them"
+                raise _fail(source, f"{where}.{key}.{side}", why)
+            flat[arm_name(key, side)] = pose
+    return flat
 
 
 def _unknown_field(key: str, fields: set[str], what: str) -> str:
@@ -178,8 +227,10 @@ def _move(
     poses: Mapping[str, Pose],
     source: str,
     where: str,
+    g1s: Sequence[str] = (),
 ) -> Move:
-    targets_known = {"all", *groups, *arms}
+    raw = _g1_targets(raw, g1s, source, where)
+    targets_known = {"all", *groups, *arms, *(arm_name(g, s) for g in g1s for s in SIDES)}
     for key in raw:
         typo = difflib.get_close_matches(key, sorted(_MOVE_KEYS), n=1)
         if key not in _MOVE_KEYS and key not in targets_known and typo:
@@ -199,7 +250,7 @@ def _move(
     )
     for key in order:
         pose = _pose(raw[key], poses, source, f"{where}.{key}")
-        for arm in _resolve(key, arms, groups, source, f"{where}.{key}"):
+        for arm in _resolve(key, arms, groups, source, f"{where}.{key}", g1s):
             targets[arm] = pose
     if not targets:
         raise _fail(source, where, "a move step names no arm (give `a1 = [...]` or `all = ...`)")
@@ -214,18 +265,34 @@ def _wait(
     source: str,
     where: str,
     involved: Sequence[str],
+    g1s: Sequence[str] = (),
 ) -> Wait:
     for key in sorted(set(raw) - _WAIT_KEYS):
         raise _fail(source, f"{where}.{key}", _unknown_field(key, _WAIT_KEYS, "a wait step"))
     condition = raw["wait"]
     if not isinstance(condition, str) or condition not in ("reached", "grip"):
         raise _fail(source, f"{where}.wait", f"{brief(condition)} is not 'reached' or 'grip'")
-    names = _names(raw.get("arms", list(involved)), source, f"{where}.arms")
+    default = [a for a in involved if condition == "reached" or not is_g1_arm(a)]
+    if "arms" not in raw and not default:
+        why = "a grip wait needs a D1 arm (a G1 arm has no gripper); this script moves none"
+        raise _fail(source, f"{where}.wait", why)
+    names = _names(raw.get("arms", default), source, f"{where}.arms")
     if not names:
         raise _fail(source, f"{where}.arms", "a non-empty list of arms or groups expected")
     waited: list[str] = []
     for name in names:
-        waited += _resolve(name, arms, groups, source, f"{where}.arms")
+        waited += _resolve(name, arms, groups, source, f"{where}.arms", g1s)
+    for arm in waited:
+        if condition == "grip" and is_g1_arm(arm):
+            why = (
+                f"{arm!r} is a G1 arm: it has no gripper (its joint 6 is the wrist's yaw), so "
+                "no grip can be confirmed on it; wait for a grip on D1 arms only, or use "
+                'wait = "reached"'
+            )
+            raise _fail(source, f"{where}.arms", why)
+        if arm not in involved:
+            why = f"{arm!r} moves in no step (name it in a move step or in [choreo] arms)"
+            raise _fail(source, f"{where}.arms", why)
     timeout = _number(raw.get("timeout_s", 10.0), source, f"{where}.timeout_s", 0.1, 600.0)
     label = _text(raw.get("label", ""), source, f"{where}.label")
     return Wait(cast(Condition, condition), tuple(dict.fromkeys(waited)), timeout, label)
@@ -236,8 +303,10 @@ def parse_script(
     source: str = "<script>",
     arms: Sequence[str] = (),
     groups: Mapping[str, Sequence[str]] | None = None,
+    g1s: Sequence[str] = (),
 ) -> Script:
-    """Parse a choreography TOML against the inventory's ``arms`` and ``groups``."""
+    """Parse a choreography TOML against the inventory's ``arms``, ``groups`` and G1s
+    (``g1s``: their ids; their arms are ``<id>.left`` / ``<id>.right``)."""
     groups = dict(groups or {})
     try:
         raw = decode_toml(text)
@@ -258,17 +327,19 @@ def parse_script(
     moves: list[tuple[int, Move]] = []
     for i, step in enumerate(tables):
         if "wait" not in step:
-            moves.append((i, _move(step, arms, groups, poses, source, f"step[{i}]")))
+            moves.append((i, _move(step, arms, groups, poses, source, f"step[{i}]", g1s)))
     involved = list(dict.fromkeys(a for _i, mv in moves for a in mv.poses))
     for name in _names(head.get("arms", []), source, "choreo.arms"):
-        for arm in _resolve(name, arms, groups, source, "choreo.arms"):
+        for arm in _resolve(name, arms, groups, source, "choreo.arms", g1s):
             if arm not in involved:
                 involved.append(arm)
     if not moves:
         raise _fail(source, "step", "no move step: nothing would move")
     by_index = dict(moves)
     steps: list[Step] = [
-        by_index[i] if i in by_index else _wait(s, arms, groups, source, f"step[{i}]", involved)
+        by_index[i]
+        if i in by_index
+        else _wait(s, arms, groups, source, f"step[{i}]", involved, g1s)
         for i, s in enumerate(tables)
     ]
     loops = head.get("loops", 1)

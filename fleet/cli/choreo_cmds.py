@@ -6,6 +6,7 @@ import argparse
 import sys
 from collections.abc import Callable
 
+from fleet.choreo.g1_arms import g1_ids
 from fleet.choreo.script import MAX_LOOPS, Script, ScriptError, parse_script
 from fleet.choreo.timeline import Frame
 from fleet.client import FleetClient
@@ -67,7 +68,7 @@ def load_script(path: str, inventory: Inventory, loops: int | None = None) -> Sc
         text = read_text(path)
     except TomlError as exc:
         raise ScriptError(f"{path}: {exc}") from None
-    script = parse_script(text, path, list(inventory.arms), inventory.groups)
+    script = parse_script(text, path, list(inventory.arms), inventory.groups, g1_ids(inventory))
     if loops is not None:
         from dataclasses import replace
 
@@ -88,8 +89,7 @@ def _progress(frame: Frame) -> None:
 
 def run_play(args: argparse.Namespace) -> int:
     """``fleet play``: exit 0 completed, 1 aborted (the reason is printed), 2 invalid script."""
-    from fleet.choreo.player import Player
-    from fleet.choreo.validate import check_motion
+    from fleet.choreo.player import Abort, Player
 
     inventory = inventory_from_args(args)
     try:
@@ -101,13 +101,14 @@ def run_play(args: argparse.Namespace) -> int:
     with FleetClient(inventory, connect_timeout_s=args.connect_timeout) as client:
         player = Player(client, script, on_progress=None if args.quiet else _progress)
         if args.check:
-            snap = client.snapshot(script.arms)
-            poses = {a: tuple(j.angles_deg) for a, (_s, j) in snap.items() if j is not None}
             try:
-                check_motion(script, poses, player.ranges)
+                player.check(ready_s=args.ready_s)
             except ScriptError as exc:
                 print(f"fleet play: {exc}", file=sys.stderr)
                 return 2
+            except Abort as exc:
+                print(f"fleet play: cannot check: {exc}", file=sys.stderr)
+                return 1
             print(f"{script.source}: ok ({len(script.steps)} steps, {script.iteration_s:g} s/pass)")
             return 0
         while True:

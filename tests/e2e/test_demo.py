@@ -3,6 +3,7 @@ children die with it however it dies (issue 15, defects 3 and 8)."""
 
 from __future__ import annotations
 
+import math
 import os
 import signal
 import subprocess
@@ -14,7 +15,13 @@ from pathlib import Path
 import pytest
 
 from fleet.client import FleetClient
+from fleet.g1 import arms
+from fleet.g1.messages import G1LowState
 from fleet.inventory import load_inventory
+from fleet.wire import keys, payloads
+from fleet.wire import messages as m
+from fleet.wire.payloads import G1_LOWSTATE
+from testkit.collect import Collector
 from testkit.harness import free_port, unique_domain, wait_until
 
 REPO = Path(__file__).resolve().parents[2]
@@ -110,6 +117,32 @@ def test_a_reset_never_restarts_the_demos_dance(
     later = _joint0(client)
     moved = {a: abs(later[a] - after[a]) for a in later if a in after}
     assert max(moved.values()) < 1.0, f"the arms moved after the reset: {moved} deg"
+
+
+def test_the_demos_dance_waves_the_g1_in_time_with_the_arms(
+    demo: tuple[subprocess.Popen[bytes], FleetClient],
+) -> None:
+    """``choreo/demo.toml``'s ripple: a1's joint 0 swings to 40 deg while the G1's right elbow
+    swings to -25 deg, both keyframes at the same instant of the one timeline."""
+    _process, client = demo
+    space = client.keys
+    lows: Collector[G1LowState] = Collector(
+        client.session, space.device("g1", "h1", keys.LOWSTATE), G1_LOWSTATE.decode
+    )
+    joints: Collector[m.Joints] = Collector(
+        client.session, space.arm("a1", keys.JOINTS), payloads.JOINTS.decode
+    )
+    elbow = arms.FIRST + arms.RIGHT_ARM[3]
+    try:
+        # the ripple's keyframe of the G1's right elbow (-25 deg; the G1 starts at 0)
+        wait_until(lambda: any(math.degrees(low.q_rad[elbow]) < -24.0 for low in lows.items), 90.0)
+        at = next(t for t, low in lows.timed if math.degrees(low.q_rad[elbow]) < -24.0)
+        _t, a1 = min(joints.timed, key=lambda item: abs(item[0] - at))
+        print(f"G1 right elbow at -24 deg while a1's joint 0 was {a1.angles_deg[0]:.1f} deg")
+        assert a1.angles_deg[0] > 25.0, a1  # a1 swings to 40 deg in the same step
+    finally:
+        lows.close()
+        joints.close()
 
 
 def test_the_demos_children_die_with_it_even_by_sigkill(

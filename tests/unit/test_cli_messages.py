@@ -43,7 +43,7 @@ def test_a_choreography_typo_is_named_with_the_field_meant(typo: str, meant: str
     text = (REPO / "choreo" / "demo.toml").read_text()
     assert meant in text
     with pytest.raises(ScriptError) as error:
-        parse_script(text.replace(meant, typo, 1), "demo.toml", ["a1", "a2", "a3"])
+        parse_script(text.replace(meant, typo, 1), "demo.toml", ["a1", "a2", "a3"], g1s=["h1"])
     assert f"unknown field(s) in a move step: {typo!r}" in str(error.value)
     assert f"did you mean {meant!r}" in str(error.value)
 
