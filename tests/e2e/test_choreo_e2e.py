@@ -193,6 +193,6 @@ def test_recording_replays_the_same_trajectory(
     # taken while it still converges on a loaded host).
     settled = wait_until(
         lambda: (now := tuple(_angles(client)["a2"])) and gap(recorded[-1], [now]) < 1.5 and now,
-        3.0,
+        10.0,  # a bound for the state, not a goal: 3 s failed on a loaded host
     )
     assert gap(recorded[-1], [settled]) < 1.5
