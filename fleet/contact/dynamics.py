@@ -123,29 +123,38 @@ class JointResponse:
 
     def step(self, d: ModeDynamics, dt: float) -> float:
         """Integrate ``dt`` (at most ``STEP_S`` for a stable servo); returns the new angle."""
-        gap = self.target_deg - self.reference_deg
-        delta = gap if d.lag_s <= 0.0 else gap * (1.0 - math.exp(-dt / d.lag_s))
-        limit = d.rate_deg_s * dt
-        self.reference_deg += max(-limit, min(limit, delta))
-        if abs(self.target_deg - self.reference_deg) < 1e-6:
-            self.reference_deg = self.target_deg
-        if d.servo_hz <= 0.0:
-            self.velocity_deg_s = (self.reference_deg - self.angle_deg) / dt
-            self.angle_deg = self.reference_deg
-            return self.angle_deg
-        wn = 2.0 * math.pi * d.servo_hz
-        accel = wn * wn * (self.reference_deg - self.angle_deg) - 2.0 * damping(
-            d.overshoot
-        ) * wn * (self.velocity_deg_s)
-        self.velocity_deg_s += accel * dt  # semi-implicit Euler: stable for wn * dt < 2
-        self.angle_deg += self.velocity_deg_s * dt
-        if (
-            abs(self.angle_deg - self.reference_deg) < 1e-6
-            and abs(self.velocity_deg_s) < 1e-4
-            and self.reference_deg == self.target_deg
-        ):
-            self.angle_deg, self.velocity_deg_s = self.reference_deg, 0.0
+        self._integrate(d, dt, 1)
         return self.angle_deg
+
+    def _integrate(self, d: ModeDynamics, dt: float, steps: int) -> None:
+        """``steps`` steps of ``dt`` under ``d``, no command coming due on the way. The one copy
+        of the response's arithmetic, and the hot loop of the simulator, the predictor and the
+        calibration fit (millions of steps per fitted joint): figures hoisted out of the loop,
+        state in locals, and it stops once at rest (a fixed point: no step changes anything)."""
+        target, reference = self.target_deg, self.reference_deg
+        angle, velocity = self.angle_deg, self.velocity_deg_s
+        gain = 1.0 if d.lag_s <= 0.0 else 1.0 - math.exp(-dt / d.lag_s)
+        limit = d.rate_deg_s * dt
+        servo = d.servo_hz > 0.0
+        wn = 2.0 * math.pi * d.servo_hz
+        stiffness, friction = wn * wn, 2.0 * damping(d.overshoot) * wn
+        for _ in range(steps):
+            delta = (target - reference) * gain
+            reference += limit if delta > limit else -limit if delta < -limit else delta
+            if -1e-6 < target - reference < 1e-6:  # abs() without a call: this loop is hot
+                reference = target
+            if not servo:
+                velocity = (reference - angle) / dt
+                angle = reference
+            else:
+                velocity += (stiffness * (reference - angle) - friction * velocity) * dt
+                angle += velocity * dt  # semi-implicit Euler: stable for wn * dt < 2
+                still = -1e-6 < angle - reference < 1e-6 and -1e-4 < velocity < 1e-4
+                if still and reference == target:
+                    angle, velocity = reference, 0.0
+            if angle == reference == target and velocity == 0.0:
+                break
+        self.reference_deg, self.angle_deg, self.velocity_deg_s = reference, angle, velocity
 
     def advance(self, dynamics: ArmDynamics, start_s: float, end_s: float) -> None:
         """Integrate from ``start_s`` to ``end_s`` in steps of at most ``STEP_S``; commands come
@@ -155,9 +164,16 @@ class JointResponse:
             return
         steps = min(int(span / STEP_S) + 1, 1000)
         dt = span / steps
-        for k in range(steps):
+        k = 0
+        while k < steps:
             self.due(start_s + (k + 1) * dt)
-            self.step(dynamics.mode(self.mode), dt)
+            end = steps  # the steps before the next command comes due: one mode, no command
+            if self._pending:
+                end, head = k + 1, self._pending[0][0]
+                while end < steps and head > start_s + (end + 1) * dt + 1e-9:
+                    end += 1
+            self._integrate(dynamics.mode(self.mode), dt, end - k)
+            k = end
 
 
 class SimDynamics(ArmDynamics, frozen=True, forbid_unknown_fields=True):

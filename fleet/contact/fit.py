@@ -10,11 +10,13 @@ error; it starts from estimates read off the steps (the fastest speed, the first
 
 from __future__ import annotations
 
+import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from fleet.contact.calibration import JointCalibration
-from fleet.contact.dynamics import JointResponse, ModeDynamics
+from fleet.contact.dynamics import ArmDynamics, JointResponse, ModeDynamics
 
 STEP_SIZES_DEG = (10.0, 40.0, 80.0)
 """Small enough to be slow and local; 80 deg shows the speed limit of any arm whose lag times
@@ -55,19 +57,14 @@ def plan(angle_deg: float, limits: tuple[float, float]) -> list[tuple[int, float
 
 def simulate(d: ModeDynamics, record: StepRecord) -> list[float]:
     """The angles ``d`` predicts at the record's sample times."""
+    both = ArmDynamics(mode0=d, mode1=d)
     response = JointResponse(record.start_deg)
     response.mode = record.mode
     response.command(record.target_deg, record.mode, record.sent_s, d.dead_s)
     now, out = record.sent_s, []
     for stamp, _angle in record.samples:
-        if stamp > now and response.at_rest():
-            now = stamp  # settled on the target: nothing changes (the fit's hot loop)
         if stamp > now:
-            steps = min(int((stamp - now) / 0.01) + 1, 1000)
-            dt = (stamp - now) / steps
-            for k in range(steps):
-                response.due(now + (k + 1) * dt)
-                response.step(d, dt)
+            response.advance(both, now, stamp)
             now = stamp
         out.append(response.angle_deg)
     return out
@@ -134,9 +131,11 @@ _STEP = {"rate_deg_s": 0.3, "lag_s": 0.05, "dead_s": 0.03, "servo_hz": 0.5, "ove
 _RELATIVE = {"rate_deg_s", "servo_hz"}
 
 
-def _search(d: ModeDynamics, names: tuple[str, ...], records: list[StepRecord]) -> ModeDynamics:
+def _search(
+    d: ModeDynamics, names: tuple[str, ...], rms_of: Callable[[ModeDynamics], float]
+) -> ModeDynamics:
     """Coordinate search: each figure up or down by its step, steps halve when nothing helps."""
-    best, cost = d, rms(d, records)
+    best, cost = d, rms_of(d)
     steps = {n: _STEP[n] for n in names}
     for _round in range(60):
         improved = False
@@ -150,7 +149,7 @@ def _search(d: ModeDynamics, names: tuple[str, ...], records: list[StepRecord]) 
                 candidates = (value + step, value - step)
             for candidate in candidates:
                 trial = _with(best, name, min(max(candidate, lo), hi))
-                trial_cost = rms(trial, records)
+                trial_cost = rms_of(trial)
                 if trial_cost < cost - 1e-6:
                     best, cost, improved = trial, trial_cost, True
                     break
@@ -184,18 +183,21 @@ def fit(records: list[StepRecord]) -> tuple[ModeDynamics, float]:
     """The dynamics of one mode that best explain ``records``, and its RMS error (deg). Several
     starts (dead times; servo frequencies) keep the search out of local minima."""
     initial = _initial(records)
+    # The searches revisit points (a step back, a clamp at a bound, the starts' minima): each
+    # figure set is simulated once.
+    rms_of = functools.cache(lambda d: rms(d, records))
     first_names = ("rate_deg_s", "lag_s", "dead_s")
     starts = [initial, _with(initial, "dead_s", 0.05), _with(initial, "dead_s", 0.1)]
-    firsts = [_search(start, first_names, records) for start in starts]
-    best = min(firsts, key=lambda d: rms(d, records))
-    cost = rms(best, records)
+    firsts = [_search(start, first_names, rms_of) for start in starts]
+    best = min(firsts, key=rms_of)
+    cost = rms_of(best)
     second_names = ("servo_hz", "overshoot", "rate_deg_s", "lag_s", "dead_s")
     seconds = [
-        _search(_with(_with(best, "servo_hz", hz), "overshoot", 0.05), second_names, records)
+        _search(_with(_with(best, "servo_hz", hz), "overshoot", 0.05), second_names, rms_of)
         for hz in (1.0, 2.5, 6.0)
     ]
-    second = min(seconds, key=lambda d: rms(d, records))
-    second_cost = rms(second, records)
+    second = min(seconds, key=rms_of)
+    second_cost = rms_of(second)
     if second_cost < min(0.7 * cost, cost - 0.05):  # a servo only when it explains clearly more
         best, cost = second, second_cost
     return best, round(cost, 3)
