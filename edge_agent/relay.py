@@ -148,19 +148,20 @@ class ZenohRelay:
             safety_stop = safety.on_stop
 
             def on_datagram_stop(sample: zenoh.Sample) -> None:
-                key = str(sample.key_expr)
+                key = keys.reliable_key(str(sample.key_expr))
                 if key in units:
                     safety_stop(units[key], sample.payload.to_bytes())
 
+            twin = keys.datagram_key
             self._datagram_subscribers += [
-                # On the receive thread (``direct``): decoding a beat and keeping the newest
-                # per source is microseconds, and the router routes every copy to both of the
-                # agent's heartbeat subscriptions (measured: a thread hand-off per beat on both
-                # raised the idle agent's CPU more). The TCP one stays: if this session is down
-                # or lost its declaration, beats still arrive.
-                datagram.declare_subscriber(self.keys.heartbeat, direct(on_heartbeat)),
+                # The datagram copies' own keys (``keys.DATAGRAM``), on the receive thread
+                # (``direct``: decoding a beat and keeping the newest per source is
+                # microseconds). The TCP subscriptions stay: if this session is down or lost
+                # its declaration, the reliable copies still arrive.
+                datagram.declare_subscriber(twin(self.keys.heartbeat), direct(on_heartbeat)),
                 datagram.declare_subscriber(
-                    f"{self.keys.prefix}/**/{keys.ESTOP}", direct(wrap(on_datagram_stop, "estop"))
+                    twin(f"{self.keys.prefix}/**/{keys.ESTOP}"),
+                    direct(wrap(on_datagram_stop, "estop")),
                 ),
             ]
         self.publishers: dict[str, ArmPublishers] = {}

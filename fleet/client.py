@@ -286,12 +286,14 @@ class FleetClient:
                 )
             datagram = self.datagram.session
             if datagram is not None and len(self._ack_subscribers) == 1:
-                self._ack_subscribers.append(datagram.declare_subscriber(key, self._on_stop_ack))
+                twin = keys.datagram_key(key)  # the acks' datagram copies
+                self._ack_subscribers.append(datagram.declare_subscriber(twin, self._on_stop_ack))
 
     def _on_stop_ack(self, sample: zenoh.Sample) -> None:
         """An ack of an arm (labelled by its id) or a device (``<kind>/<id>``), handed to the
         ``estop`` waiting for its stop (the label from the key, not the payload)."""
-        label = str(sample.key_expr)[len(self.keys.prefix) + 1 :].removesuffix(f"/{keys.ESTOP_ACK}")
+        key = keys.reliable_key(str(sample.key_expr))
+        label = key[len(self.keys.prefix) + 1 :].removesuffix(f"/{keys.ESTOP_ACK}")
         kind, _, unit = label.partition("/")
         if kind == keys.ARM:
             label = unit

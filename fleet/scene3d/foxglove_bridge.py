@@ -177,7 +177,10 @@ class FoxgloveBridge:
         return device is not None and device_kind_of(device).key == parsed.kind
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
-        """Zenoh thread: hand off, never block."""
+        """Zenoh thread: hand off, never block. A datagram copy (``keys.DATAGRAM``) repeats
+        what its key carries: not a channel of its own."""
+        if keys.is_datagram_key(str(sample.key_expr)):
+            return
         if len(self._inbox) < INBOX_DEPTH:
             self._inbox.append((str(sample.key_expr), sample.payload.to_bytes(), time.time_ns()))
         else:

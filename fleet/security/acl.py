@@ -28,6 +28,7 @@ from fleet.beat_limits import max_heartbeat_bytes
 from fleet.devices import kind_of
 from fleet.inventory import Inventory
 from fleet.security_config import Role
+from fleet.wire import keys
 from fleet.wire.payloads import KIB
 
 PUT = ["put", "delete"]
@@ -45,6 +46,17 @@ def _rule(rule_id: str, messages: list[str], flow: str, keys: list[str]) -> dict
     }
 
 
+def _datagram_twins(grants: list[str]) -> list[str]:
+    """The datagram copies' keys of the stop-path keys among ``grants`` (stops, acks,
+    heartbeats)."""
+    stop_path = (f"/{keys.ESTOP}", f"/{keys.ESTOP_ACK}")
+    return [
+        keys.datagram_key(k)
+        for k in grants
+        if k.endswith(stop_path) or k.split("/")[2:3] == [keys.HEARTBEAT]
+    ]
+
+
 class _Grants:
     """What one principal may send (ingress) and receive (egress), by message kind."""
 
@@ -58,6 +70,10 @@ class _Grants:
 
     def rules(self, name: str, fleet: str) -> list[dict[str, Any]]:
         everything = f"fleet/{fleet}/**"
+        # Who may put or read a stop, its ack or a heartbeat may do the same on its datagram
+        # copy's key (fleet.wire.keys.datagram_key), and nothing more.
+        self.put = [*self.put, *_datagram_twins(self.put)]
+        self.read = [*self.read, *_datagram_twins(self.read)]
         out = []
         if self.put:
             out.append(_rule(f"{name}-put", PUT, "ingress", self.put))
@@ -116,6 +132,11 @@ def _grants(inventory: Inventory, principal: str, role: Role) -> _Grants:
         g.queryable += [f"{f}/{k}/{d}/cmd/*" for k, d in own]
         g.token += [f"{f}/{k}/{d}/agent" for k, d in own]
         g.read += [f"{f}/{k}/{d}/{channel}" for k, d in own for channel in ("estop", "reset")]
+        # Its datagram session subscribes to every stop's datagram copy with one wildcard:
+        # a lost declaration of a concrete key would make the router refer to the key by a
+        # number the agent never learnt (docs/design/stop-path.md). Stops are no secret:
+        # observers read them all; the agent acts on its own units' only.
+        g.read.append(keys.datagram_key(f"{f}/**/{keys.ESTOP}"))
     elif role == "coordinator":
         g.put = [
             f"{f}/heartbeat/{principal}",
@@ -214,6 +235,7 @@ def payload_limits(inventory: Inventory) -> list[dict[str, Any]]:
     ]
     for kind in _device_kinds(inventory):
         small += [f"{f}/{kind}/*/cmd/**", f"{f}/{kind}/*/estop", f"{f}/{kind}/*/reset"]
+    small += _datagram_twins(small)
     # Every kind's command, stop and reset keys. zenoh 1.10's low-pass filter
     # (zenoh/src/net/routing/interceptor/low_pass.rs) takes, per message, the smallest
     # size_limit among the filter keys that include the message's key: it only ever drops
@@ -232,7 +254,7 @@ def payload_limits(inventory: Inventory) -> list[dict[str, Any]]:
         {  # a heartbeat repeats at most every unit's stop (fleet.beat_limits)
             "id": "heartbeats",
             "messages": messages,
-            "key_exprs": [f"{f}/heartbeat/*"],
+            "key_exprs": [f"{f}/heartbeat/*", keys.datagram_key(f"{f}/heartbeat/*")],
             "size_limit": beat,
         },
         {

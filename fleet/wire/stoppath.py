@@ -1,9 +1,10 @@
-"""The two paths of a stop (issue 24): every stop, its repeats, its acks and the heartbeats that
-repeat latched stops are put twice on the same key: once reliable (real-time priority, never
-waiting for room: ``REPEATED_QOS``) on the process's session over TCP, and once express on its
-datagram session over UDP (``fleet.wire.session.Datagram``). The datagram copy never queues
-behind a TCP retransmission; the receivers already de-duplicate (agents by ``stop_id``; acks
-and heartbeats are latest-wins).
+"""The two paths of a stop: every stop, its repeats, its acks and the heartbeats that repeat
+latched stops are put twice: once reliable on their key (real-time priority, never waiting for
+room: ``REPEATED_QOS``) on the process's session over TCP, and once express on the key's
+datagram twin (``fleet/<fleet>/dg/<key>``: ``keys.datagram_key``) on its datagram session over
+UDP (``fleet.wire.session.Datagram``). The datagram copy never queues behind a TCP
+retransmission; the receivers subscribe to the key on one session and to its twin on the
+other, and de-duplicate (agents by ``stop_id``; acks and heartbeats are latest-wins).
 
 The datagram copy is a plain ``Session.put`` of the full key, never a declared publisher, and
 the datagram sessions subscribe with wildcards only: a declared key (or a declared prefix of
@@ -140,6 +141,7 @@ class TwoPathPublisher:
 
     def __init__(self, session: zenoh.Session, datagram: DatagramSession, key: str) -> None:
         self.key = key
+        self.datagram_key = keys.datagram_key(key)
         self._datagram = datagram
         self.reliable = session.declare_publisher(key, encoding=JSON, **REPEATED_QOS)  # type: ignore[arg-type]
         self._undeclared = False
@@ -156,7 +158,7 @@ class TwoPathPublisher:
         if datagram is None:
             return
         try:
-            datagram.put(self.key, payload, encoding=JSON, **DATAGRAM_QOS)  # type: ignore[arg-type]
+            datagram.put(self.datagram_key, payload, encoding=JSON, **DATAGRAM_QOS)  # type: ignore[arg-type]
         except zenoh.ZError as exc:  # closed meanwhile (shutdown): the reliable copy goes on
             log.debug("datagram put on %s failed: %s", self.key, exc)
 
@@ -182,6 +184,9 @@ def stop_qos_overwrite(space: keys.KeySpace) -> list[dict[str, object]]:
                 f"{space.prefix}/**/{keys.ESTOP}",
                 f"{space.prefix}/**/{keys.ESTOP_ACK}",
                 space.heartbeat,
+                # (the datagram copies' keys, fleet/<fleet>/dg/..., match the two wildcards
+                # above; their heartbeats:)
+                keys.datagram_key(space.heartbeat),
                 # Resets too: on the reliable path a stop must not overtake the reset put before
                 # it, nor a reset the stop (one priority, one order), whatever the client asked.
                 space.reset,

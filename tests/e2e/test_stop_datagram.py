@@ -9,6 +9,7 @@ import threading
 import time
 
 from fleet.client import FleetClient
+from fleet.wire import keys
 from fleet.wire import messages as m
 from fleet.wire.session import open_datagram
 from fleet.wire.stoppath import DATAGRAM_QOS, JSON
@@ -31,7 +32,9 @@ def test_duplicated_replayed_and_flooded_stop_datagrams(fleet_harness: FleetHarn
     wait_until(lambda: h.all_links_ok(client), 30.0)
     rogue = open_datagram(h.inventory.endpoints, h.inventory.datagram)
     assert rogue is not None, "the router does not listen on the datagram twin"
-    key = client.keys.estop
+    key = keys.datagram_key(
+        client.keys.estop
+    )  # the datagram copies' key: only datagram sessions hear it
     try:
         # Duplicates: one stop, 50 copies on UDP and its own repeats on both paths.
         request = client.stop_request(reason="duplicated", source="test")

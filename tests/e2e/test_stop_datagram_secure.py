@@ -59,14 +59,16 @@ def test_a_secure_fleet_has_an_authenticated_datagram_path(secure: FleetHarness)
         _agent_datagram(operator) or ""
     )
 
-    # A stop put on the operator's QUIC datagram session only is acted on and acknowledged.
+    # A stop put on the operator's QUIC datagram session only, on the datagram copies' key (which
+    # only datagram sessions subscribe to), is acted on and acknowledged: the agent's QUIC path.
     acks = _seen(operator.session, operator.keys.arm("a1", keys.ESTOP_ACK))
     request = operator.stop_request(reason="over quic", source="test")
     datagram = operator.datagram.session
     assert datagram is not None
 
     def acked() -> bool:
-        datagram.put(operator.keys.estop, m.encode(request), encoding=JSON, **DATAGRAM_QOS)  # type: ignore[arg-type]
+        twin = keys.datagram_key(operator.keys.estop)
+        datagram.put(twin, m.encode(request), encoding=JSON, **DATAGRAM_QOS)  # type: ignore[arg-type]
         return _count(acks, request.stop_id.encode()) > 0
 
     wait_until(acked, 10.0, interval_s=0.2)

@@ -90,7 +90,9 @@ def test_observers_stop_but_never_reset_or_command(tmp_path: Path) -> None:
     acl = access_control(_inventory(tmp_path))
     for observer in ("viewer", "kiosk"):
         puts = _allowed(acl, observer, "put", "ingress")
-        assert puts == {"fleet/lab/estop", "fleet/lab/arm/*/estop"}
+        stops = {"fleet/lab/estop", "fleet/lab/arm/*/estop"}
+        # and the same stops' datagram copies (their keys under fleet/lab/dg), nothing else
+        assert puts == stops | {"fleet/lab/dg/estop", "fleet/lab/dg/arm/*/estop"}
         # no command query: only "who are you" (fleet doctor, issue 28)
         assert _allowed(acl, observer, "query", "ingress") == {"fleet/lab/info/*/*"}
 
@@ -109,7 +111,9 @@ def test_only_maintainers_inject_faults_into_simulated_arms(tmp_path: Path) -> N
 def test_payload_limits(tmp_path: Path) -> None:
     small, beats, everything = payload_limits(_inventory(tmp_path))
     assert small["size_limit"] == 4096 and "fleet/lab/estop" in small["key_exprs"]
-    assert beats["key_exprs"] == ["fleet/lab/heartbeat/*"] and beats["size_limit"] < 64 * 1024
+    assert beats["key_exprs"] == ["fleet/lab/heartbeat/*", "fleet/lab/dg/heartbeat/*"]
+    assert beats["size_limit"] < 64 * 1024
+    assert "fleet/lab/dg/arm/*/estop" in small["key_exprs"]
     assert everything["size_limit"] == 1 << 20 and everything["key_exprs"] == ["**"]
 
 

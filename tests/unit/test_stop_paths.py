@@ -10,7 +10,7 @@ import pytest
 
 from fleet.inventory import InventoryError, parse_inventory
 from fleet.security.session import datagram_session, router_config
-from fleet.wire.keys import KeySpace
+from fleet.wire.keys import KeySpace, datagram_key, is_datagram_key, reliable_key
 from fleet.wire.session import Datagram, datagram_twin, datagram_twins
 from fleet.wire.stoppath import stop_qos_overwrite
 
@@ -56,6 +56,7 @@ def test_routers_pin_the_stop_qos() -> None:
         "fleet/lab/**/estop",
         "fleet/lab/**/estop/ack",
         "fleet/lab/heartbeat/*",
+        "fleet/lab/dg/heartbeat/*",  # the datagram copies' (their stops and acks: by ** above)
         "fleet/lab/reset",
         "fleet/lab/**/reset",
     }
@@ -65,3 +66,14 @@ def test_routers_pin_the_stop_qos() -> None:
         "tcp/127.0.0.1:7447",
         "udp/127.0.0.1:7447",
     ]
+
+
+def test_a_datagram_copy_has_a_key_of_its_own_that_parses_as_the_key_it_copies() -> None:
+    space = KeySpace("lab")
+    for key in (space.estop, space.arm("a1", "estop/ack"), space.heartbeat_of("ann")):
+        twin = datagram_key(key)
+        assert twin.startswith("fleet/lab/dg/") and is_datagram_key(twin)
+        assert not is_datagram_key(key) and reliable_key(twin) == key == reliable_key(key)
+        assert space.parse_key(twin) == space.parse_key(key)
+    assert datagram_key("fleet/lab/**/estop") == "fleet/lab/dg/**/estop"
+    assert not is_datagram_key("fleet/dg") and not is_datagram_key("other/lab/dg/estop")
