@@ -7,7 +7,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from tests.netlab.fleetlab import LabFleet, one_router
+from tests.netlab.fleetlab import LAB_DEVICES, LabFleet, one_router
 from tests.netlab.lab import netem_available, why_no_lab
 
 WHY_NOT = why_no_lab()
@@ -27,10 +27,11 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
 
 @pytest.fixture(scope="package")
 def lab1(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LabFleet]:
-    """Topology 1: one router, the coordinator, a client and five arm hosts, every link clean."""
+    """Topology 1: one router, the coordinator, a client, five arm hosts (a Dex1-1 mounted on
+    a1) and a G1 host, every link clean."""
     if not netem_available():
         print("\nnetlab: this kernel has no sch_netem; the links are userspace cables (cable.py)")
-    fleet = one_router(tmp_path_factory.mktemp("netlab1"), arms=ARMS)
+    fleet = one_router(tmp_path_factory.mktemp("netlab1"), arms=ARMS, devices=LAB_DEVICES)
     try:
         yield fleet
     finally:

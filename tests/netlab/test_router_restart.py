@@ -13,6 +13,11 @@ central router. Topology 1: its one router. Each time:
 - no command is executed twice: a client streams ``move_joint`` commands with distinct angles
   through the outage, and a DDS spy on the arm's own command topic (in the arm's namespace)
   counts what the arm received: every angle at most once, every acknowledged one exactly once.
+
+Once per kind (``LAB_KINDS``) for the latched unit: an arm, the Dex1-1 on a1, the G1 (its host
+on site1 in topology 2): latched through its own agent before the outage, still latched (its
+state's latch and reason) and still (``LabKind.poses``) after it; its state, stamped after the
+restart, counts in the rejoin figure. The streamed commands go to an arm in every run.
 """
 
 from __future__ import annotations
@@ -25,8 +30,9 @@ from typing import Any
 import pytest
 
 from testkit.harness import wait_until
-from tests.netlab.checks import STILL_DEG, commands_seen, joint_moves, joints_of, restore
-from tests.netlab.fleetlab import LabFleet, site_routers
+from tests.netlab.checks import commands_seen, joint_moves, restore
+from tests.netlab.fleetlab import LAB_DEVICES, LabFleet, site_routers
+from tests.netlab.labkinds import LAB_KIND_IDS, LAB_KINDS, LabKind
 
 SITES = {"site1": ["a1", "a2"], "site2": ["a3", "a4"]}
 OUTAGE_S = 1.0
@@ -39,8 +45,9 @@ bounded: with Zenoh's default back-off (up to 4 s) a start-up of 2 s gave 6.05 s
 
 @pytest.fixture(scope="module")
 def lab2(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LabFleet]:
-    """Topology 2 with a DDS spy on the command topic of a1 and of a3."""
-    fleet = site_routers(tmp_path_factory.mktemp("netlab2"), SITES)
+    """Topology 2 (the Dex1-1 on a1, the G1 on site1) with a DDS spy on the command topic of
+    a1 and of a3."""
+    fleet = site_routers(tmp_path_factory.mktemp("netlab2"), SITES, devices=LAB_DEVICES)
     try:
         for arm in ("a1", "a3"):
             fleet.start_dds_tool(f"spy-{arm}", arm, "spy")
@@ -50,14 +57,21 @@ def lab2(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LabFleet]:
 
 
 def _restart_router(
-    fleet: LabFleet, router: str, latched_arm: str, streamed_arm: str, watched: list[str]
+    fleet: LabFleet,
+    router: str,
+    latched: tuple[LabKind, str],
+    streamed_arm: str,
+    watched: list[str],
 ) -> dict[str, Any]:
-    """Kill ``router`` while ``streamed_arm`` is commanded and ``latched_arm`` is stopped;
-    restart it; measure and check. Returns the figures."""
+    """Kill ``router`` while ``streamed_arm`` is commanded and the ``latched`` unit (of its
+    kind) is stopped; restart it; measure and check. Returns the figures."""
+    kind, unit = latched
+    watched = [*watched, *([] if kind.is_arm else [unit])]
     client = fleet.clients["client"]
     restore(fleet, client)
-    acks = client.call("estop", arm=latched_arm, timeout_s=5.0, reason="latched before")["acks"]
-    assert acks[latched_arm] and acks[latched_arm]["still_ns"], acks
+    acks = client.call("estop", arm=unit, timeout_s=5.0, reason="latched before")["acks"]
+    ack = acks[kind.label(unit)]
+    assert ack and ack["still_ns"], acks
     client.call("watch_start")
     client.call("watch_take")
     spy = f"spy-{streamed_arm}"
@@ -79,7 +93,8 @@ def _restart_router(
     def rejoined() -> bool:
         for t, arm, channel, value in client.call("watch_take")["samples"]:
             samples.append((t, arm, channel, value))
-            if channel == "joints" and value["stamp_ns"] > restart_ns and arm not in first:
+            fresh = channel in ("joints", "state") and value["stamp_ns"] > restart_ns
+            if fresh and arm not in first:
                 first[arm] = t
         return set(first) >= set(watched)
 
@@ -94,11 +109,18 @@ def _restart_router(
     after_listening = max(rejoin.values()) - listening_s
 
     # Latched across the outage, and still.
-    status = client.call("snapshot", arms=[latched_arm])["arms"][latched_arm][0]
+    if kind.is_arm:
+        status = client.call("snapshot", arms=[unit])["arms"][unit][0]
+    else:  # the newest state heard (the rejoin waited for one stamped after the restart)
+        status = client.call("device_state", unit=unit)["state"]
+        assert status["stamp_ns"] > restart_ns, f"{unit}: no state since the restart: {status}"
     assert status["estopped"] and "latched before" in status["stop_reason"], status
-    rows = joints_of(samples, latched_arm)
-    spread = max(max(r[2][j] for r in rows) - min(r[2][j] for r in rows) for j in range(7))
-    assert spread <= STILL_DEG, f"{latched_arm} moved {spread:.2f} deg while latched"
+    rows = kind.poses(samples, unit)
+    assert rows, f"{unit}: no pose recorded"
+    spread = max(
+        max(r[2][j] for r in rows) - min(r[2][j] for r in rows) for j in range(len(rows[0][2]))
+    )
+    assert spread <= kind.still_tol, f"{unit} moved {spread:.3f} while latched"
 
     # No command executed twice.
     written = joint_moves(commands_seen(fleet.lab.log(spy), since_ns), 0)
@@ -116,13 +138,17 @@ def _restart_router(
         "failed": len(failed),
         "written": sum(written.values()),
         "errors": sorted({r["reply"]["error"]["code"] for r in failed}),
+        "latched": f"{kind.name} {unit}",
+        "spread": spread,
     }
 
 
 def _report(name: str, figures: dict[str, Any]) -> str:
     rejoin = figures["rejoin"]
     return (
-        f"\nrow 3, {name} killed for {OUTAGE_S:g} s and restarted: joints again after "
+        f"\nrow 3 [{figures['latched']} latched: still latched, spread "
+        f"{figures['spread']:.3f}], {name} killed for {OUTAGE_S:g} s and restarted: "
+        "joints (states) again after "
         f"{', '.join(f'{a} {s:.2f}' for a, s in sorted(rejoin.items()))} s from its start "
         f"(max {max(rejoin.values()):.2f} s; it listened after "
         f"{figures['listening_s']:.2f} s, so {figures['after_listening_s']:.2f} s after "
@@ -133,20 +159,30 @@ def _report(name: str, figures: dict[str, Any]) -> str:
     )
 
 
-def test_a_site_router_restart(lab2: LabFleet) -> None:
-    figures = _restart_router(lab2, "site1", "a2", "a1", watched=SITES["site1"])
+def _latched(fleet: LabFleet, kind: LabKind, arm: str) -> tuple[LabKind, str]:
+    """The unit to latch: ``arm`` for the arm kind, else the lab's device of the kind."""
+    return kind, arm if kind.is_arm else kind.units(fleet)[0]
+
+
+@pytest.mark.parametrize("kind", LAB_KINDS, ids=LAB_KIND_IDS)
+def test_a_site_router_restart(lab2: LabFleet, kind: LabKind) -> None:
+    latched = _latched(lab2, kind, "a2")
+    figures = _restart_router(lab2, "site1", latched, "a1", watched=SITES["site1"])
     print(_report("site router", figures))
     assert figures["after_listening_s"] <= REJOIN_BOUND_S
 
 
-def test_the_central_router_restart(lab2: LabFleet) -> None:
+@pytest.mark.parametrize("kind", LAB_KINDS, ids=LAB_KIND_IDS)
+def test_the_central_router_restart(lab2: LabFleet, kind: LabKind) -> None:
     arms = [a for arms in SITES.values() for a in arms]
-    figures = _restart_router(lab2, "central", "a4", "a3", watched=arms)
+    figures = _restart_router(lab2, "central", _latched(lab2, kind, "a4"), "a3", watched=arms)
     print(_report("central router", figures))
     assert figures["after_listening_s"] <= REJOIN_BOUND_S
 
 
-def test_the_one_router_restart(lab1: LabFleet) -> None:
-    figures = _restart_router(lab1, "router", "a2", "a1", watched=list(lab1.arms))
+@pytest.mark.parametrize("kind", LAB_KINDS, ids=LAB_KIND_IDS)
+def test_the_one_router_restart(lab1: LabFleet, kind: LabKind) -> None:
+    latched = _latched(lab1, kind, "a2")
+    figures = _restart_router(lab1, "router", latched, "a1", watched=list(lab1.arms))
     print(_report("topology 1 router", figures))
     assert figures["after_listening_s"] <= REJOIN_BOUND_S
