@@ -48,7 +48,7 @@ lint: $(STAMP)
 # one worker, netlab tests another: --dist loadgroup). Under 10 minutes on a 2-core machine.
 test: $(STAMP) lint
 	sh scripts/ensure-chromium
-	$(BIN)/python -m pytest -n 2 --dist loadgroup
+	$(BIN)/python -m pytest -n 2 --dist loadgroup --durations=40
 
 # The pure tests only (tests/unit: no process, no network), in under a minute: while working.
 test-fast: $(STAMP)

@@ -117,7 +117,13 @@ def main(argv: list[str] | None = None) -> int:
         log.info("serving %s of fleet %r", " and ".join(what), inventory.fleet)
         collectors = lambda: agent_collectors(agent)  # noqa: E731
         with Observed(
-            agent.relay.session, inventory, "agent", args.metrics_port, units, collectors
+            agent.relay.session,
+            inventory,
+            "agent",
+            args.metrics_port,
+            units,
+            collectors,
+            agent.relay.datagram.path,
         ):
             while not stop.wait(0.1) and not agent.failed.is_set():
                 pass

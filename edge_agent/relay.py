@@ -38,10 +38,10 @@ from edge_agent.inbox import CommandInbox, SafetyInbox
 from fleet.control import direct
 from fleet.guard import ThreadGuard
 from fleet.inventory import Inventory
-from fleet.security.session import open_datagram_session, open_session
+from fleet.security.session import datagram_session, open_session
 from fleet.wire import keys
 from fleet.wire.payloads import DEVICE_PAYLOADS
-from fleet.wire.stoppath import DatagramSession, TwoPathPublisher
+from fleet.wire.stoppath import TwoPathPublisher
 
 JSON = zenoh.Encoding.APPLICATION_JSON
 
@@ -97,7 +97,7 @@ class ZenohRelay:
         self.session = open_session(inventory)
         # The stops' datagram path: stops and heartbeats also arrive over UDP, acks
         # also leave that way; opened here, before anything is announced.
-        self.datagram = DatagramSession(lambda: open_datagram_session(inventory))
+        self.datagram = datagram_session(inventory)
         datagram = self.datagram.open()
         safety, commands = inboxes
         wrap = guard.wrap

@@ -20,7 +20,7 @@ from fleet.devices import kind_of
 from fleet.devices.base import DeviceReply
 from fleet.devices.driver import error_reply
 from fleet.inventory import Inventory
-from fleet.security.session import open_datagram_session, open_session
+from fleet.security.session import datagram_session, open_session
 from fleet.wire import keys, payloads, stoppath
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, ErrorInfo, encode
@@ -94,7 +94,7 @@ class FleetClient:
         self.session = session
         self._own_datagram = datagram is None
         if datagram is None:  # the stops' datagram path (issue 24), opened beside
-            datagram = stoppath.DatagramSession(lambda: open_datagram_session(inventory))
+            datagram = datagram_session(inventory)
             datagram.start()
         self.datagram = datagram
 

@@ -3,7 +3,7 @@
 Checks, in the order a first bring-up meets them: the network card named in the inventory
 (exists, up, has an address), the DDS domain, the DDS peers (resolvable, and reached through
 that card, not through another one), the Zenoh router, every process's version and clock
-(``info/**`` queryables, fleet/wire/info.py), every arm's agent, the arm's feedback (link and
+(``info/*/*`` queryables, fleet/wire/info.py), every arm's agent, the arm's feedback (link and
 rate as the agent sees them), each G1's LocoClient service name and the
 coordinator. Host checks are pure functions of this host; fleet checks take an open
 ``FleetClient``.
@@ -193,14 +193,14 @@ def check_processes(client: FleetClient) -> list[Check]:
     ours = package_version()
     found: list[Check] = []
     if bad:
-        found.append(Check("process info", "warn", f"{bad} undecodable replies on info/**"))
+        found.append(Check("process info", "warn", f"{bad} undecodable replies on info/*/*"))
     if not replies:
         return [
             *found,
             Check(
                 "processes",
                 "warn",
-                "no process answered on info/** (processes older than fleet doctor?)",
+                "no process answered on info/*/* (processes older than fleet doctor?)",
                 "upgrade and restart the fleet's processes",
             ),
         ]
@@ -213,12 +213,31 @@ def check_processes(client: FleetClient) -> list[Check]:
             found.append(Check(what, "fail", f"version {info.version}, this CLI {ours}", fix))
         else:
             found.append(Check(what, "ok", f"version {info.version}"))
+        if info.role == "agent":
+            found.append(_datagram_check(client, what, info.datagram))
         best = by_host.get(info.host)
         if best is None or reply.uncertainty_ms < best[1]:
             by_host[info.host] = (reply.offset_ms, reply.uncertainty_ms)
     for host, (offset, uncertainty) in sorted(by_host.items()):
         found.append(_clock_check(host, offset, uncertainty))
     return found
+
+
+def _datagram_check(client: FleetClient, what: str, path: str | None) -> Check:
+    """An agent's second path for stops (UDP, or QUIC datagrams in a secure fleet)."""
+    what = f"{what}: stops' datagram path"
+    if not client.inventory.datagram.enabled:
+        return Check(what, "ok", "off in the inventory ([zenoh] datagram = false)")
+    if path is None:
+        return Check(
+            what,
+            "warn",
+            "not open: its stops, acks and heartbeats take the reliable path only (slower "
+            "under packet loss)",
+            "check that the router listens on the datagram twin of its endpoints (fleet "
+            "routers do) and that no firewall drops UDP to its port",
+        )
+    return Check(what, "ok", path)
 
 
 def _clock_check(host: str, offset_ms: float, uncertainty_ms: float) -> Check:

@@ -40,6 +40,7 @@ class Observed:
         metrics_port: int | None = None,
         arms: Iterable[str] = (),
         collectors: Callable[[], list[Any]] | None = None,
+        datagram: Callable[[], str | None] | None = None,
     ) -> None:
         self.metrics = None
         if metrics_port is not None:
@@ -51,7 +52,9 @@ class Observed:
         self.info = (
             None
             if session is None or inventory is None
-            else InfoService(session, inventory.fleet, role, inventory.principal, list(arms), port)
+            else InfoService(
+                session, inventory.fleet, role, inventory.principal, list(arms), port, datagram
+            )
         )
 
     def close(self) -> None:

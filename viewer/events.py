@@ -1,11 +1,12 @@
 """The viewer's event log: what an operator on shift needs to look back at, newest first.
 
-Stops (who asked, why), resets, contacts, refusals, agents going offline and coming back, each
-with its wall-clock time. Events come from the key space (viewer/state.py derives them from
-transitions, so a status repeated at 4 Hz is one event, not four a second) and from the viewer
-itself (a jog refused). The log is bounded: a flapping agent or a hostile flood of stop requests
-pushes old entries out, it never grows memory. Thread-safe: Zenoh callbacks add, the render
-thread reads.
+Stops (who asked, why, and once every arm is still how long each took: the coordinator's
+``estop/report``, slowest arm named), resets, contacts, refusals, agents going offline and
+coming back, each with its wall-clock time. Events come from the key space (viewer/state.py
+derives them from transitions, so a status repeated at 4 Hz is one event, not four a second)
+and from the viewer itself (a jog refused). The log is bounded: a flapping agent or a hostile
+flood of stop requests pushes old entries out, it never grows memory. Thread-safe: Zenoh
+callbacks add, the render thread reads.
 """
 
 from __future__ import annotations
@@ -15,6 +16,8 @@ import threading
 import time
 from collections import OrderedDict, deque
 from dataclasses import dataclass
+
+from fleet.wire import messages as m
 
 MAX_EVENTS = 200
 """Entries kept (oldest dropped first)."""
@@ -43,6 +46,25 @@ KIND_COLOUR = {
     ONLINE: "#1e8449",
     RELEASED: "#1e8449",
 }
+
+
+def stop_timing_text(report: m.StopReport) -> str | None:
+    """One stop's fan-out once every arm in its report was seen still: how long the slowest
+    took from the stop's put, named, and the slowest receipt. None until then (an arm that
+    never gets still, e.g. one unpowered, leaves only the stop's own entry)."""
+    timings = report.arms
+    if not timings or any(t.still_ms is None for t in timings.values()):
+        return None
+    slowest = max(timings, key=lambda arm: timings[arm].still_ms or 0.0)
+    received = [t.received_ms for t in timings.values() if t.received_ms is not None]
+    count = len(timings)
+    text = (
+        f"stop by {report.source}: {count} arm{'s' if count > 1 else ''} still within "
+        f"{timings[slowest].still_ms:.0f} ms of the put (slowest {slowest})"
+    )
+    if received:
+        text += f", received within {max(received):.0f} ms"
+    return text
 
 
 @dataclass(frozen=True)

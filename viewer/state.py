@@ -28,7 +28,17 @@ from fleet.devices import DeviceKind
 from fleet.guard import ThreadGuard
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
-from viewer.events import CONTACT, OFFLINE, ONLINE, REFUSED, RELEASED, RESET, STOP, EventLog
+from viewer.events import (
+    CONTACT,
+    OFFLINE,
+    ONLINE,
+    REFUSED,
+    RELEASED,
+    RESET,
+    STOP,
+    EventLog,
+    stop_timing_text,
+)
 
 log = logging.getLogger("viewer.state")
 
@@ -171,6 +181,7 @@ class ViewerFleet:
             self._session.declare_subscriber(key, ordered)
             for key in (self.keys.estop, self.keys.reset)
         ]
+        self._handles.append(self._session.declare_subscriber(self.keys.stop_report, on_sample))
         self._handles += [
             self._session.declare_subscriber(self.keys.device(kind, "*", channel), on_sample)
             for kind, device_kind in self._device_kinds.items()
@@ -204,6 +215,9 @@ class ViewerFleet:
         inventory arm, or a stop or reset request (fleet-wide or one arm's). Anything else is
         ignored; a bad payload is counted. ``at_s``/``wall_ns``: when it arrived (a replay
         passes the recorded times; default now)."""
+        if key == self.keys.stop_report:
+            self._on_stop_report(data, wall_ns)
+            return
         if key in (self.keys.estop, self.keys.reset):
             arm, channel = None, key.rpartition("/")[2]
         else:
@@ -319,6 +333,18 @@ class ViewerFleet:
         if self.events.first_sight(stop.stop_id):  # stops are repeated until acknowledged
             why = stop.reason or "no reason given"
             self.events.add(STOP, arm, f"stop requested by {stop.source}: {why}", wall_ns)
+
+    def _on_stop_report(self, data: bytes, wall_ns: int | None) -> None:
+        """The coordinator's fan-out report of one stop (on every ack): logged once, when every
+        arm in it was seen still."""
+        try:
+            report = payloads.STOP_REPORT.decode(data)
+        except payloads.PayloadError as exc:
+            self._bad(keys.STOP_REPORT, exc)
+            return
+        text = stop_timing_text(report)
+        if text is not None and self.events.first_sight(f"still:{report.stop_id}"):
+            self.events.add(STOP, None, text, wall_ns)
 
     def _on_token(self, sample: zenoh.Sample) -> None:
         try:

@@ -33,12 +33,12 @@ from fleet.devices import kind_of
 from fleet.guard import ThreadGuard
 from fleet.heartbeat import beat_until
 from fleet.inventory import Inventory, InventoryError
-from fleet.security.session import open_datagram_session, open_session
+from fleet.security.session import datagram_session, open_session
 from fleet.security_config import COMMANDERS
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, encode
-from fleet.wire.stoppath import DatagramSession, TwoPathPublisher
+from fleet.wire.stoppath import TwoPathPublisher
 
 log = logging.getLogger("fleet.coordinator")
 JSON = zenoh.Encoding.APPLICATION_JSON
@@ -79,7 +79,7 @@ class Coordinator:
         self._pending_actions = 0  # guarded by lock
         self._next_diag = 0.0  # heartbeat thread only
         self.session = open_session(inventory)
-        self.datagram = DatagramSession(lambda: open_datagram_session(inventory))
+        self.datagram = datagram_session(inventory)
         self.datagram.open()  # the stops' datagram path (issue 24), before the first beat
         self.client = FleetClient(inventory, self.session, datagram=self.datagram)
         self._declared: list[zenoh.Subscriber[None] | zenoh.Queryable[None]] = []

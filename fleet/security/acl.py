@@ -159,7 +159,7 @@ def _grants(inventory: Inventory, principal: str, role: Role) -> _Grants:
         # and fleet doctor, run as a person's principal, asks info/** for versions and clocks.
         g.queryable = [*g.queryable, f"{f}/info/*/*"]
         if role in ("operator", "maintainer", "observer"):
-            g.query = [*g.query, f"{f}/info/**"]
+            g.query = [*g.query, f"{f}/info/*/*"]
     return g
 
 

@@ -20,11 +20,12 @@ from fleet.wire.keys import KeySpace
 from fleet.wire.session import (
     Credentials,
     RouterUnreachable,
+    datagram_twins,
     open_client,
     open_datagram,
     zenoh_config,
 )
-from fleet.wire.stoppath import stop_qos_overwrite
+from fleet.wire.stoppath import DatagramSession, stop_qos_overwrite
 
 ROUTER_PRINCIPAL = "router"
 PASSWORD_ENV = "D1_FLEET_PASSWORD"
@@ -99,11 +100,21 @@ def open_datagram_session(
     inventory: Inventory, connect_timeout_s: float = 10.0
 ) -> zenoh.Session | None:
     """The datagram session of stops (``fleet.wire.session.Datagram``) beside the session of
-    ``open_session``; None in secure modes: UDP carries no TLS, so it could not be
-    authenticated, and stops there take the reliable (TLS) path only (README "Security")."""
-    if inventory.security.enabled:
-        return None
-    return open_datagram(inventory.endpoints, inventory.datagram, connect_timeout_s)
+    ``open_session``, as the same principal: over UDP in an open fleet, over QUIC datagrams
+    in a secure one (TLS 1.3 with the principal's certificate or password, under the same
+    access control)."""
+    return open_datagram(
+        inventory.endpoints,
+        inventory.datagram,
+        connect_timeout_s,
+        credentials(inventory, inventory.principal),
+    )
+
+
+def datagram_session(inventory: Inventory) -> DatagramSession:
+    """The datagram session of ``inventory``'s principal, to be opened (``DatagramSession``)."""
+    twins = datagram_twins(inventory.endpoints, inventory.datagram)
+    return DatagramSession(lambda: open_datagram_session(inventory), ", ".join(twins) or None)
 
 
 def router_config(

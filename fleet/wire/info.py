@@ -21,6 +21,7 @@ import re
 import socket
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from importlib.metadata import PackageNotFoundError, version
 
@@ -65,6 +66,7 @@ class InfoService:
         principal: str,
         arms: list[str] | tuple[str, ...] = (),
         metrics_port: int | None = None,
+        datagram: Callable[[], str | None] | None = None,
     ) -> None:
         self.key = keys.KeySpace(fleet).info(role, instance_name())
         self._template = m.ProcessInfo(
@@ -78,6 +80,8 @@ class InfoService:
             arms=list(arms),
             metrics_port=metrics_port,
         )
+        self._datagram = datagram
+        """The stops' datagram path when open (``DatagramSession.path``), asked at each reply."""
         self.dropped = 0
         self._queries: queue.Queue[zenoh.Query | None] = queue.Queue(MAX_PENDING)
         self._closed = False
@@ -115,6 +119,7 @@ class InfoService:
             stamp_ns=time.time_ns(),
             arms=self._template.arms,
             metrics_port=self._template.metrics_port,
+            datagram=self._datagram() if self._datagram is not None else None,
         )
 
     def close(self) -> None:

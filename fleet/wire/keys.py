@@ -232,8 +232,11 @@ class KeySpace:
 
     @property
     def all_info(self) -> str:
-        """Every process's info queryable (``fleet doctor`` queries this)."""
-        return f"{self.prefix}/{INFO}/**"
+        """Every process's info queryable (``fleet doctor`` queries this). Exactly the shape
+        the queryables serve: a router's access control lets a query reach a queryable only
+        when the query's key is within what that queryable may serve (``info/**`` reached the
+        router's own queryable only: under mTLS no agent answered)."""
+        return f"{self.prefix}/{INFO}/*/*"
 
     @property
     def everything(self) -> str:

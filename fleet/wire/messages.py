@@ -509,6 +509,9 @@ class ProcessInfo(Struct, frozen=True):
     stamp_ns: StampNs
     arms: Annotated[list[Name], Meta(max_length=MAX_ARMS_REPORTED)] = []
     metrics_port: Annotated[int, Meta(ge=1, le=65535)] | None = None
+    datagram: Name | None = None
+    """The stops' datagram path (``udp/...`` or ``quic/...?rel=0``) when its session is open;
+    None: stops, acks and heartbeats take the reliable path only (or the process has none)."""
 
 
 # ----------------------------------------------------------------------------- helpers

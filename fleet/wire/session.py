@@ -98,13 +98,18 @@ class Datagram:
 
 
 def datagram_twin(endpoint: str, dscp: int | None = None) -> str | None:
-    """The ``udp/`` endpoint beside a ``tcp/`` one (None for any other protocol: a TLS link's
-    twin would be unauthenticated)."""
+    """The datagram endpoint beside a ``tcp/`` or ``tls/`` one: ``udp/`` at the same address
+    and port, or for TLS ``quic/`` there with unreliable datagrams (``rel=0``): QUIC carries TLS
+    1.3, so the datagram copies of a secure fleet are authenticated by the same certificates (or
+    passwords) and checked by the same access control as its TLS session. None for any other
+    protocol."""
     proto, _, rest = endpoint.partition("/")
-    if proto != "tcp" or not rest:
+    if proto not in ("tcp", "tls") or not rest:
         return None
     address = rest.split("#", 1)[0].split("?", 1)[0]
     marks = f"#dscp={dscp << 2}" if dscp is not None else ""  # Zenoh takes the IP TOS byte
+    if proto == "tls":
+        return f"quic/{address}?rel=0{marks}"
     return f"udp/{address}{marks}"
 
 
@@ -176,15 +181,21 @@ def open_client(
 
 
 def open_datagram(
-    endpoints: list[str] | tuple[str, ...], datagram: Datagram, connect_timeout_s: float = 10.0
+    endpoints: list[str] | tuple[str, ...],
+    datagram: Datagram,
+    connect_timeout_s: float = 10.0,
+    credentials: Credentials | None = None,
 ) -> zenoh.Session | None:
-    """The datagram session beside a client session (``Datagram``), or None when there is no
-    datagram twin (TLS endpoints, ``datagram = false``) or no router answers on UDP (an older
-    router: stops then take the reliable path only, as before; logged)."""
+    """The datagram session beside a client session (``Datagram``), presenting the same
+    ``credentials``, or None when there is no datagram twin (``datagram = false``) or no router
+    answers on it (an older router: stops then take the reliable path only, as before;
+    logged)."""
     twins = datagram_twins(endpoints, datagram)
     if not twins:
         return None
-    config = zenoh_config("client", connect=twins, connect_timeout_s=connect_timeout_s)
+    config = zenoh_config(
+        "client", connect=twins, connect_timeout_s=connect_timeout_s, credentials=credentials
+    )
     try:
         return zenoh.open(config)
     except zenoh.ZError as exc:

@@ -11,8 +11,10 @@ it) is sent as a number, and a datagram referring to a declaration that was lost
 with one session of two links, still on its way over TCP) is dropped by the router for good
 ("unknown scope").
 
-Without a datagram session (TLS endpoints, ``datagram = false``, an older router) only the
-reliable path is used, as before.
+The datagram session is UDP beside ``tcp/`` endpoints and QUIC datagrams (authenticated, under
+the router's access control) beside ``tls/`` ones (``fleet.wire.session.datagram_twin``).
+Without one (``datagram = false``, UDP blocked, an older router) only the reliable path is
+used, as before.
 """
 
 from __future__ import annotations
@@ -68,8 +70,12 @@ class DatagramSession:
     stops at once never waits for the second handshake (under loss it may take seconds; the
     reliable path does not wait for it); ``open`` opens it here. ``close`` is idempotent."""
 
-    def __init__(self, opener: Callable[[], zenoh.Session | None] | None) -> None:
+    def __init__(
+        self, opener: Callable[[], zenoh.Session | None] | None, endpoints: str | None = None
+    ) -> None:
         self._opener = opener
+        self._endpoints = endpoints
+        """Where it connects (``path``), e.g. ``quic/10.0.0.1:7447?rel=0``."""
         self._lock = threading.Lock()
         self._session: zenoh.Session | None = None  # guarded by _lock
         self._closed = False
@@ -80,6 +86,14 @@ class DatagramSession:
         """The open datagram session, or None (not open yet, none, or closed)."""
         with self._lock:
             return self._session
+
+    def path(self) -> str | None:
+        """Its endpoints while the session is open and connected to a router, else None
+        (what ``info/`` reports and ``fleet doctor`` checks)."""
+        session = self.session
+        if session is None or session.is_closed() or not list(session.info.routers_zid()):
+            return None
+        return self._endpoints
 
     def open(self) -> zenoh.Session | None:
         """Open it now (once); the session, or None."""

@@ -213,6 +213,7 @@ def test_the_fit_then_one_arms_stop_and_reset_and_the_event_log(
 ) -> None:
     """One fleet of three for both (a fleet and a page cost 15 s on the browser tests' worker)."""
     client = fleet3_harness.start_fleet()
+    fleet3_harness.start_coordinator()  # its estop/report gives each stop's timing in the log
     with viewer_of(fleet3_harness) as viewer:
         open_page(browser, viewer.url)
         check_the_fit(browser, viewer)
@@ -230,6 +231,12 @@ def test_the_fit_then_one_arms_stop_and_reset_and_the_event_log(
             (k, t.split("\t")[-1].strip()) for k, t in rows
         ], rows
         assert any(k == "stop" and "a2" in t and "STOPPED (latched)" in t for k, t in rows)
+        # Once a2 is still, the coordinator's report of the stop gives its timing, named.
+        timing = wait_until(
+            lambda: [t for k, t in event_rows(browser) if k == "stop" and "still within" in t],
+            10.0,
+        )
+        assert "stop by viewer: 1 arm still within" in timing[0] and "(slowest a2)" in timing[0]
 
         # A command for the stopped arm is refused by its agent: the log says so (from diag).
         refused = client.command("a2", m.MoveJoint(joint=0, angle_deg=5.0))

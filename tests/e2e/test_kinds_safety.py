@@ -265,9 +265,19 @@ def test_latch_survives_an_agent_restart(fleet: FleetHarness, kind: Kind) -> Non
     watch = _ready(client, kind)
     acks = client.estop(kind.unit, reason="before restart", wait_still=False)
     assert all(a is not None for a in acks.values()), acks
-    # The latch is on disk once its file is (written just after the stop's DDS write).
+    # The latch is on disk once its file holds this stop (written just after the stop's DDS
+    # write, on the agent's latches thread): a file of an earlier stop may still be there
+    # while the reset in _ready is being written, and a kill then would lose this one.
     latch_file = fleet.tmp_path / "state" / fleet.inventory.fleet / f"{kind.unit}.stop.json"
-    wait_until(latch_file.exists, 5.0)
+    stop_id = next(iter(acks.values())).stop_id  # type: ignore[union-attr]
+
+    def on_disk() -> bool:
+        try:
+            return json.loads(latch_file.read_bytes()).get("stop_id") == stop_id
+        except (OSError, ValueError):
+            return False
+
+    wait_until(on_disk, 5.0)
     fleet.stop("agent", signal.SIGKILL)
     _start_agent(fleet)
     # Back: still stopped, motion refused until an operator resets.

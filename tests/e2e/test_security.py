@@ -145,6 +145,12 @@ def test_a_heartbeat_cannot_be_forged_for_another_principal(secure: FleetHarness
 
 def test_a_lease_cannot_be_released_or_taken_by_another_principal(secure: FleetHarness) -> None:
     operator, maintainer = secure.client(), secure.client("maintainer")
+    # From a2 unlatched: an earlier test of this fleet may have left it stopped (at load 20 a
+    # coordinator's heartbeat gap trips the watchdog of an arm it commanded), not our subject.
+    operator.reset("a2")
+    wait_until(
+        lambda: (s := operator.snapshot(["a2"])["a2"][0]) is not None and not s.estopped, 5.0
+    )
     assert operator.command("a2", m.MoveJoint(joint=0, angle_deg=4.0, owner="ann")).ok
     refused = maintainer.command("a2", m.MoveJoint(joint=0, angle_deg=20.0, owner="bob"))
     assert refused.error is not None and refused.error.code == ErrorCode.LEASE_EXISTS

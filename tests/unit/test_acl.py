@@ -70,16 +70,17 @@ def test_identity_keys_belong_to_their_principal(tmp_path: Path) -> None:
     assert _allowed(acl, "ann", "query", "ingress") == {
         "fleet/lab/arm/*/cmd/ann",
         "fleet/lab/coordinator/cmd/ann",
-        "fleet/lab/info/**",
+        "fleet/lab/info/*/*",
     }
 
 
 def test_fleet_doctor_may_ask_every_process_who_it_is(tmp_path: Path) -> None:
-    """Issue 28, finding 9: under mTLS info/** was answered to nobody."""
+    """Under mTLS info/** was answered to nobody, then by the router alone (a query must lie
+    within what the queryables may serve): the querier asks info/*/*, as they serve."""
     acl = access_control(_inventory(tmp_path))
     for person in ("ann", "viewer"):  # an operator, an observer: who runs fleet doctor
-        assert "fleet/lab/info/**" in _allowed(acl, person, "query", "ingress")
-        assert "fleet/lab/info/**" in _allowed(acl, person, "reply", "egress")
+        assert "fleet/lab/info/*/*" in _allowed(acl, person, "query", "ingress")
+        assert "fleet/lab/info/*/*" in _allowed(acl, person, "reply", "egress")
     for process in ("agent-cell2", "coordinator", "viewer"):
         assert "fleet/lab/info/*/*" in _allowed(acl, process, "declare_queryable", "ingress")
         assert "fleet/lab/info/*/*" in _allowed(acl, process, "query", "egress")
@@ -91,7 +92,7 @@ def test_observers_stop_but_never_reset_or_command(tmp_path: Path) -> None:
         puts = _allowed(acl, observer, "put", "ingress")
         assert puts == {"fleet/lab/estop", "fleet/lab/arm/*/estop"}
         # no command query: only "who are you" (fleet doctor, issue 28)
-        assert _allowed(acl, observer, "query", "ingress") == {"fleet/lab/info/**"}
+        assert _allowed(acl, observer, "query", "ingress") == {"fleet/lab/info/*/*"}
 
 
 def test_only_maintainers_inject_faults_into_simulated_arms(tmp_path: Path) -> None:

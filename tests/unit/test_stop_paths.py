@@ -1,5 +1,5 @@
 """Issue 24's configuration, pure: the datagram twin of each endpoint, the inventory's
-``[zenoh] datagram`` and ``stop_dscp``, no datagram path in secure modes, the routers' QoS
+``[zenoh] datagram`` and ``stop_dscp``, QUIC datagrams in secure modes, the routers' QoS
 overwrite of the stop keys."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import json
 import pytest
 
 from fleet.inventory import InventoryError, parse_inventory
-from fleet.security.session import open_datagram_session, router_config
+from fleet.security.session import datagram_session, router_config
 from fleet.wire.keys import KeySpace
 from fleet.wire.session import Datagram, datagram_twin, datagram_twins
 from fleet.wire.stoppath import stop_qos_overwrite
@@ -17,14 +17,17 @@ from fleet.wire.stoppath import stop_qos_overwrite
 BASE = '[fleet]\nname = "lab"\n[arms.a1]\n'
 
 
-def test_each_tcp_endpoint_has_a_udp_twin_and_nothing_else_does() -> None:
+def test_each_tcp_endpoint_has_a_udp_twin_each_tls_one_a_quic_twin() -> None:
     assert datagram_twin("tcp/192.168.123.2:7447") == "udp/192.168.123.2:7447"
     assert datagram_twin("tcp/[::1]:7447#iface=eth0") == "udp/[::1]:7447"
     assert datagram_twin("tcp/10.0.0.1:7447", dscp=46) == "udp/10.0.0.1:7447#dscp=184"
-    assert datagram_twin("tls/10.0.0.1:7447") is None  # no unauthenticated twin
+    # TLS: QUIC's unreliable datagrams, never plain UDP (it could not be authenticated).
+    assert datagram_twin("tls/10.0.0.1:7447") == "quic/10.0.0.1:7447?rel=0"
+    assert datagram_twin("tls/10.0.0.1:7447", dscp=46) == "quic/10.0.0.1:7447?rel=0#dscp=184"
     assert datagram_twin("quic/10.0.0.1:7447") is None
+    assert datagram_twin("udp/10.0.0.1:7447") is None
     endpoints = ["tcp/a:1", "tls/b:2"]
-    assert datagram_twins(endpoints, Datagram()) == ["udp/a:1"]
+    assert datagram_twins(endpoints, Datagram()) == ["udp/a:1", "quic/b:2?rel=0"]
     assert datagram_twins(endpoints, Datagram(enabled=False)) == []
 
 
@@ -37,10 +40,11 @@ def test_the_inventory_switches_the_path_and_marks_it() -> None:
         parse_inventory(BASE + "[zenoh]\nstop_dscp = 64\n", "x.toml")
 
 
-def test_secure_modes_have_no_datagram_session() -> None:
+def test_secure_modes_take_quic_datagrams() -> None:
     text = BASE + '[zenoh]\nendpoints = ["tls/127.0.0.1:7447"]\n[security]\nmode = "mtls"\n'
     inventory = parse_inventory(text, "x.toml")
-    assert open_datagram_session(inventory) is None
+    assert datagram_session(inventory).path() is None  # not open yet
+    assert datagram_session(inventory)._endpoints == "quic/127.0.0.1:7447?rel=0"
 
 
 def test_routers_pin_the_stop_qos() -> None:

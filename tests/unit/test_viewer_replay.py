@@ -124,6 +124,26 @@ def test_the_event_log_keeps_transitions_and_is_bounded() -> None:
     assert "<script>" not in log.html() and "&lt;script&gt;" in log.html()
 
 
+def test_each_stop_gets_one_timing_entry_once_every_arm_is_still() -> None:
+    fleet = ViewerFleet(("a1", "a2"), "lab")
+
+    def report(stills: tuple[float | None, float | None]) -> bytes:
+        arms = {
+            arm: m.StopTiming(received_ms=received, dds_written_ms=received + 1, still_ms=still)
+            for arm, received, still in zip(("a1", "a2"), (84.0, 91.0), stills)
+        }
+        return encode(m.StopReport(stop_id="s1", source="cli@pc", stamp_ns=1, arms=arms))
+
+    for stills in ((None, None), (402.0, None), (402.0, 517.0), (402.0, 517.0)):
+        fleet.ingest(SPACE.stop_report, report(stills))  # the coordinator's, on every ack
+    fleet.ingest(SPACE.stop_report, b'{"stop_id": 7}')
+    texts = [e.text for e in fleet.events.newest()]
+    assert texts == [
+        "stop by cli@pc: 2 arms still within 517 ms of the put (slowest a2), received within 91 ms"
+    ]
+    assert fleet.malformed == 1
+
+
 def test_a_confirmation_holds_for_its_own_target_only() -> None:
     confirmations = Confirmations()
     nonce = confirmations.request(7, "a1")
