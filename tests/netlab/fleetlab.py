@@ -46,17 +46,24 @@ class LabDevice:
 
 
 LAB_DEVICES = {
-    # 200 Hz (the Dex1-1 sends 200-500 Hz): the lab's two cores are shared by some twenty
-    # processes. 2 rad/s: a full stroke takes 3.1 s, so a stop still finds the fingers moving
+    # 100 Hz (the Dex1-1 sends 200-500 Hz): the lab's two cores are shared by some twenty
+    # processes, and the agent's 20 ms speed window (the hold's confirmation) still spans two
+    # samples. 2 rad/s: a full stroke takes 3.1 s, so a stop still finds the fingers moving
     # after row 1's second of loss before it (at the simulator's default 6 rad/s they arrived).
     "gl": LabDevice(
         "grippers",
         "a1",
-        'family = "go"\nmount = "a1"\nsim_rate_hz = 200.0\nsim_speed_rad_s = 2.0\n',
+        'family = "go"\nmount = "a1"\nsim_rate_hz = 100.0\nsim_speed_rad_s = 2.0\n',
     ),
     # The simulator's default settling (0.3 s of stepping after the velocity ends), spelled
-    # out: the stop's confirmation waits for it, and the rows' bounds count it.
-    "h1": LabDevice("g1", "h1", 'stop_action = "stop_move"\nsim_settle_s = 0.3\n'),
+    # out: the stop's confirmation waits for it, and the rows' bounds count it. rt/lowstate at
+    # 10 Hz, not 100: each sample is ~1 ms of Python to build and ~0.5 ms for the agent to
+    # take (the G1 cost ~20 % of a core at 100 Hz), no row reads it, and the agent only needs
+    # one within its 0.5 s link_stale_s. The sportmodestate the stop rows confirm by stays
+    # at 100 Hz.
+    "h1": LabDevice(
+        "g1", "h1", 'stop_action = "stop_move"\nsim_settle_s = 0.3\nsim_lowstate_hz = 10.0\n'
+    ),
 }
 """The devices of the lab's topologies: a Dex1-1 on arm a1, a G1 on host h1."""
 
