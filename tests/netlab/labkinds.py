@@ -10,8 +10,9 @@ agent's ``STILL_RAD_S`` over a sample period is under 1 mrad), a G1's ``fsm_mode
 
 from __future__ import annotations
 
+from collections.abc import Callable, Hashable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 from fleet.dex1.relay import STILL_RAD_S
 from fleet.g1 import loco
@@ -20,6 +21,7 @@ from testkit.kinds import KIND_IDS
 from tests.netlab.checks import STILL_DEG, joints_of
 from tests.netlab.fleetlab import LabFleet, RemoteClient
 
+T = TypeVar("T")
 Rows = list[tuple[int, int, list[float]]]
 """(arrival ns, stamp ns, pose) of one unit, in stamp order."""
 
@@ -113,6 +115,32 @@ def move_devices(
 
         wait_until(moving, MOVING_WITHIN_S)
     return ok
+
+
+class SharedRuns:
+    """One run of a fault with every kind's units in it, kept for the kinds' tests of that
+    fault: the first kind's test makes it, the others read it. Each kind keeps its own test,
+    verdict and record; the fault is made once, not once per kind (a fleet stop, a lost
+    coordinator or a router restart meets every kind at once in a real fleet too)."""
+
+    def __init__(self) -> None:
+        self._runs: dict[Hashable, Any] = {}
+
+    def get(self, key: Hashable, run: Callable[[], T]) -> T:
+        """``run()``'s result, made on the first call for ``key``. A run that raised is not
+        made again: the later kinds fail, pointing at the first kind's test."""
+        if key not in self._runs:
+            self._runs[key] = None  # stays None if run() raises
+            self._runs[key] = run()
+        value = self._runs[key]
+        if value is None:
+            raise AssertionError(f"the shared run {key!r} failed: see the first kind's test")
+        return value  # type: ignore[no-any-return]
+
+
+def every_unit(fleet: LabFleet) -> dict[str, LabKind]:
+    """Every unit of the lab with its kind."""
+    return {unit: kind for kind in LAB_KINDS for unit in kind.units(fleet)}
 
 
 def _key_of(section: str) -> str:
