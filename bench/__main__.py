@@ -6,10 +6,7 @@ machine's load over the run shows). ``--only SECTION`` (repeatable) runs some of
 from __future__ import annotations
 
 import argparse
-import datetime
 import json
-import os
-import platform
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -28,19 +25,11 @@ from bench import (
     viewer_cpu,
 )
 from bench.proc import REPO
-
-
-def _machine() -> str:
-    model = "unknown CPU"
-    for line in Path("/proc/cpuinfo").read_text().splitlines():
-        if line.startswith("model name"):
-            model = line.split(":", 1)[1].strip()
-            break
-    return f"{platform.node()}, {os.cpu_count()} x {model}, Python {platform.python_version()}"
+from testkit import runinfo
 
 
 def _load() -> str:
-    return " ".join(Path("/proc/loadavg").read_text().split()[:3])
+    return " ".join(f"{value:.2f}" for value in runinfo.load())
 
 
 def _strip_samples(value: Any) -> Any:
@@ -81,8 +70,8 @@ def run(quick: bool, sections: tuple[str, ...] = SECTIONS) -> dict[str, Any]:
     """The ``sections`` (every one by default); returns the results with their goals."""
     started = time.monotonic()
     meta: dict[str, Any] = {
-        "date": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
-        "machine": _machine(),
+        "date": runinfo.now_iso(),
+        "machine": runinfo.machine(),
         "load_start": _load(),
         "quick": quick,
     }

@@ -9,7 +9,9 @@ family of ``contact_families.py`` (never only the simulator the detector was wri
 against), with the detector uncalibrated and calibrated (the calibration routine and fit run on
 that family's arm). Per family it prints recall of stalls, grips and pushes, false alarms per
 hour of free motion, force limits in free motion and the detection delay p50/p95 of the default
-combination (the detector's own CONFIRMED state). Run: ``python -m bench --only contact``.
+combination (the detector's own CONFIRMED state), and writes the table with a header naming the
+run to ``artifacts/contact/report.md`` (``contact_report.py``: the results page is made from
+it). Run: ``python -m bench --only contact``.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import random
 import time
 from dataclasses import dataclass, field
 
+from bench import contact_report
 from bench.contact_families import families
 from fleet.contact.calibration import Calibration, JointCalibration
 from fleet.contact.config import METHODS, ContactConfig
@@ -363,7 +366,8 @@ def calibrate(
 def bench_contact(
     seed: int = 7, config: ContactConfig | None = None, draws: int = 4
 ) -> dict[str, dict[str, dict[str, float]]]:
-    """Run the suite on every dynamics family, uncalibrated and calibrated; print the table.
+    """Run the suite on every dynamics family, uncalibrated and calibrated; print the table
+    and write it to ``artifacts/contact/report.md``.
     Returns family -> configuration -> figures (the default combination, the detector's own
     confirmed state), and ``per method`` on the simulator's default family."""
     config = config or ContactConfig()
@@ -373,11 +377,9 @@ def bench_contact(
         k: sum(1 for e in suite if e.kind == k) for k in ("free", "air", "stall", "grip", "push")
     }
     print(f"contact detection: {len(suite)} episodes {kinds} per family and configuration")
-    print(
-        "| family | calibration | stall recall | grip recall | push recall "
-        "| false alarms (per h) | free-motion force limits | delay p50 / p95 ms |"
-    )
-    print("|---|---|---|---|---|---|---|---|")
+    print(contact_report.HEAD)
+    report = contact_report.now(seed, kinds, tuple(config.methods))
+    table: list[str] = []
     rows: dict[str, dict[str, dict[str, float]]] = {}
     for k, (name, dynamics) in enumerate(families(seed, draws).items()):
         rows[name] = {}
@@ -391,13 +393,12 @@ def bench_contact(
             rows[name][label] = r
             if k == 0 and label == "none":
                 rows["per method"] = {m: score(outcomes, m) for m in METHODS}
-            print(
-                f"| {name} | {label} | {r['stall_recall']:.1f}% | {r['grip_recall']:.1f}% | "
-                f"{r['push_recall']:.1f}% | {r['false_alarms']:.0f} ({r['fa_per_h']:.1f}) | "
-                f"{r['free_force_limits']:.0f} | {r['p50_ms']:.0f} / {r['p95_ms']:.0f} |",
-                flush=True,
-            )
-    print(f"{time.perf_counter() - started:.0f} s; default = {'+'.join(config.methods)}")
+            table.append(contact_report.table_row(name, label, r))
+            print(table[-1], flush=True)
+    wall_s = time.perf_counter() - started
+    report = contact_report.finished(report, wall_s)
+    path = contact_report.write(contact_report.markdown(report, table))
+    print(f"{wall_s:.0f} s; default = {'+'.join(config.methods)}; written: {path}")
     return rows
 
 

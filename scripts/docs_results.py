@@ -6,7 +6,11 @@ own output when that output exists on this machine:
 
 - ``docs/results/bench.md`` <- ``bench/latest.md`` (``make bench``: its header names the date and
   the machine);
-- ``docs/results/soak.md`` <- ``artifacts/soak/report.md`` (``make soak``).
+- ``docs/results/soak.md`` <- ``artifacts/soak/report.md`` (``make soak``);
+- ``docs/results/fault-matrix.md`` <- ``artifacts/netlab/report.md`` (the network lab's rows:
+  ``pytest tests/netlab`` records each row and kind, ``testkit/labrows.py`` renders the newest);
+- ``docs/results/contact.md`` <- ``artifacts/contact/report.md`` (``python -m bench --only
+  contact``: the family table, its header naming the date, the machine and the seed).
 
 An output that is missing (``artifacts/`` is not committed) leaves the page's last generated part
 as it is. Run by ``make docs``; ``--check`` exits 1 when a page is behind its output instead.
@@ -24,22 +28,29 @@ END = "<!-- end of the generated part -->"
 PAGES = {
     "docs/results/bench.md": "bench/latest.md",
     "docs/results/soak.md": "artifacts/soak/report.md",
+    "docs/results/fault-matrix.md": "artifacts/netlab/report.md",
+    "docs/results/contact.md": "artifacts/contact/report.md",
 }
 
 
-def refreshed(page: str, source: str) -> str | None:
+def refreshed(page: str, source: str, root: Path = ROOT) -> str | None:
     """The page with its generated part replaced by ``source``'s text, or None without one."""
-    path, output = ROOT / page, ROOT / source
+    output = root / source
     if not output.is_file():
         return None
-    text = path.read_text(encoding="utf-8")
+    text = (root / page).read_text(encoding="utf-8")
+    return replaced(page, text, source, output.read_text(encoding="utf-8"))
+
+
+def replaced(page: str, text: str, source: str, body: str) -> str:
+    """``text`` (of ``page``) with what lies between ``source``'s markers replaced by
+    ``body``: the head and the tail, hand-written, are kept as they are."""
     begin = BEGIN.format(source=source)
-    if begin not in text or END not in text:
+    if begin not in text or END not in text.split(begin, 1)[1]:
         raise SystemExit(f"{page}: the markers of its generated part are missing ({begin})")
     head, rest = text.split(begin, 1)
     tail = rest.split(END, 1)[1]
-    body = output.read_text(encoding="utf-8").strip()
-    return f"{head}{begin}\n\n{body}\n\n{END}{tail}"
+    return f"{head}{begin}\n\n{body.strip()}\n\n{END}{tail}"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -49,7 +60,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     behind = []
     for page, source in PAGES.items():
-        new = refreshed(page, source)
+        new = refreshed(page, source, ROOT)
         if new is None:
             print(f"{page}: kept ({source} not here)")
             continue

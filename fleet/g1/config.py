@@ -54,7 +54,12 @@ class G1Config(DeviceBase, frozen=True, forbid_unknown_fields=True, kw_only=True
     base_yaw_deg: float = 0.0
     """Which way the drawn G1 faces (0: along +x, as the arms' default)."""
     sim_rate_hz: float = 100.0
-    """Simulator only: rt/sportmodestate rate."""
+    """Simulator only: rt/sportmodestate rate (and rt/lowstate's, unless ``sim_lowstate_hz``)."""
+    sim_lowstate_hz: float | None = None
+    """Simulator only: rt/lowstate rate (None: ``sim_rate_hz``). Each sample is a 35-motor
+    struct with Unitree's CRC, ~1 ms of Python to build and ~0.5 ms for the agent to take: a
+    test bed of many processes on few cores runs it slower (the agent checks only that it is
+    fresh within ``link_stale_s``)."""
     sim_fsm_id: int = 500
     """Simulator only: the FSM it starts in (500: walking controller, standing)."""
     sim_settle_s: float = 0.3
@@ -91,6 +96,11 @@ def check_g1(config: G1Config) -> str | None:
         return "max_duration_s must be within 0..60"
     if not 1.0 <= config.sim_rate_hz <= 1000.0 or config.sim_settle_s < 0:
         return "sim_rate_hz must be within 1..1000, sim_settle_s not negative"
+    low_hz = config.sim_lowstate_hz
+    if low_hz is not None and not (
+        low_hz * config.link_stale_s > 1.0 and low_hz <= config.sim_rate_hz
+    ):
+        return "sim_lowstate_hz must be above 1 / link_stale_s and at most sim_rate_hz"
     if not 0.4 <= config.arm_engage_s <= 10 or not 1.0 <= config.arm_release_s <= 10:
         return "arm_engage_s must be within 0.4..10 and arm_release_s within 1..10"
     if not 0 < config.arm_speed_rad_s <= config.arm_max_speed_rad_s <= 3.0:

@@ -1,5 +1,6 @@
 """A simulated G1 high-level motion service on real DDS: ``rt/sportmodestate`` at
-``sim_rate_hz`` (unless ``sim_state`` is off: firmware before 1.5.1), the LocoClient API over
+``sim_rate_hz`` and ``rt/lowstate`` at ``sim_lowstate_hz`` (that rate by default; unless
+``sim_state`` is off: firmware before 1.5.1), the LocoClient API over
 ``rt/api/<sim_service>/request|response`` (``sport`` or ``loco``) with seed 001's error codes,
 and the FSM transitions of seed 004's table.
 
@@ -204,7 +205,8 @@ class SimG1:
         self.readers = [self._requests, self._arm_reader]
         self.model = G1Model(config.sim_fsm_id, config.sim_settle_s)
         self.period_s = 1.0 / config.sim_rate_hz
-        self.next_s = now_s
+        self.low_period_s = 1.0 / (config.sim_lowstate_hz or config.sim_rate_hz)
+        self.next_s = self.next_low_s = now_s
         self.calls = 0
 
     def on_data(self, index: int, now_s: float) -> None:
@@ -229,14 +231,17 @@ class SimG1:
             self._responses.write(idl.Response_(header=header, data=data))
 
     def step(self, now_s: float) -> float:
-        """Publish one sportmodestate; the next time it is due."""
+        """Publish one sportmodestate (and a lowstate when that is due); the next time it is
+        due."""
         mode = self.model.fsm_mode(now_s)
         if self.publish_state:
             model = self.model
             task_time = model.task_time(now_s)
             sample = idl.SportModeState_(model.fsm_id, mode, model.task_id, task_time)
             self._state.write(sample)
-            self._low.write(self.lowstate())
+            if now_s >= self.next_low_s:
+                self._low.write(self.lowstate())
+                self.next_low_s = max(self.next_low_s + self.low_period_s, now_s)
         self.next_s = max(self.next_s + self.period_s, now_s)
         return self.next_s
 

@@ -60,15 +60,18 @@ def statuses_of(samples: list[Any], arm: str) -> list[tuple[int, dict[str, Any]]
     return [(t, value) for t, a, channel, value in samples if a == arm and channel == "status"]
 
 
-def still_since(rows: list[tuple[int, int, list[float]]]) -> tuple[int, list[float]] | None:
-    """The stamp from which every later sample stays within STILL_DEG of the last one (and
-    that last pose); None without samples."""
+def still_since(
+    rows: list[tuple[int, int, list[float]]], tolerance: float = STILL_DEG
+) -> tuple[int, list[float]] | None:
+    """The stamp from which every later sample stays within ``tolerance`` (an arm's
+    STILL_DEG; a device's in its own pose's unit) of the last one (and that last pose); None
+    without samples."""
     if not rows:
         return None
     final = rows[-1][2]
     since = rows[-1][1]
     for _t, stamp, angles in reversed(rows):
-        if max(abs(a - b) for a, b in zip(angles, final)) > STILL_DEG:
+        if max(abs(a - b) for a, b in zip(angles, final)) > tolerance:
             break
         since = stamp
     return since, final

@@ -1,9 +1,10 @@
 """A fleet client that lives on a lab host: the test drives it with one JSON request per line
 on stdin and reads one JSON reply per line on stdout.
 
-Everything goes through FleetClient's public methods (estop, reset, command, multi, snapshot,
-agents_alive); ``watch`` records the joints and status samples it receives, with their
-arrival time, for the relay and standstill measurements; ``diag`` reads one arm's counters.
+Everything goes through FleetClient's public methods (estop, reset, command, device_command,
+multi, snapshot, device_snapshot, agents_alive); ``watch`` records the joints and status samples
+of the arms and the state samples of the devices it receives, with their arrival time, for the
+relay and standstill measurements; ``diag`` reads one arm's counters.
 
 ``python -m tests.netlab.clientd INVENTORY`` (under ``ip netns exec``).
 """
@@ -14,12 +15,14 @@ import os
 import sys
 import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
 import msgspec
 import zenoh
 
 from fleet.client import FleetClient
+from fleet.devices import kind_of
 from fleet.inventory import load_inventory
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
@@ -29,7 +32,8 @@ MAX_WATCHED = 100_000
 
 
 class Watch:
-    """Joints and status samples of every arm, with the time each arrived here."""
+    """Joints and status samples of every arm and state samples of every device (as
+    ``(arrival ns, unit id, "state", state)``), with the time each arrived here."""
 
     def __init__(self, client: FleetClient) -> None:
         self._lock = threading.Lock()
@@ -41,6 +45,17 @@ class Watch:
             )
             for channel in (keys.JOINTS, keys.STATUS)
         ]
+        self._subs += [
+            client.session.declare_subscriber(key, on_state)
+            for key, on_state in device_state_callbacks(client, self._add)
+        ]
+
+    def _add(self, now: int, unit: str, channel: str, value: Any) -> None:
+        with self._lock:
+            if len(self.samples) >= MAX_WATCHED:
+                self.dropped += 1
+                return
+            self.samples.append((now, unit, channel, value))
 
     def _on_sample(self, client: FleetClient, channel: str) -> Any:
         kind = payloads.JOINTS if channel == keys.JOINTS else payloads.STATUS
@@ -52,11 +67,7 @@ class Watch:
                 value = msgspec.to_builtins(kind.decode(sample.payload.to_bytes()))
             except (keys.KeyError_, payloads.PayloadError):
                 return
-            with self._lock:
-                if len(self.samples) >= MAX_WATCHED:
-                    self.dropped += 1
-                    return
-                self.samples.append((now, arm, channel, value))
+            self._add(now, arm, channel, value)
 
         return on_sample
 
@@ -73,6 +84,29 @@ class Watch:
             sub.undeclare()
 
 
+def device_state_callbacks(
+    client: FleetClient, add: Callable[[int, str, str, Any], None]
+) -> list[tuple[str, Callable[[zenoh.Sample], None]]]:
+    """(key, callback) per device kind of the inventory: each decoded state sample goes to
+    ``add(arrival ns, device id, "state", state as builtins)``."""
+    found = []
+    for kind in {kind_of(d) for d in client.inventory.devices.values()}:
+        prefix = f"{client.keys.prefix}/{kind.key}/"
+        decoder = kind.payloads[keys.STATE]
+
+        def on_state(sample: zenoh.Sample, decoder: Any = decoder, prefix: str = prefix) -> None:
+            now = time.time_ns()
+            unit = str(sample.key_expr)[len(prefix) :].partition("/")[0]
+            try:
+                value = msgspec.to_builtins(decoder.decode(sample.payload.to_bytes()))
+            except payloads.PayloadError:
+                return
+            add(now, unit, keys.STATE, value)
+
+        found.append((client.keys.device(kind.key, "*", keys.STATE), on_state))
+    return found
+
+
 class Daemon:
     """The requests this client serves."""
 
@@ -81,16 +115,29 @@ class Daemon:
         self.watch: Watch | None = None
         self._last_stop: m.StopRequest | None = None
         self._streams: dict[str, tuple[threading.Thread, threading.Event, list[Any]]] = {}
+        self._as: dict[str, FleetClient] = {}
+        self._states_lock = threading.Lock()
+        self._states: dict[str, Any] = {}  # device id -> its newest state (guarded)
+        self._state_subs = [
+            client.session.declare_subscriber(key, on_state)
+            for key, on_state in device_state_callbacks(client, self._on_state)
+        ]
+
+    def _on_state(self, _now: int, unit: str, _channel: str, value: Any) -> None:
+        with self._states_lock:
+            self._states[unit] = value
 
     def ready(self, timeout_s: float = 30.0) -> dict[str, Any]:
-        """Wait until every arm reports link ok, every agent's token is present and the
-        coordinator publishes its fleet state (a coordinator a test killed and the lab restarted
-        may still be connecting: a multi-arm request then found nobody to answer it)."""
+        """Wait until every arm and device reports link ok, every arm agent's token is present
+        and the coordinator publishes its fleet state (a coordinator a test killed and the lab
+        restarted may still be connecting: a multi-arm request then found nobody to answer it)."""
         arms = list(self.client.inventory.arms)
         deadline = time.monotonic() + timeout_s
         while True:
             snap = self.client.snapshot(arms, wait_s=1.0)
+            devices = self.client.device_snapshot(wait_s=1.0)
             ok = all(s is not None and s.link == "ok" for s, _j in snap.values())
+            ok = ok and all(s is not None and s.link == "ok" for s in devices.values())
             if (
                 ok
                 and self.client.agents_alive() >= set(arms)
@@ -98,7 +145,7 @@ class Daemon:
             ):
                 return {"ready": True}
             if time.monotonic() > deadline:
-                return {"ready": False, "snapshot": _builtins(snap)}
+                return {"ready": False, "snapshot": _builtins(snap), "devices": _builtins(devices)}
             time.sleep(0.2)
 
     def estop(
@@ -119,16 +166,19 @@ class Daemon:
         return {}
 
     def reset_wait(self, timeout_s: float = 10.0) -> dict[str, Any]:
-        """Reset every arm until none reports a latched stop."""
+        """Reset every arm and device until none reports a latched stop."""
         arms = list(self.client.inventory.arms)
         deadline = time.monotonic() + timeout_s
         while True:
             self.client.reset(source="netlab")
             snap = self.client.snapshot(arms, wait_s=1.0)
-            if all(s is not None and not s.estopped for s, _j in snap.values()):
+            devices = self.client.device_snapshot(wait_s=1.0)
+            if all(s is not None and not s.estopped for s, _j in snap.values()) and all(
+                s is not None and not s.estopped for s in devices.values()
+            ):
                 return {"clear": True}
             if time.monotonic() > deadline:
-                return {"clear": False, "snapshot": _builtins(snap)}
+                return {"clear": False, "snapshot": _builtins(snap), "devices": _builtins(devices)}
 
     def command(self, arm: str, command: dict[str, Any]) -> dict[str, Any]:
         """One command to one arm; the reply and how long it took."""
@@ -136,6 +186,40 @@ class Daemon:
         started = time.monotonic()
         reply = self.client.command(arm, typed)
         return {"reply": reply, "elapsed_s": time.monotonic() - started}
+
+    def device_command(
+        self, unit: str, command: dict[str, Any], principal: str | None = None
+    ) -> dict[str, Any]:
+        """One command (its kind's JSON) to one device, as ``principal`` (default this
+        client's); the reply and how long it took."""
+        client = self._client_as(principal)
+        kind = kind_of(self.client.inventory.device(unit))
+        typed = kind.payloads[keys.CMD].decode(msgspec.json.encode(command))
+        started = time.monotonic()
+        reply = client.device_command(unit, typed)
+        return {"reply": reply, "elapsed_s": time.monotonic() - started}
+
+    def _client_as(self, principal: str | None) -> FleetClient:
+        """This client's session acting as ``principal`` (the router checks no principal in
+        the lab: security is off)."""
+        if principal is None or principal == self.client.principal:
+            return self.client
+        if principal not in self._as:
+            inventory = self.client.inventory.with_principal(principal)
+            self._as[principal] = FleetClient(
+                inventory, session=self.client.session, datagram=self.client.datagram
+            )
+        return self._as[principal]
+
+    def device_state(self, unit: str) -> dict[str, Any]:
+        """The newest state of device ``unit`` heard (None: none yet)."""
+        with self._states_lock:
+            return {"state": self._states.get(unit)}
+
+    def coordinator(self, wait_s: float = 2.0) -> dict[str, Any]:
+        """The id of the coordinator publishing the fleet state (None: none heard)."""
+        state = self.client.fleet_state(wait_s=wait_s)
+        return {"id": None if state is None else state.coordinator}
 
     def multi(self, target: str, command: dict[str, Any], sync: bool = True) -> dict[str, Any]:
         """One multi-arm request through the coordinator."""
@@ -230,6 +314,14 @@ class Daemon:
         thread.join(timeout_s)
         return {"finished": not thread.is_alive(), "results": results}
 
+    def close(self) -> None:
+        """Undeclare the device-state subscribers; close the clients acting as another
+        principal (they share this client's session, which its owner closes)."""
+        for sub in self._state_subs:
+            sub.undeclare()
+        for client in self._as.values():
+            client.close()
+
 
 def _builtins(value: Any) -> Any:
     return msgspec.to_builtins(value)
@@ -258,6 +350,7 @@ def main() -> int:
             replies.flush()
         if daemon.watch is not None:
             daemon.watch.close()
+        daemon.close()
     return 0
 
 

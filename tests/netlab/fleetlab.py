@@ -1,4 +1,4 @@
-"""The fleet on the lab: routers, arm hosts (simulated arm + edge agent), coordinator, client.
+"""The fleet on the lab: routers, robot hosts (simulators + one edge agent), coordinator, client.
 
 Two topologies:
 1. ``one_router``: every process connects to one router;
@@ -6,9 +6,14 @@ Two topologies:
    agents connect to their site router, the coordinator and the clients to the central one.
 
 Each process gets an inventory written for its host: the Zenoh endpoints it connects to, and
-(for the arm hosts) DDS bound to the host's own interface with the host itself as the only
-unicast peer, the NIC-binding path of a real arm network (the arm and its agent share a host
+(for the robot hosts) DDS bound to the host's own interface with the host itself as the only
+unicast peer, the NIC-binding path of a real arm network (a robot and its agent share a host
 here, so DDS never crosses a cable; Zenoh always does).
+
+A robot host is an arm host (its D1 arm, and the Dex1-1 mounted on it if the lab has one) or a
+host of its own for a G1 (``LAB_DEVICES``). Each runs one ``fleet sim`` for what is on its card
+and one ``edge-agent --interface lab-<host>`` serving all of it, as in production (one agent
+process per card).
 """
 
 from __future__ import annotations
@@ -25,10 +30,61 @@ from testkit.harness import wait_until
 from tests.netlab.lab import FLEET, Host, NetLab
 
 ARM_OCTET = 11
+DEVICE_OCTET = 31
+"""Hosts of their own for devices (a G1) get 192.168.123.31 on."""
 
 
-def inventory_text(domain: int, endpoints: list[str], arms: dict[str, Host], extra: str) -> str:
-    """An inventory of ``arms`` (arm id -> its host), meeting on ``endpoints``."""
+@dataclass(frozen=True)
+class LabDevice:
+    """A simulated device of the lab: its inventory section, the host whose card it is on (a
+    gripper: the host of the arm it is mounted on; a G1: a host of its own, named like it),
+    and its kind's own inventory lines."""
+
+    section: str
+    host: str
+    fields: str = ""
+
+
+LAB_DEVICES = {
+    # 100 Hz (the Dex1-1 sends 200-500 Hz): the lab's two cores are shared by some twenty
+    # processes, and the agent's 20 ms speed window (the hold's confirmation) still spans two
+    # samples. 2 rad/s: a full stroke takes 3.1 s, so a stop still finds the fingers moving
+    # after row 1's second of loss before it (at the simulator's default 6 rad/s they arrived).
+    "gl": LabDevice(
+        "grippers",
+        "a1",
+        'family = "go"\nmount = "a1"\nsim_rate_hz = 100.0\nsim_speed_rad_s = 2.0\n',
+    ),
+    # The simulator's default settling (0.3 s of stepping after the velocity ends), spelled
+    # out: the stop's confirmation waits for it, and the rows' bounds count it. rt/lowstate at
+    # 10 Hz, not 100: each sample is ~1 ms of Python to build and ~0.5 ms for the agent to
+    # take (the G1 cost ~20 % of a core at 100 Hz), no row reads it, and the agent only needs
+    # one within its 0.5 s link_stale_s. The sportmodestate the stop rows confirm by stays
+    # at 100 Hz.
+    "h1": LabDevice(
+        "g1", "h1", 'stop_action = "stop_move"\nsim_settle_s = 0.3\nsim_lowstate_hz = 10.0\n'
+    ),
+}
+"""The devices of the lab's topologies: a Dex1-1 on arm a1, a G1 on host h1."""
+
+
+def device_lines(devices: dict[str, tuple[LabDevice, Host]]) -> str:
+    """The inventory tables of ``devices`` (id -> its definition and its host's card)."""
+    return "".join(
+        f'[{device.section}.{device_id}]\ninterface = "{host.interface}"\n'
+        f'peers = ["{host.ip}"]\n{device.fields}\n'
+        for device_id, (device, host) in devices.items()
+    )
+
+
+def inventory_text(
+    domain: int,
+    endpoints: list[str],
+    arms: dict[str, Host],
+    extra: str,
+    devices: dict[str, tuple[LabDevice, Host]] | None = None,
+) -> str:
+    """An inventory of ``arms`` (arm id -> its host) and ``devices``, meeting on ``endpoints``."""
     lines = [
         f'[fleet]\nname = "{FLEET}"\n',
         f"[zenoh]\nendpoints = {json.dumps(endpoints)}\n",
@@ -40,6 +96,7 @@ def inventory_text(domain: int, endpoints: list[str], arms: dict[str, Host], ext
             f'[arms.{arm}]\nsuffix = ""\ninterface = "{host.interface}"\n'
             f'peers = ["{host.ip}"]\nbase_xyz = [0.0, {0.6 * i:.1f}, 0.0]\n'
         )
+    lines.append(device_lines(devices or {}))
     lines.append(extra)
     return "\n".join(lines)
 
@@ -97,11 +154,26 @@ class LabFleet:
     """router name -> (host, listen, connect)"""
     extra: str = ""
     clients: dict[str, RemoteClient] = field(default_factory=dict)
+    devices: dict[str, LabDevice] = field(default_factory=dict)
 
-    def inventory(self, name: str, endpoints: list[str]) -> Path:
-        """Write the inventory of process ``name``."""
+    def device_hosts(self) -> dict[str, tuple[LabDevice, Host]]:
+        """Every device with the host whose card it is on."""
+        return {d: (dev, self.lab.hosts[dev.host]) for d, dev in self.devices.items()}
+
+    def units_on(self, host: str) -> list[str]:
+        """The arm and device ids on ``host``'s card."""
+        arms = [host] if host in self.arms else []
+        return arms + [d for d, dev in self.devices.items() if dev.host == host]
+
+    def inventory(self, name: str, endpoints: list[str], host: str | None = None) -> Path:
+        """Write the inventory of process ``name`` (with ``host``: only the robots on that
+        host's card, for its simulator)."""
         path = self.lab.tmp_path / f"{name}.toml"
-        text = inventory_text(self.lab.domain, endpoints, self.arms, self.extra)
+        arms, devices = self.arms, self.device_hosts()
+        if host is not None:
+            arms = {a: h for a, h in arms.items() if a == host}
+            devices = {d: dh for d, dh in devices.items() if dh[0].host == host}
+        text = inventory_text(self.lab.domain, endpoints, arms, self.extra, devices)
         path.write_text(text, encoding="utf-8")
         return path
 
@@ -118,12 +190,13 @@ class LabFleet:
         self.lab.start(name, host, argv, self.inventory(name, listen))
         self.lab.wait_listening(name)
 
-    def start_arm_host(self, arm: str, endpoints: list[str]) -> None:
-        """The simulated arm (DDS only) and its edge agent on the arm's host."""
-        sim = ["-m", "fleet.cli.main", "sim", "--arm", arm, "--no-zenoh"]
-        self.lab.start(f"sim-{arm}", arm, sim, self.inventory(f"sim-{arm}", endpoints))
-        agent = ["-m", "edge_agent", "--arm", arm]
-        self.lab.start(f"agent-{arm}", arm, agent, self.inventory(f"agent-{arm}", endpoints))
+    def start_robot_host(self, host: str, endpoints: list[str]) -> None:
+        """The simulators of what is on ``host``'s card (DDS only: an arm and the gripper
+        mounted on it, or a G1) and the one edge agent of that card, ``--interface``."""
+        sim = ["-m", "fleet.cli.main", "sim", "--no-zenoh"]
+        self.lab.start(f"sim-{host}", host, sim, self.inventory(f"sim-{host}", endpoints, host))
+        agent = ["-m", "edge_agent", "--interface", self.lab.hosts[host].interface]
+        self.lab.start(f"agent-{host}", host, agent, self.inventory(f"agent-{host}", endpoints))
 
     def start_coordinator(self, endpoints: list[str], host: str = "coord") -> None:
         """``fleet coordinator`` on its host."""
@@ -160,45 +233,67 @@ class LabFleet:
         return "\n".join(parts)
 
 
-def one_router(tmp_path: Path, arms: int, extra: str = "") -> LabFleet:
-    """Topology 1: router, coordinator, a client, ``arms`` arm hosts; every process up."""
+def _own_hosts(devices: dict[str, LabDevice], arm_ids: list[str]) -> list[str]:
+    """The device hosts that are no arm's host (a G1's)."""
+    return sorted({d.host for d in devices.values()} - set(arm_ids))
+
+
+def one_router(
+    tmp_path: Path, arms: int, extra: str = "", devices: dict[str, LabDevice] | None = None
+) -> LabFleet:
+    """Topology 1: router, coordinator, a client, ``arms`` arm hosts, the ``devices`` (on their
+    arm's host, or a host of their own); every process up."""
+    devices = devices or {}
     hosts = {"router": 2, "coord": 3, "client": 4, "viewer": 5}
     arm_ids = [f"a{i}" for i in range(1, arms + 1)]
     hosts.update({arm: ARM_OCTET + i for i, arm in enumerate(arm_ids)})
+    own = _own_hosts(devices, arm_ids)
+    hosts.update({host: DEVICE_OCTET + i for i, host in enumerate(own)})
     lab = NetLab(tmp_path, hosts)
     try:
         fleet = LabFleet(lab, {arm: lab.hosts[arm] for arm in arm_ids}, extra=extra)
+        fleet.devices = dict(devices)
         endpoint = lab.hosts["router"].endpoint
         fleet.routers["router"] = ("router", [endpoint], [])
         fleet.start_router("router")
-        for arm in arm_ids:
-            fleet.start_arm_host(arm, [endpoint])
+        for host in [*arm_ids, *own]:
+            fleet.start_robot_host(host, [endpoint])
         return _with_coordinator_and_client(fleet, endpoint)
     except BaseException:
         lab.close()
         raise
 
 
-def site_routers(tmp_path: Path, sites: dict[str, list[str]], extra: str = "") -> LabFleet:
+def site_routers(
+    tmp_path: Path,
+    sites: dict[str, list[str]],
+    extra: str = "",
+    devices: dict[str, LabDevice] | None = None,
+) -> LabFleet:
     """Topology 2: a central router; per site a router joined to it and its arm hosts; the
-    coordinator and a client on the central router."""
+    coordinator and a client on the central router. The ``devices``' hosts of their own (a
+    G1's) join the first site."""
+    devices = devices or {}
     hosts = {"central": 2, "coord": 3, "client": 4}
     for i, site in enumerate(sites):
         hosts[site] = 6 + i
     arm_ids = [arm for arms in sites.values() for arm in arms]
     hosts.update({arm: ARM_OCTET + i for i, arm in enumerate(arm_ids)})
+    own = _own_hosts(devices, arm_ids)
+    hosts.update({host: DEVICE_OCTET + i for i, host in enumerate(own)})
     lab = NetLab(tmp_path, hosts)
     try:
         fleet = LabFleet(lab, {arm: lab.hosts[arm] for arm in arm_ids}, extra=extra)
+        fleet.devices = dict(devices)
         central = lab.hosts["central"].endpoint
         fleet.routers["central"] = ("central", [central], [])
         fleet.start_router("central")
-        for site, arms in sites.items():
+        for i, (site, arms) in enumerate(sites.items()):
             endpoint = lab.hosts[site].endpoint
             fleet.routers[site] = (site, [endpoint], [central])
             fleet.start_router(site)
-            for arm in arms:
-                fleet.start_arm_host(arm, [endpoint])
+            for host in [*arms, *(own if i == 0 else [])]:
+                fleet.start_robot_host(host, [endpoint])
         return _with_coordinator_and_client(fleet, central)
     except BaseException:
         lab.close()

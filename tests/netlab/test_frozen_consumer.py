@@ -30,7 +30,9 @@ import pytest
 from testkit.harness import wait_until
 from tests.netlab.checks import percentile, restore
 from tests.netlab.fleetlab import LabFleet, RemoteClient
+from tests.netlab.rowreport import RowReport
 
+ROW = "5"
 BASELINE_S = 4.0
 FROZEN_S = 25.0
 """How long the consumers stay (the memory window; before the fix the stall came 22-41 s after
@@ -72,6 +74,17 @@ def _timeline(samples: list[Any], arms: list[str], step_s: float = 2.0) -> str:
         slot = int((t - start) / 1e9 / step_s)
         worst[slot] = max(worst.get(slot, 0.0), delay)
     return " ".join(f"{worst.get(i, float('nan')):.0f}" for i in range(max(worst) + 1))
+
+
+def _relay_text(values: list[float]) -> str:
+    return f"p50 {percentile(values, 50):.1f} / p99 {percentile(values, 99):.1f} ms"
+
+
+def _stops_text(runs: list[dict[str, float]]) -> str:
+    return (
+        f"received max {max(r['received_ms'] for r in runs):.0f} ms, still max "
+        f"{max(r['still_ms'] for r in runs):.0f} ms"
+    )
 
 
 def _stops(client: RemoteClient, arms: list[str]) -> list[dict[str, float]]:
@@ -170,26 +183,18 @@ def frozen_run(lab1: LabFleet) -> Iterator[dict[str, Any]]:
         )
         run["stall_ack_ms"] = (stall["returned_ns"] - stall["stamp_ns"]) / 1e6
         run["stall_received_ms"] = max(received, default=float("inf"))
-
-    def relay(values: list[float]) -> str:
-        return f"p50 {percentile(values, 50):.1f} / p99 {percentile(values, 99):.1f} ms"
-
-    def stops(runs: list[dict[str, float]]) -> str:
-        return (
-            f"received max {max(r['received_ms'] for r in runs):.0f} ms, still max "
-            f"{max(r['still_ms'] for r in runs):.0f} ms"
-        )
+    run["stall_text"] = stall_text
 
     print(
         f"\nrow 5, a frozen + a slow consumer of every joints/status key for "
         f"{run['window_s']:.0f} s "
-        f"under 2 MB/s of status traffic: stops {stops(base_stops)} without, "
-        f"{stops(frozen_stops)} with; RSS "
+        f"under 2 MB/s of status traffic: stops {_stops_text(base_stops)} without, "
+        f"{_stops_text(frozen_stops)} with; RSS "
         + ", ".join(
             f"{n} {s[0]:.0f} -> {max(s):.0f} MB (+{run['growth'][n]:.1f})" for n, s in rss.items()
         )
-        + f"; relay {relay(base_relay)} without, {relay(run['frozen_relay'])} with; worst relay "
-        f"per 2 s (ms, nan: no sample): {run['timeline']}; {stall_text}"
+        + f"; relay {_relay_text(base_relay)} without, {_relay_text(run['frozen_relay'])} "
+        f"with; worst relay per 2 s (ms, nan: no sample): {run['timeline']}; {stall_text}"
     )
     yield run
     cleared = client.call("reset_wait", _timeout=40.0, timeout_s=30.0)
@@ -197,9 +202,19 @@ def frozen_run(lab1: LabFleet) -> Iterator[dict[str, Any]]:
 
 
 def test_frozen_and_slow_consumers_delay_no_stop_and_grow_no_memory(
-    frozen_run: dict[str, Any],
+    frozen_run: dict[str, Any], row_report: RowReport
 ) -> None:
     run = frozen_run
+    row_report(
+        f"a frozen + a slow consumer for {run['window_s']:.0f} s under 2 MB/s of status "
+        f"traffic: stops {_stops_text(run['base_stops'])} without, "
+        f"{_stops_text(run['frozen_stops'])} with; RSS "
+        + ", ".join(f"{n} +{grew:.1f} MB" for n, grew in run["growth"].items())
+        + f"; consumers alive {run['consumers_alive']}",
+        f"router RSS growth <= {RSS_GROWTH_MB['router']:g} MB, agent <= "
+        f"{RSS_GROWTH_MB['agent-a1']:g} MB; stops as fast as without (+{STOP_SLACK_MS:g} ms)",
+        {k: run[k] for k in ("base_stops", "frozen_stops", "growth", "window_s")},
+    )
     assert run["consumers_alive"]
     base_received = max(r["received_ms"] for r in run["base_stops"])
     assert max(r["received_ms"] for r in run["frozen_stops"]) <= base_received + STOP_SLACK_MS
@@ -209,8 +224,18 @@ def test_frozen_and_slow_consumers_delay_no_stop_and_grow_no_memory(
         assert grew <= RSS_GROWTH_MB[name], f"{name} grew {grew:.1f} MB: {run['rss'][name]}"
 
 
-def test_a_frozen_consumer_does_not_delay_the_relay(frozen_run: dict[str, Any]) -> None:
+def test_a_frozen_consumer_does_not_delay_the_relay(
+    frozen_run: dict[str, Any], row_report: RowReport
+) -> None:
     base, frozen = frozen_run["base_relay"], frozen_run["frozen_relay"]
+    stalled = frozen_run["stall"]
+    row_report(
+        f"relay {_relay_text(base)} without, {_relay_text(frozen)} with; worst relay per 2 s "
+        f"(ms): {frozen_run['timeline']}; {'a stall' if stalled else 'no stall'}",
+        f"no relay stall ({STALL_S:g} s without joints); relay p99 within "
+        f"{RELAY_P99_SLACK_MS:g} ms of the baseline",
+        {"p99_ms": [percentile(base, 99), percentile(frozen, 99)], "stall": bool(stalled)},
+    )
     assert frozen_run["stall"] is None, f"the relay stalled: {frozen_run['stall']}"
     assert percentile(frozen, 99) <= percentile(base, 99) + RELAY_P99_SLACK_MS, (
         f"relay p99 {percentile(frozen, 99):.0f} ms with the frozen consumer, "
@@ -218,8 +243,15 @@ def test_a_frozen_consumer_does_not_delay_the_relay(frozen_run: dict[str, Any]) 
     )
 
 
-def test_a_frozen_consumer_does_not_delay_a_stop(frozen_run: dict[str, Any]) -> None:
+def test_a_frozen_consumer_does_not_delay_a_stop(
+    frozen_run: dict[str, Any], row_report: RowReport
+) -> None:
     stall = frozen_run["stall"]
+    row_report(
+        frozen_run["stall_text"] + ("" if stall else ", so no stop during one"),
+        "a stop put during a relay stall received <= 500 ms and acked <= 1 s",
+        {k: frozen_run.get(k) for k in ("stall_received_ms", "stall_ack_ms")},
+    )
     if stall is not None:
         assert frozen_run["stall_received_ms"] <= 500.0, stall
         assert frozen_run["stall_ack_ms"] <= 1000.0, stall

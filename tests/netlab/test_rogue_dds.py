@@ -32,7 +32,9 @@ from fleet.d1 import protocol
 from testkit.harness import wait_until
 from tests.netlab.checks import commands_seen, restore
 from tests.netlab.fleetlab import LabFleet
+from tests.netlab.rowreport import RowReport
 
+ROW = "4"
 ARM = "a1"
 ROGUE_S = 5.0
 RATE_HZ = 100.0
@@ -42,6 +44,10 @@ STOP_BOUND_MS = 500.0
 
 MOVED_BOUND_DEG = 5.0
 """How far the real arm may end up from where it stood before the rogue (a stop holds it)."""
+
+
+def _ms(value: float | None) -> str:
+    return "never" if value is None else f"{value:.1f} ms"
 
 
 def _diag(client: Any) -> dict[str, Any]:
@@ -116,13 +122,22 @@ def rogue_run(lab1: LabFleet) -> Iterator[dict[str, Any]]:
 
 
 def test_a_rogue_participant_on_the_arm_network_neither_blinds_nor_crashes_the_agent(
-    lab1: LabFleet, rogue_run: dict[str, Any]
+    lab1: LabFleet, rogue_run: dict[str, Any], row_report: RowReport
 ) -> None:
     run = rogue_run
+    command = run["command"]
+    row_report(
+        f"rogue on {ARM}'s DDS topics for {ROGUE_S:g} s ({run['sent']}): stop received "
+        f"{_ms(run['received_ms'])}, written {_ms(run['written_ms'])}; diag malformed "
+        f"+{run['malformed']}, unknown +{run['unknown']}; a command during it: "
+        f"{'done' if command['ok'] else command['error']['code']}",
+        f"agent and arm processes alive; stop received and written <= {STOP_BOUND_MS:g} ms; "
+        "diag counts the garbage; a command works after",
+        {k: run[k] for k in ("received_ms", "written_ms", "malformed", "unknown", "alive")},
+    )
     assert all(code is None for code in run["alive"].values()), run["alive"]
     # Every command is answered by the agent: done, or refused because a stop latched (the
     # coordinator's contact policy stops the arm on the forged reports, see the docstring).
-    command = run["command"]
     assert command["ok"] or command["error"]["code"] == 4002, command
     assert run["received_ms"] is not None and run["received_ms"] <= STOP_BOUND_MS, run["ack"]
     assert run["written_ms"] is not None and run["written_ms"] <= STOP_BOUND_MS, run["ack"]
@@ -137,7 +152,16 @@ def test_a_rogue_participant_on_the_arm_network_neither_blinds_nor_crashes_the_a
     assert reply["ok"], reply
 
 
-def test_a_forged_pose_never_becomes_the_real_arm_target(rogue_run: dict[str, Any]) -> None:
+def test_a_forged_pose_never_becomes_the_real_arm_target(
+    rogue_run: dict[str, Any], row_report: RowReport
+) -> None:
+    row_report(
+        f"real arm after the rogue {rogue_run['real_after']} (moved "
+        f"{rogue_run['moved_deg']:.1f} deg; forged {FORGED}); hold targets written after the "
+        f"stop {[h[:3] for h in rogue_run['holds'][:3]]}",
+        f"the real arm within {MOVED_BOUND_DEG:g} deg of where it stood",
+        {"moved_deg": rogue_run["moved_deg"], "real_after": rogue_run["real_after"]},
+    )
     assert rogue_run["moved_deg"] <= MOVED_BOUND_DEG, (
         f"the real arm moved {rogue_run['moved_deg']:.0f} deg to {rogue_run['real_after']} "
         f"(forged {FORGED}); hold targets written: {rogue_run['holds'][:3]}"

@@ -18,7 +18,9 @@ from collections import Counter
 
 from tests.netlab.checks import restore
 from tests.netlab.fleetlab import LabFleet
+from tests.netlab.rowreport import RowReport
 
+ROW = "1"
 LOSS = 0.10
 DELAY_MS = 20.0
 DURATION_S = float(os.environ.get("D1_NETLAB_WATCHDOG_S", "40"))
@@ -28,7 +30,7 @@ def _watchdog_stops(lab1: LabFleet) -> dict[str, int]:
     return {arm: lab1.lab.log(f"agent-{arm}").count("by watchdog") for arm in lab1.arms}
 
 
-def test_no_false_watchdog_stop_at_10_pct_loss(lab1: LabFleet) -> None:
+def test_no_false_watchdog_stop_at_10_pct_loss(lab1: LabFleet, row_report: RowReport) -> None:
     client = lab1.clients["client"]
     restore(lab1, client)
     before = _watchdog_stops(lab1)
@@ -54,10 +56,11 @@ def test_no_false_watchdog_stop_at_10_pct_loss(lab1: LabFleet) -> None:
     finally:
         lab1.lab.clear()
     tripped = {a: n - before[a] for a, n in _watchdog_stops(lab1).items() if n > before[a]}
-    print(
-        f"\nwatchdog at {LOSS:.0%} + {DELAY_MS:g} ms per link for {DURATION_S:g} s "
-        f"(load average {os.getloadavg()[0]:.1f}): {sum(tripped.values())} watchdog stops "
-        f"{tripped or ''}; {ok}/{moves} synchronized moves served; refused: "
-        f"{refusals.most_common(3)}"
+    row_report(
+        f"{LOSS:.0%} + {DELAY_MS:g} ms per link for {DURATION_S:g} s: "
+        f"{sum(tripped.values())} watchdog stops{f' {tripped}' if tripped else ''}; "
+        f"{ok}/{moves} synchronized moves served; refused: {refusals.most_common(3)}",
+        "no watchdog stop while the coordinator lives",
+        {"tripped": tripped, "moves": moves, "served": ok, "duration_s": DURATION_S},
     )
     assert not tripped, f"false watchdog stops under {LOSS:.0%} loss: {tripped}"

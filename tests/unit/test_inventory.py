@@ -268,3 +268,13 @@ def test_interface_and_peers_must_be_printable(line: str, fragment: str) -> None
     with pytest.raises(InventoryError) as info:
         parse_inventory(f'[fleet]\nname = "x"\n{line}\n')
     assert fragment in str(info.value), info.value
+
+
+def test_the_simulated_g1s_lowstate_rate_stays_fresh_for_the_agent() -> None:
+    """``sim_lowstate_hz`` (a test bed's slower rt/lowstate) must keep a sample within the
+    agent's ``link_stale_s`` and not exceed the state rate."""
+    head = '[fleet]\nname = "x"\n[arms.a1]\n[g1.h1]\n'
+    assert parse_inventory(head + "sim_lowstate_hz = 10.0\n").devices["h1"].sim_lowstate_hz == 10
+    for rate in ("2.0", "200.0"):
+        with pytest.raises(InventoryError, match="g1.h1.*sim_lowstate_hz must"):
+            parse_inventory(head + f"sim_lowstate_hz = {rate}\n")
