@@ -55,6 +55,9 @@ CLIENT_MESSAGE_BYTES = 1 << 20
 """A client's own messages (subscribe, unsubscribe...) are small."""
 SERVER_MESSAGE_BYTES = 64 << 20
 LOOPBACK = "127.0.0.1"
+UPSTREAM_TRIES = 2
+UPSTREAM_OPEN_S = 5.0
+"""Each try's wait for the private server's WebSocket handshake."""
 
 
 @dataclass(frozen=True)
@@ -159,17 +162,8 @@ class FoxgloveGate:
             client.close(1013, "too many Foxglove clients")
             return
         try:
-            try:
-                upstream = connect(
-                    self._upstream,
-                    ssl=self._tls,
-                    subprotocols=[client.subprotocol] if client.subprotocol else None,  # type: ignore[list-item]
-                    max_size=SERVER_MESSAGE_BYTES,
-                    compression=None,
-                    open_timeout=5.0,
-                )
-            except (OSError, TimeoutError, ConnectionClosed) as exc:
-                log.warning("foxglove gate: the private server did not answer (%s)", exc)
+            upstream = self._open_upstream(client)
+            if upstream is None:
                 client.close(1011, "the Foxglove server is not available")
                 return
             with self._lock:
@@ -188,6 +182,29 @@ class FoxgloveGate:
         finally:
             with self._lock:
                 self._clients.pop(client, None)
+
+    def _open_upstream(self, client: ServerConnection) -> ClientConnection | None:
+        """The private server, with the client's subprotocol; None if it did not answer.
+        Tried twice: on a loaded host its handshake once took more than 5 s (measured at load
+        6-9), and a client that waits a little longer is better served than refused."""
+        for attempt in range(UPSTREAM_TRIES):
+            try:
+                return connect(
+                    self._upstream,
+                    ssl=self._tls,
+                    subprotocols=[client.subprotocol] if client.subprotocol else None,  # type: ignore[list-item]
+                    max_size=SERVER_MESSAGE_BYTES,
+                    compression=None,
+                    open_timeout=UPSTREAM_OPEN_S,
+                )
+            except (OSError, TimeoutError, ConnectionClosed) as exc:
+                log.warning(
+                    "foxglove gate: the private server did not answer (%s; try %d of %d)",
+                    exc,
+                    attempt + 1,
+                    UPSTREAM_TRIES,
+                )
+        return None
 
     def close(self) -> None:
         """Stop accepting -> close every client -> join (idempotent)."""

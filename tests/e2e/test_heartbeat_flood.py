@@ -73,7 +73,7 @@ def _stop_latencies(h: FleetHarness, client: FleetClient) -> list[float]:
                 )
             out.append((acked[request.stop_id] - started) * 1000)
             client.reset("a1")
-            wait_until(lambda: not client.snapshot(wait_s=0.3)["a1"][0].estopped, 5.0)
+            wait_until(lambda: _released(client), 5.0)
     finally:
         sub.undeclare()
     return out
@@ -111,3 +111,9 @@ def test_stop_to_ack_under_a_flood_of_huge_heartbeats(fleet_harness: FleetHarnes
     assert flooded[0] > 10
     assert under <= 2 * quiet + 5.0, f"quiet {quiet:.1f} ms, under the flood {under:.1f} ms"
     assert h.processes["agent"].poll() is None
+
+
+def _released(client: FleetClient) -> bool:
+    """a1's status says unlatched (a snapshot under the flood may come back without one)."""
+    status = client.snapshot(wait_s=0.3)["a1"][0]
+    return status is not None and not status.estopped
