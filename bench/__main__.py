@@ -52,7 +52,7 @@ processes, a device's stop under a flood; scale: 1000 arms; routers: two routers
 _STEPS: tuple[tuple[str, str, Callable[[bool], Any]], ...] = (
     ("relay", "relay latency and cost at 1, 10, 100 arms (with the coordinator)", relay.run),
     ("fleet", "command round trip; stop fan-out to 10, 50, 100 arms", fleet_runs.run),
-    ("viewer", "viewer CPU at 10, 50, 200 arms", viewer_cpu.run),
+    ("viewer", "viewer CPU at 10, 50, 200 arms; 50 arms and a G1", viewer_cpu.run),
     ("contact", "contact detection: labelled episodes (pure simulator + detector)",
      lambda _quick: contact.bench_contact()),
     ("devices", "one Dex1-1 at 500 Hz: devices agent CPU, latency DDS -> Zenoh", devices.run),

@@ -1,9 +1,11 @@
 """CPU of the viewer process at several fleet sizes, with synthetic traffic at 10 Hz.
 
-``python -m bench.viewer_load --arms 3 10 50 200 [--browser]`` starts, per fleet size, a router, the
-synthetic publisher (bench/synthetic.py) and ``fleet viewer`` as separate processes, optionally
-a headless Chromium showing the page, then reads the viewer's CPU time from /proc/<pid>/stat
-(utime + stime) over a window and prints one JSON line per size.
+``python -m bench.viewer_load --arms 3 10 50 200 [--browser] [--g1 ID]`` starts, per fleet size, a
+router, the synthetic publisher (bench/synthetic.py) and ``fleet viewer`` as separate processes,
+optionally a headless Chromium showing the page, then reads the viewer's CPU time from
+/proc/<pid>/stat (utime + stime) over a window and prints one JSON line per size. With ``--g1 ID``
+the inventory has a ``[g1.<id>]`` too (drawn beside the arms) and the synthetic publisher relays
+its lowstate and state at its ``relay_hz``.
 """
 
 from __future__ import annotations
@@ -21,11 +23,15 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from bench import synthetic
+from fleet.inventory import parse_inventory
+
 CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
 
 
-def inventory_text(arms: int, port: int) -> str:
-    """An inventory of ``arms`` arms on a square grid, 0.7 m apart."""
+def inventory_text(arms: int, port: int, g1s: tuple[str, ...] = ()) -> str:
+    """An inventory of ``arms`` arms on a square grid, 0.7 m apart, and the G1s ``g1s`` (their
+    defaults: placed beside the arms, relayed at the config's ``relay_hz``)."""
     side = math.ceil(math.sqrt(arms))
     lines = [
         '[fleet]\nname = "bench"\n',
@@ -35,6 +41,7 @@ def inventory_text(arms: int, port: int) -> str:
     for i in range(arms):
         x, y = 0.7 * (i % side), 0.7 * (i // side)
         lines.append(f'[arms.b{i + 1}]\nsuffix = "_{i + 1}"\nbase_xyz = [{x:.2f}, {y:.2f}, 0.0]\n')
+    lines += [f"[g1.{g1}]\n" for g1 in g1s]
     return "\n".join(lines)
 
 
@@ -61,20 +68,29 @@ def _wait_for_line(path: Path, needle: str, timeout_s: float) -> str:
     raise TimeoutError(f"{needle!r} not in {path} within {timeout_s} s")
 
 
-def measure(arms: int, window_s: float, browser: bool, workdir: Path) -> dict[str, Any]:
-    """One fleet size: start everything, measure the viewer's CPU over ``window_s``."""
+def measure(
+    arms: int, window_s: float, browser: bool, workdir: Path, g1s: tuple[str, ...] = ()
+) -> dict[str, Any]:
+    """One fleet size (and the G1s ``g1s``): start everything, measure the viewer's CPU over
+    ``window_s``."""
     port = free_port()
-    inv = workdir / f"inventory-{arms}.toml"
-    inv.write_text(inventory_text(arms, port), encoding="utf-8")
+    run = f"{arms}{''.join(f'-{g1}' for g1 in g1s)}"
+    inv = workdir / f"inventory-{run}.toml"
+    inv.write_text(inventory_text(arms, port, g1s), encoding="utf-8")
     common = ["--inventory", str(inv), "--log-level", "WARNING"]
-    logs = {name: workdir / f"{name}-{arms}.log" for name in ("router", "synthetic", "viewer")}
+    logs = {name: workdir / f"{name}-{run}.log" for name in ("router", "synthetic", "viewer")}
+    g1_options = [option for g1 in g1s for option in ("--g1", g1)]
     argvs = {
         "router": ["-m", "fleet.cli.main", "router", *common],
-        "synthetic": ["-m", "bench.synthetic", "--rate-hz", "10", *common],
+        "synthetic": ["-m", "bench.synthetic", "--rate-hz", "10", *g1_options, *common],
         "viewer": ["-m", "fleet.cli.main", "viewer", "--port", str(free_port()), *common],
     }
     procs: dict[str, subprocess.Popen[bytes]] = {}
     result: dict[str, Any] = {"arms": arms, "rate_hz": 10, "browser": browser}
+    if g1s:
+        inventory = parse_inventory(inv.read_text(encoding="utf-8"), str(inv))
+        configs = synthetic.g1_configs(inventory, list(g1s))
+        result["g1_relay_hz"] = {config.id: config.relay_hz for config in configs}
     try:
         for name, argv in argvs.items():
             with open(logs[name], "wb") as log:
@@ -154,10 +170,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--arms", type=int, nargs="+", default=[3, 10, 50, 200])
     parser.add_argument("--window-s", type=float, default=10.0)
     parser.add_argument("--browser", action="store_true", help="keep a headless Chromium open")
+    parser.add_argument("--g1", action="append", default=[], metavar="ID", help="and a G1")
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         for arms in args.arms:
-            print(json.dumps(measure(arms, args.window_s, args.browser, Path(tmp))), flush=True)
+            result = measure(arms, args.window_s, args.browser, Path(tmp), tuple(args.g1))
+            print(json.dumps(result), flush=True)
     return 0
 
 
