@@ -95,8 +95,9 @@ class ArmWatch:
         got = self.latest(arm)
         return report_problem(f"arm {arm!r}", "status", got.status, got.status_at, now_s)
 
-    def wait_ready(self, timeout_s: float) -> str | None:
-        """Wait (bounded) for every arm's joints and status; the first problem left, or None."""
+    def wait_ready(self, timeout_s: float, stop: threading.Event | None = None) -> str | None:
+        """Wait (bounded; ``stop`` ends it) for every arm's joints and status; the first
+        problem left, or None."""
 
         def problems(now: float) -> list[str]:
             found = [p for a in self.arms if (p := self.problem(a, now)) is not None]
@@ -105,7 +106,7 @@ class ArmWatch:
                 found = [f"no joints from arm {missing[0]!r} yet; is its agent running?"]
             return found
 
-        return first_problem_left(problems, timeout_s)
+        return first_problem_left(problems, timeout_s, stop)
 
     def close(self) -> None:
         """Undeclare the subscriptions (idempotent)."""
@@ -144,16 +145,24 @@ def report_problem(
     return None
 
 
-def first_problem_left(problems: Callable[[float], list[str]], timeout_s: float) -> str | None:
-    """Poll ``problems(now)`` (bounded by ``timeout_s``) until there are none; the first one
-    left, or None."""
+def first_problem_left(
+    problems: Callable[[float], list[str]],
+    timeout_s: float,
+    stop: threading.Event | None = None,
+) -> str | None:
+    """Poll ``problems(now)`` (bounded by ``timeout_s``, and ended by ``stop``) until there are
+    none; the first one left, or None."""
     deadline = time.monotonic() + timeout_s
+    pause = stop or threading.Event()
     while True:
         now = time.monotonic()
         found = problems(now)
-        if not found or now >= deadline:
-            return found[0] if found else None
-        time.sleep(0.05)
+        if not found:
+            return None
+        if now >= deadline:
+            return found[0]
+        if pause.wait(0.05):
+            return "stopped while waiting for the arms to be ready"
 
 
 def _gripper_contact(event: m.ContactEvent) -> bool | None:

@@ -92,10 +92,12 @@ class G1Stream:
         low = self.watch.latest(parts[0]).low
         return None if low is None else g1_arms.side_pose_deg(low.q_rad, parts[1])
 
-    def start_poses(self, ready_s: float) -> tuple[dict[str, Pose], str | None]:
-        """Wait (bounded) until every G1 may be commanded; each arm's pose (deg) and the
-        problem left, if any. Remembers the held pose of each G1."""
-        problem = self.watch.wait_ready(ready_s)
+    def start_poses(
+        self, ready_s: float, stop: threading.Event | None = None
+    ) -> tuple[dict[str, Pose], str | None]:
+        """Wait (bounded; ``stop`` ends it) until every G1 may be commanded; each arm's pose
+        (deg) and the problem left, if any. Remembers the held pose of each G1."""
+        problem = self.watch.wait_ready(ready_s, stop)
         if problem is not None:
             return {}, problem
         poses: dict[str, Pose] = {}
@@ -198,12 +200,13 @@ class G1Stream:
                 return
             time.sleep(0.05)
 
-    def release(self) -> None:
+    def release(self, answers_s: float = 5.0) -> None:
         """Give the arms back to the robots (weight 1 -> 0), end the lease, and wait (bounded)
-        for the weight's return to 0."""
+        for the weight's return to 0; the agents' answers are awaited ``answers_s`` in all."""
+        answer_by = time.monotonic() + answers_s
         for make in (lambda: ArmRelease(owner=self.owner), lambda: DeviceRelease(owner=self.owner)):
             futures = [self.pool.submit(self.client.device_command, d, make()) for d in self.sides]
-            wait(futures, timeout=5.0)
+            wait(futures, timeout=max(0.0, answer_by - time.monotonic()))
         longest = max(c.arm_release_s for c in self.configs.values()) + RELEASED_MARGIN_S
         deadline = time.monotonic() + longest
         while time.monotonic() < deadline:

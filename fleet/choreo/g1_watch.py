@@ -101,11 +101,13 @@ class G1Watch:
         why = state.arm_released or f"its arm stream is {state.arm_phase}"
         return f"g1 {device!r} released its arms ({why})"
 
-    def wait_ready(self, timeout_s: float) -> str | None:
-        """Wait (bounded) until every G1 may be commanded; the first problem left, or None."""
+    def wait_ready(self, timeout_s: float, stop: threading.Event | None = None) -> str | None:
+        """Wait (bounded; ``stop`` ends it) until every G1 may be commanded; the first problem
+        left, or None."""
         return first_problem_left(
             lambda now: [p for d in self.devices if (p := self.problem(d, now)) is not None],
             timeout_s,
+            stop,
         )
 
     def close(self) -> None:

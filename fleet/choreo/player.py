@@ -38,6 +38,11 @@ from fleet.wire import messages as m
 
 log = logging.getLogger("fleet.choreo")
 
+ENDING_S = 5.0
+"""The ending (hold, release the leases, give the G1 arms back) waits for the agents this long
+in all, plus the G1 arms' weight ramp. The agents' own watchdogs hold the robots of a player
+that goes silent, so a player whose fleet is gone (its demo killed) must not wait 5 s per step:
+it took 8-30 s to exit."""
 TARGET_LIFETIME_S = 0.3
 """A streamed target older than this is refused by the agent: three control cycles."""
 PATH_WINDOW = 6
@@ -131,6 +136,8 @@ class Player:
         # keyframes being measured: (deadline, goal per arm, best error per arm)
         self._keyframes: list[tuple[float, dict[str, Pose], dict[str, float]]] = []
         self.result = PlayResult(False, "not started")
+        self._end_by: float | None = None
+        """When the ending stops waiting for the agents (``ENDING_S``); None while playing."""
 
     # ------------------------------------------------------------------ public
 
@@ -142,7 +149,7 @@ class Player:
         liveness: Liveness | None = None
         started = time.monotonic()
         try:
-            poses = self.start_poses(watch, ready_s)
+            poses = self.start_poses(watch, ready_s, stop)
             check_motion(self.script, poses, self.ranges, self.caps)
             client = self.client
             liveness = Liveness(
@@ -159,11 +166,15 @@ class Player:
         except Abort as exc:
             self.result.ok, self.result.reason = False, str(exc)
             log.warning("choreography %r aborted: %s", self.script.name, exc)
+            self._end_by = time.monotonic() + ENDING_S
             if liveness is not None:  # something may have moved: hold every D1 arm
                 self._hold_all(watch)
         finally:
+            if self._end_by is None:
+                self._end_by = time.monotonic() + ENDING_S
             if liveness is not None and self.g1 is not None:
-                self.g1.release()  # before the heartbeat stops: else the watchdog stops it
+                # before the heartbeat stops: else the watchdog stops it
+                self.g1.release(self._left())
             if liveness is not None:
                 liveness.close()
                 self._broadcast(lambda a: m.Release(owner=self.owner))
@@ -188,14 +199,17 @@ class Player:
 
     # ------------------------------------------------------------------ phases
 
-    def start_poses(self, watch: ArmWatch, ready_s: float) -> dict[str, Pose]:
-        """Every arm's measured pose once all are ready (bounded by ``ready_s``); Abort."""
-        problem = watch.wait_ready(ready_s)
+    def start_poses(
+        self, watch: ArmWatch, ready_s: float, stop: threading.Event | None = None
+    ) -> dict[str, Pose]:
+        """Every arm's measured pose once all are ready (bounded by ``ready_s``; ``stop``
+        ends the wait); Abort."""
+        problem = watch.wait_ready(ready_s, stop)
         if problem is not None:
             raise Abort(f"not started: {problem}")
         poses = {a: tuple(watch.latest(a).joints.angles_deg) for a in self.d1_arms}  # type: ignore[union-attr]
         if self.g1 is not None:
-            g1_poses, problem = self.g1.start_poses(ready_s)
+            g1_poses, problem = self.g1.start_poses(ready_s, stop)
             if problem is not None:
                 raise Abort(f"not started: {problem}")
             poses.update(g1_poses)
@@ -377,16 +391,22 @@ class Player:
 
     # ------------------------------------------------------------------ ending
 
+    def _left(self, most_s: float = 5.0) -> float:
+        """How long one step may wait: ``most_s``, within the ending's budget once it began."""
+        if self._end_by is None:
+            return most_s
+        return max(0.0, min(most_s, self._end_by - time.monotonic()))
+
     def _broadcast(self, make: Callable[[str], m.ArmCommand]) -> dict[str, m.CommandReply]:
         futures = {a: self.pool.submit(self.client.command, a, make(a)) for a in self.d1_arms}
-        wait(futures.values(), timeout=5.0)
+        wait(futures.values(), timeout=self._left())
         return {a: f.result() for a, f in futures.items() if f.done()}
 
     def _hold_all(self, watch: ArmWatch) -> None:
         """Hold every arm where it is, then, once still, make that pose the watched target (so
         the agents' watchdog does not trip when the heartbeat stops after a clean abort)."""
         self._broadcast(lambda a: m.Hold(owner=self.owner))
-        still = settle(watch, self.d1_arms, None, 1.5)
+        still = settle(watch, self.d1_arms, None, self._left(1.5))
         self._broadcast(
             lambda a: (
                 m.MoveJoints(angles_deg=list(still[a]), mode=0, owner=self.owner)
@@ -394,4 +414,4 @@ class Player:
                 else m.Hold(owner=self.owner)
             )
         )
-        settle(watch, self.d1_arms, None, 1.0)
+        settle(watch, self.d1_arms, None, self._left(1.0))
