@@ -136,7 +136,7 @@ class ReplayTimeline:
     @property
     def position_wall_ns(self) -> int:
         """The wall-clock time the position corresponds to (when it was recorded)."""
-        return self.start_ns + int(self.position_s * 1e9)
+        return self.start_ns + round(self.position_s * 1e9)
 
     # ------------------------------------------------------------------ requests (any thread)
 
@@ -183,7 +183,7 @@ class ReplayTimeline:
             self.state.clear()  # backwards: rebuild from the start
             self._fed = 0
         self.position_s = position_s
-        limit = self.start_ns + int(position_s * 1e9)
+        limit = self.start_ns + round(position_s * 1e9)  # a seek to a sample's own time shows it
         messages = self.source.messages
         ingest = self.state.ingest
         while self._fed < len(messages) and messages[self._fed].log_time_ns <= limit:
