@@ -45,7 +45,7 @@ lint: $(STAMP)
 	$(BIN)/mypy fleet/wire fleet/d1
 
 # Everything: lint, then unit, e2e, browser and netlab tests on two workers (browser tests share
-# one worker, netlab tests another: --dist loadgroup). Under 10 minutes on a 2-core machine.
+# one worker, netlab tests another: --dist loadgroup). 13-15 minutes on a 2-core machine.
 test: $(STAMP) lint
 	sh scripts/ensure-chromium
 	$(BIN)/python -m pytest -n 2 --dist loadgroup --durations=40
