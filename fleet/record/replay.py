@@ -135,6 +135,11 @@ def teach_script(samples: list[m.Joints], onto: str, start_pose: Pose, source: s
         u = min(1.0, max(0.0, (t - times[index]) / span))
         pose = tuple(x + (y - x) * u for x, y in zip(a.angles_deg, b.angles_deg))
         steps.append(Move(period, "linear", {onto: pose}, f"replay {t:.1f} s"))
+    last = tuple(samples[-1].angles_deg)
+    if steps[-1].poses[onto] != last:
+        # The recording rarely ends on a control period: its last pose is where the take
+        # ended (the arm ended 1.5 deg or more away from it when the take ended mid-motion).
+        steps.append(Move(period, "linear", {onto: last}, f"replay end {span_s:.2f} s"))
     return Script(
         name=f"replay of {source}",
         arms=(onto,),
