@@ -72,11 +72,11 @@ class _Grants:
         everything = f"fleet/{fleet}/**"
         # Who may put or read a stop, its ack or a heartbeat may do the same on its datagram
         # copy's key (fleet.wire.keys.datagram_key), and nothing more.
-        self.put = [*self.put, *_datagram_twins(self.put)]
-        self.read = [*self.read, *_datagram_twins(self.read)]
+        put = [*self.put, *_datagram_twins(self.put)]
+        read = [*self.read, *_datagram_twins(self.read)]
         out = []
-        if self.put:
-            out.append(_rule(f"{name}-put", PUT, "ingress", self.put))
+        if put:
+            out.append(_rule(f"{name}-put", PUT, "ingress", put))
         if self.query:
             out.append(_rule(f"{name}-query", ["query"], "ingress", self.query))
             out.append(_rule(f"{name}-replies", ["reply"], "egress", self.query))
@@ -87,9 +87,9 @@ class _Grants:
             out.append(_rule(f"{name}-queries", ["query"], "egress", self.queryable))
         if self.token:
             out.append(_rule(f"{name}-token", ["liveliness_token"], "ingress", self.token))
-        if self.read:
-            out.append(_rule(f"{name}-subscribe", ["declare_subscriber"], "ingress", self.read))
-            out.append(_rule(f"{name}-read", PUT, "egress", self.read))
+        if read:
+            out.append(_rule(f"{name}-subscribe", ["declare_subscriber"], "ingress", read))
+            out.append(_rule(f"{name}-read", PUT, "egress", read))
         if self.liveliness:
             live = ["declare_liveliness_subscriber", "liveliness_query"]
             out.append(_rule(f"{name}-liveliness", live, "ingress", self.liveliness))
