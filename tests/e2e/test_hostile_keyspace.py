@@ -304,9 +304,14 @@ def test_long_multi_arm_requests_never_queue_without_bound(
         wait_until(lambda: len(arrived) == 10, 15.0)
         answers = [(t, decode(m.MultiArmReply, data)) for t, data in arrived]
         busy = [t for t, r in answers if r.error and "busy" in r.error.message]  # type: ignore[attr-defined]
+        served = [(t, r) for t, r in answers if not (r.error and "busy" in r.error.message)]  # type: ignore[attr-defined]
         print(f"10 long requests: {len(busy)} busy, answered after {[round(t, 1) for t in busy]} s")
-        assert len(answers) == 10
-        assert len(busy) >= 10 - 4 and max(busy) < 3.0, answers
+        assert len(answers) == 10 and busy and max(busy) < 3.0, answers
+        # A served request that ended before the last "busy" answer freed its worker for another
+        # (on a host loaded to 10, an ack later than recv_ack_timeout_s ends one in milliseconds).
+        freed = [r for t, r in served if t < max(busy)]
+        assert len(served) <= 4 + len(freed), served
+        assert len(busy) >= 10 - 4 - len(freed), answers
         diag = decode(m.CoordinatorDiag, latest(client, client.keys.coordinator_diag, 2.5))
         assert diag.busy >= len(busy), diag  # type: ignore[attr-defined]
     finally:
