@@ -46,9 +46,10 @@ lint: $(STAMP)
 
 # Everything: lint, then unit, e2e, browser and netlab tests on two workers (browser tests share
 # one worker, netlab tests another: --dist loadgroup). 13-15 minutes on a 2-core machine.
+TEST_WORKERS ?= 2
 test: $(STAMP) lint
 	sh scripts/ensure-chromium
-	$(BIN)/python -m pytest -n 2 --dist loadgroup --durations=40
+	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadgroup --durations=40
 
 # The pure tests only (tests/unit: no process, no network), in under a minute: while working.
 test-fast: $(STAMP)

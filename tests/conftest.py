@@ -33,6 +33,7 @@ def fleet3_harness(tmp_path: Path) -> Iterator[FleetHarness]:
 FOLDERS = ("unit", "e2e", "browser", "netlab")
 
 
+@pytest.hookimpl(tryfirst=True)  # before xdist's own, which reads the groups (see below)
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """Each test marked by its folder. Every browser test (its folder, or the fixture) on one
     xdist worker: two software-rendered Chromiums at once on this 2-core machine made a page take
@@ -50,3 +51,23 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
 def browser(tmp_path: Path) -> Iterator[Browser]:
     """One page of a real headless Chromium in a fresh profile."""
     yield from open_browser(tmp_path)
+
+
+def pytest_collection_finish(session: pytest.Session) -> None:
+    """Under ``--dist loadgroup`` every test of an xdist group must carry its group in its node
+    id (xdist's mark of the group): without it each test is scheduled alone and the suite runs
+    two network labs and two Chromiums at once. It was silently so with pytest 9 (xdist 3.8
+    writes the group into ``item._nodeid``, which pytest 9 no longer reads) and with a group
+    added after xdist's own collection hook ran."""
+    if not getattr(session.config.option, "loadgroup", False):
+        return
+    lost = [
+        item.nodeid
+        for item in session.items
+        if item.get_closest_marker("xdist_group") is not None and "@" not in item.nodeid
+    ]
+    if lost:
+        raise pytest.UsageError(
+            f"{len(lost)} tests lost their xdist group (e.g. {lost[0]}): check the pytest and "
+            "pytest-xdist versions (pyproject.toml) and that the hooks adding groups run first"
+        )

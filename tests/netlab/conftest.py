@@ -20,6 +20,7 @@ WHY_NOT = why_no_lab()
 ARMS = 5
 
 
+@pytest.hookimpl(tryfirst=True)  # before xdist's own, which reads the groups
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """Every lab test in one xdist group (one worker builds the shared lab once, and its fault
     timings are not shared with another lab); skipped, with the reason, where namespaces cannot
