@@ -102,7 +102,9 @@ def test_unlike_arms_move_freely_and_calibration_recovers_their_constants(
     (joint,) = saved["joints"]
     for mode in ("mode0", "mode1"):
         assert joint[mode]["rate_deg_s"] == pytest.approx(60.0, rel=0.1), h.log("calibrate")
-        assert joint[mode]["lag_s"] < 0.03 and joint[mode]["dead_s"] < 0.05
+        # a1 has no lag: what is fitted is the timing noise of 10 Hz reports on a shared host
+        # (0.036-0.040 s at load 5-10), bounded by half a report period; a2's lag is 0.4 s.
+        assert joint[mode]["lag_s"] < 0.05 and joint[mode]["dead_s"] < 0.05
     # Joint 0 only: the model is partial, never "calibrated" (it read calibrated, issue 26),
     # and the agent's diag names the joints that are not.
     wait_until(lambda: client.snapshot()["a1"][0].contact_model == "partial", 5.0)
