@@ -38,7 +38,6 @@ from edge_agent.holds import hold_command
 from edge_agent.inbox import CommandInbox, InboxCounters, IncomingQuery, SafetyInbox
 from edge_agent.latches import LatchStore, default_state_dir
 from edge_agent.link import DdsLink
-from edge_agent.origins import FeedbackWriter
 from edge_agent.relay import JSON, ZenohRelay, principal_of
 from edge_agent.safety import ArmSafety
 from edge_agent.scheduler import StartScheduler
@@ -55,6 +54,7 @@ from fleet.devices.base import DeviceReply
 from fleet.files import FILE_TIMEOUT_S, FileWatcher
 from fleet.guard import ThreadGuard
 from fleet.inventory import Inventory
+from fleet.origin.trust import SampleWriter
 from fleet.wire import keys
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, encode
@@ -254,7 +254,7 @@ class EdgeAgent:
     # ------------------------------------------------------------------ the relay thread
 
     def _on_feedback(
-        self, arm: str, text: bytes, now: float, writer: FeedbackWriter | None = None
+        self, arm: str, text: bytes, now: float, writer: SampleWriter | None = None
     ) -> None:
         stamp_ns = time.time_ns()
         pubs = self.relay.publishers[arm]
