@@ -212,7 +212,8 @@ class EdgeAgent:
             return stop is not None, safety.last_reason if stop is not None else None
 
         factory = kind_of(config).load("agent")
-        driver = factory(config, self.link.participant, self.relay.device_put(device), latch)
+        put = self.relay.device_put(device)
+        driver = factory(config, self.link.participant, self.link.directory, put, latch)
         return DeviceSlot(kind, driver, safety, getattr(config, "mount", ""))
 
     def _on_device(self, device: str, now: float) -> None:
@@ -387,6 +388,8 @@ class EdgeAgent:
             feedback_rate_hz=health.rate_hz,
             last_feedback_age_s=health.age_s,
             last_error=(last_error or health.last_error),
+            foreign_feedback=health.foreign,
+            implausible_feedback=health.implausible,
             bad_payloads=counters.bad_payloads,
             undecodable_stops=counters.undecodable_stops,
             busy=counters.busy,
