@@ -38,7 +38,6 @@ from edge_agent.holds import hold_command
 from edge_agent.inbox import CommandInbox, InboxCounters, IncomingQuery, SafetyInbox
 from edge_agent.latches import LatchStore, default_state_dir
 from edge_agent.link import DdsLink
-from edge_agent.origins import FeedbackWriter
 from edge_agent.relay import JSON, ZenohRelay, principal_of
 from edge_agent.safety import ArmSafety
 from edge_agent.scheduler import StartScheduler
@@ -55,6 +54,7 @@ from fleet.devices.base import DeviceReply
 from fleet.files import FILE_TIMEOUT_S, FileWatcher
 from fleet.guard import ThreadGuard
 from fleet.inventory import Inventory
+from fleet.origin.trust import SampleWriter
 from fleet.wire import keys
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, encode
@@ -212,7 +212,8 @@ class EdgeAgent:
             return stop is not None, safety.last_reason if stop is not None else None
 
         factory = kind_of(config).load("agent")
-        driver = factory(config, self.link.participant, self.relay.device_put(device), latch)
+        put = self.relay.device_put(device)
+        driver = factory(config, self.link.participant, self.link.directory, put, latch)
         return DeviceSlot(kind, driver, safety, getattr(config, "mount", ""))
 
     def _on_device(self, device: str, now: float) -> None:
@@ -254,7 +255,7 @@ class EdgeAgent:
     # ------------------------------------------------------------------ the relay thread
 
     def _on_feedback(
-        self, arm: str, text: bytes, now: float, writer: FeedbackWriter | None = None
+        self, arm: str, text: bytes, now: float, writer: SampleWriter | None = None
     ) -> None:
         stamp_ns = time.time_ns()
         pubs = self.relay.publishers[arm]
@@ -387,6 +388,8 @@ class EdgeAgent:
             feedback_rate_hz=health.rate_hz,
             last_feedback_age_s=health.age_s,
             last_error=(last_error or health.last_error),
+            foreign_feedback=health.foreign,
+            implausible_feedback=health.implausible,
             bad_payloads=counters.bad_payloads,
             undecodable_stops=counters.undecodable_stops,
             busy=counters.busy,

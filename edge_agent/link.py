@@ -38,18 +38,19 @@ from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 
-from edge_agent.origins import FeedbackWriter, WriterDirectory
 from fleet.d1 import dds
 from fleet.devices.driver import DeviceDriver
 from fleet.guard import ThreadGuard
 from fleet.inventory import DdsNetwork
+from fleet.origin.directory import WriterDirectory
+from fleet.origin.trust import SampleWriter
 
 log = logging.getLogger("edge_agent.link")
 
 TAKE_BATCH = 64
 ANY_SAMPLE = SampleState.Any | ViewState.Any | InstanceState.Any
 
-FeedbackHandler = Callable[[str, bytes, float, "FeedbackWriter | None"], None]
+FeedbackHandler = Callable[[str, bytes, float, "SampleWriter | None"], None]
 """(arm id, feedback text as UTF-8 bytes, monotonic receive time, the DDS writer and its host)."""
 BadSampleHandler = Callable[[str, str], None]
 """(arm id, why the sample is not an ArmString_)."""
@@ -134,7 +135,8 @@ class DdsLink:
         self._drivers: dict[str, DeviceDriver] = {}
         self._on_device: DeviceHandler = lambda _device, _now: None
         self._ready: ReadySet | None = None
-        self._directory = WriterDirectory(participant)
+        self.directory = WriterDirectory(participant)
+        """Who wrote a sample (the arms' feedback and the drivers' state; relay thread)."""
         self._stop = threading.Event()
         self._thread = guard.thread(self._run, "relay")
 
@@ -201,7 +203,7 @@ class DdsLink:
             except ValueError as exc:
                 self._on_bad_sample(arm, str(exc))
                 continue
-            writer = self._directory.identify(reader, int(info.publication_handle))
+            writer = self.directory.identify(reader, int(info.publication_handle))
             self._on_feedback(arm, text, now, writer)
 
     def close(self) -> None:

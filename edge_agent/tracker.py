@@ -10,12 +10,12 @@ import logging
 from collections import deque
 from dataclasses import dataclass, field
 
-from edge_agent.origins import FeedbackWriter
 from edge_agent.safety import ArmSafety
 from edge_agent.sag import SagCheck
 from fleet.d1 import protocol as p
 from fleet.d1.errors import MalformedMessage, UnknownMessage
 from fleet.inventory import ArmConfig
+from fleet.origin.trust import OriginFilter, SampleWriter, SpeedCheck
 from fleet.wire.messages import ArmStatus, ContactModel, Diag, LinkState
 
 log = logging.getLogger("edge_agent.tracker")
@@ -81,15 +81,21 @@ class ArmTracker:
     sag: SagCheck = field(default_factory=SagCheck)
     """Whether the arm holds its pose after an enable (``sag.py``)."""
     _angle_times: deque[float] = field(default_factory=lambda: deque(maxlen=RATE_WINDOW))
-    _host: str | None = None
-    _host_s: float | None = None
-    """The arm's host (of the first writer heard) and when the arm last spoke from it."""
-    _owners: dict[type, tuple[FeedbackWriter, float]] = field(default_factory=dict)
-    """Periodic report kind -> the writer that sends it and when it last did."""
-    _jumps: list[tuple[tuple[float, ...], float]] = field(default_factory=list)
+    _origins: OriginFilter = field(init=False)
+    _speed: SpeedCheck = field(init=False)
 
     def __post_init__(self) -> None:
         self.safety = ArmSafety(self.config.lease_s, self.config.watchdog_s)
+        whose = f"arm {self.config.id!r}"
+        self._origins = OriginFilter(whose, self.config.link_lost_s)
+        self._speed = SpeedCheck(
+            whose,
+            self.config.max_speed_deg_s,
+            "deg",
+            NOMINAL_PERIOD_S,
+            JUMP_MARGIN_DEG,
+            REANCHOR_REPORTS,
+        )
 
     @property
     def estopped(self) -> bool:
@@ -97,7 +103,7 @@ class ArmTracker:
         return self.safety.latched
 
     def on_feedback(
-        self, text: str | bytes, now: float, writer: FeedbackWriter | None = None
+        self, text: str | bytes, now: float, writer: SampleWriter | None = None
     ) -> p.Decoded | None:
         """Decode one feedback string and update the state; None (and counted) if malformed,
         from a second writer, or an implausible jump."""
@@ -136,61 +142,26 @@ class ArmTracker:
             self.motors_ok = message.motors_ok
         return decoded
 
-    def _from_the_arm(self, writer: FeedbackWriter | None, kind: type, now: float) -> bool:
-        """Whether ``writer`` is one of the arm's own writers for a message of ``kind``.
-
-        The arm publishes its feedback from several services (seed 000: three participants on
-        its card), so trust goes to its *host*: the host of the first writer heard, kept while
-        the arm speaks from it (a replaced arm's host takes over once the old one was silent
-        for ``link_lost_s``). On that host each periodic report (angles, status, motors) has
-        one writer, the first heard, kept while it speaks: a second writer of angles even on
-        the arm's own host (a rogue process beside the arm's services) is foreign. Acks may
-        come from any writer on the arm's host (one service acks a move, another an enable).
-        The speed-plausibility check (``_plausible``) still runs on what is accepted."""
-        if writer is None:
+    def _from_the_arm(self, writer: SampleWriter | None, kind: type, now: float) -> bool:
+        """Whether ``writer`` is one of the arm's own writers for a message of ``kind``
+        (``fleet/origin/trust.py``: the arm's host, and on it one writer per periodic report;
+        acks from any writer on the host). Seed 000's driver publishes from three services,
+        three participants on the arm's card: trust goes to its host, not to one writer."""
+        why = self._origins.refusal(writer, kind.__name__, kind in PERIODIC, now)
+        if why is None:
             return True
-        lost = self.config.link_lost_s
-        if self._host_s is None or now - self._host_s > lost:
-            self._host, self._owners = writer.host, {}
-        if writer.host != self._host:
-            return self._foreign(f"from host {writer.host!r}, not the arm's {self._host!r}")
-        if kind in PERIODIC:
-            owner = self._owners.get(kind)
-            if owner is not None and owner[0].handle != writer.handle and now - owner[1] <= lost:
-                return self._foreign(f"a second writer of {kind.__name__} on the arm's host")
-            self._owners[kind] = (writer, now)
-        self._host_s = now
-        return True
-
-    def _foreign(self, why: str) -> bool:
         self.foreign += 1
-        self.last_error = f"feedback {why} was ignored (a rogue participant on the arm's network?)"
+        self.last_error = why
         return False
 
     def _plausible(self, angles: tuple[float, ...], now: float) -> bool:
         """False for a report that jumps further than ``max_speed_deg_s`` allows since the
         last accepted one, unless REANCHOR_REPORTS such reports agree with each other."""
-        last, last_s = self.angles_deg, self.angles_s
-        if last is None or last_s is None:
-            return True
-        limit = self.config.max_speed_deg_s * max(now - last_s, NOMINAL_PERIOD_S)
-        if _jump(angles, last) <= limit + JUMP_MARGIN_DEG:
-            self._jumps.clear()
-            return True
-        if self._jumps:
-            previous, previous_s = self._jumps[-1]
-            step = self.config.max_speed_deg_s * max(now - previous_s, NOMINAL_PERIOD_S)
-            if _jump(angles, previous) > step + JUMP_MARGIN_DEG:
-                self._jumps.clear()
-        self._jumps.append((angles, now))
-        if len(self._jumps) >= REANCHOR_REPORTS:
-            self._jumps.clear()
+        why = self._speed.refusal(angles, now)
+        if why is None:
             return True
         self.implausible += 1
-        self.last_error = (
-            f"an angle report jumped {_jump(angles, last):.0f} deg, faster than "
-            f"{self.config.max_speed_deg_s:g} deg/s: ignored (a sensor fault or a forgery)"
-        )
+        self.last_error = why
         return False
 
     def update_link(self, now: float) -> bool:
@@ -263,7 +234,3 @@ class ArmTracker:
             contact_free_moves=self.contact_free_moves,
             contact_model_error_deg=self.contact_model_error_deg,
         )
-
-
-def _jump(a: tuple[float, ...], b: tuple[float, ...]) -> float:
-    return max((abs(x - y) for x, y in zip(a, b, strict=False)), default=0.0)

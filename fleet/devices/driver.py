@@ -17,6 +17,13 @@ The core calls a driver from three threads:
 It publishes its state and events through ``Put`` (the core owns the Zenoh session) and reads
 the latch only through ``LatchView`` (the core's, for its state payload). A driver never
 imports the core.
+
+Trust: any participant on a device's DDS network can write its state topics. A driver takes a
+state sample only from the device's own writer (``fleet/origin/trust.py``, the rule an arm's
+feedback follows: the device's host, and on it the first writer of each state topic; the
+``WriterDirectory`` the core shares names a writer's host); other samples are counted
+(``foreign``) and never reach the relay, grip detection, a hold's target or a stop's
+confirmation.
 """
 
 from __future__ import annotations
@@ -28,6 +35,8 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 from fleet.devices.base import DeviceReply
+from fleet.origin.directory import WriterDirectory
+from fleet.origin.trust import OriginFilter
 from fleet.wire import messages as m
 from fleet.wire.payloads import PayloadKind
 
@@ -61,6 +70,10 @@ class DriverHealth:
     rejected: int
     timeouts: int
     last_error: str | None
+    foreign: int = 0
+    """State samples from a writer that is not the device's own (dropped)."""
+    implausible: int = 0
+    """Readings that moved faster than the device can (dropped)."""
 
 
 class DeviceDriver(Protocol):
@@ -110,13 +123,22 @@ class DeviceDriver(Protocol):
 
 class DriverBase:
     """What every driver shares: its device id, put, latch view, the lock over its readings and
-    counters, and the DDS sample rate."""
+    counters, the DDS sample rate and which state writers are the device's own."""
 
     def __init__(
-        self, device: str, put: Put, latch: LatchView, counters: tuple[str, ...], stale_s: float
+        self,
+        device: str,
+        put: Put,
+        latch: LatchView,
+        counters: tuple[str, ...],
+        stale_s: float,
+        directory: WriterDirectory,
     ) -> None:
         self.device = device
         self._stale_s = stale_s
+        self._directory = directory
+        self._origins = OriginFilter(f"device {device!r}", stale_s)
+        """The device's own state writers (relay thread only)."""
         self._latest: tuple[Any, float] | None = None
         """The newest reading and when it arrived (monotonic s); the kind fills it in."""
         self._put = put
@@ -130,6 +152,8 @@ class DriverBase:
                 "commands",
                 "rejected",
                 "timeouts",
+                "foreign",
+                "implausible",
                 *counters,
             ),
             0,
@@ -139,6 +163,19 @@ class DriverBase:
         self._last_error: str | None = None
         self._stop_written_s: float | None = None
         """When the current stop's action was first written (None: not yet, or no stop)."""
+
+    def _from_the_device(self, reader: Any, handle: int, topic: str, now_s: float) -> bool:
+        """Whether the writer ``handle`` of a sample on ``reader`` (its ``topic``, a periodic
+        state) is the device's own; a foreign sample is counted, its reason kept as the last
+        error (relay thread)."""
+        writer = self._directory.identify(reader, handle)
+        why = self._origins.refusal(writer, topic, True, now_s)
+        if why is None:
+            return True
+        with self._lock:
+            self._counts["foreign"] += 1
+            self._last_error = why
+        return False
 
     def _update_rate(self, now_s: float) -> None:
         """The DDS sample rate over the last second (caller holds ``_lock``)."""
@@ -184,6 +221,8 @@ class DriverBase:
                 rejected=c["rejected"],
                 timeouts=c["timeouts"],
                 last_error=self._last_error,
+                foreign=c["foreign"],
+                implausible=c["implausible"],
             )
 
     def counters(self) -> dict[str, int]:

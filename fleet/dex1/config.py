@@ -48,6 +48,10 @@ class GripperConfig(DeviceBase, frozen=True, forbid_unknown_fields=True, kw_only
     release_error_rad: float = 0.1
     """A grip ends when the error stays below this (or the target opens) for release_s."""
     release_s: float = 0.1
+    max_speed_rad_s: float = 20.0
+    """A position that moved faster than this since the last one is a sensor fault or a
+    forgery, dropped (``diag.implausible_feedback``) unless it persists: a full stroke in
+    0.3 s, about three times the simulator's ``sim_speed_rad_s``."""
     sim_rate_hz: float = 500.0
     """Simulator only: its state rate."""
     sim_speed_rad_s: float = 6.0
@@ -89,6 +93,8 @@ def check_gripper(config: GripperConfig) -> str | None:
         return "need 0 < release_error_rad < grip_error_rad"
     if min(config.grip_speed_rad_s, config.grip_confirm_s, config.release_s) <= 0:
         return "grip_speed_rad_s, grip_confirm_s and release_s must be positive"
+    if not config.max_speed_rad_s > 0:
+        return "max_speed_rad_s must be positive"
     if not 10.0 <= config.sim_rate_hz <= 2000.0 or config.sim_speed_rad_s <= 0:
         return "sim_rate_hz must be within 10..2000 and sim_speed_rad_s positive"
     if not 0 < config.link_stale_s <= 10:

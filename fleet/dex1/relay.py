@@ -6,6 +6,12 @@ The state reader is not waited on: ``tick`` polls it at the relay's grid (at mos
 uses from the serialized bytes (``codec.CDR_READERS``). A 500 Hz stream costs 50 wake-ups a
 second, not 500 plus the ticks between them (the devices benchmark: docs/results/bench.md).
 
+Only the gripper's own samples count (``fleet/devices/driver.py``: its host, and on it the
+first writer of its state topic), and only positions it can reach: a jump faster than
+``max_speed_rad_s`` is dropped and counted (``implausible``) unless ``REANCHOR_SAMPLES`` in a
+row agree (``fleet/origin/trust.py``, the arm's rule). A forged or glitched position never
+reaches the relay, grip detection, a hold's target or the stop's confirmation.
+
 Threads and locks: ``fleet/devices/driver.py`` (``_lock`` also guards the target; the core's
 write lock of the device serializes every write with the stop's).
 """
@@ -41,6 +47,8 @@ from fleet.dex1.codec import (
 from fleet.dex1.config import GripperConfig
 from fleet.dex1.grip import GripChange, GripDetector
 from fleet.dex1.messages import GripEvent, GripperHold, GripperMove, GripperState
+from fleet.origin.directory import WriterDirectory
+from fleet.origin.trust import SpeedCheck
 from fleet.wire import keys
 from fleet.wire import messages as m
 from fleet.wire.payloads import GRIPPER_COMMAND
@@ -58,6 +66,13 @@ ANY_SAMPLE = SampleState.Any | ViewState.Any | InstanceState.Any
 COMMAND = GRIPPER_COMMAND
 STILL_RAD_S = 0.05
 """A held gripper is confirmed still below this speed (measured over 20 ms)."""
+NOMINAL_PERIOD_S = 1.0 / 500.0
+"""The Dex1-1 reports at up to 500 Hz: two samples are at least about this far apart."""
+JUMP_MARGIN_RAD = 0.05
+"""Noise a position may add on top of the fastest motion."""
+REANCHOR_SAMPLES = 10
+"""Consecutive positions that agree with each other but not with the one before them (20 ms
+at 500 Hz) are a real jump: the position follows them."""
 
 
 class GripperDriver(DriverBase):
@@ -66,8 +81,15 @@ class GripperDriver(DriverBase):
     stop_action = "hold"
     commands = COMMAND
 
-    def __init__(self, config: GripperConfig, participant: Any, put: Put, latch: LatchView) -> None:
-        super().__init__(config.id, put, latch, (), config.link_stale_s)
+    def __init__(
+        self,
+        config: GripperConfig,
+        participant: Any,
+        directory: WriterDirectory,
+        put: Put,
+        latch: LatchView,
+    ) -> None:
+        super().__init__(config.id, put, latch, (), config.link_stale_s, directory)
         self.config = config
         cmd_type, state_type = idl.FAMILIES[config.family]
         state_topic = Topic(participant, config.state_topic, state_type)
@@ -94,6 +116,15 @@ class GripperDriver(DriverBase):
         self._fresh = False  # a sample arrived since the last put
         self._next_put_s = 0.0
         self._target: float | None = None
+        self._speed = SpeedCheck(
+            f"gripper {config.id!r}",
+            config.max_speed_rad_s,
+            "rad",
+            NOMINAL_PERIOD_S,
+            JUMP_MARGIN_RAD,
+            REANCHOR_SAMPLES,
+        )
+        """Positions the Dex1-1 can reach (relay thread only)."""
 
     # ------------------------------------------------------------------ relay thread
 
@@ -109,13 +140,20 @@ class GripperDriver(DriverBase):
         if isinstance(taken, int):
             raise DDSException(taken, f"taking the state of gripper {self.device}")
         # A writer that went away leaves an invalid sample: no data, only a state change.
-        valid = [(data, int(info.source_timestamp)) for data, info in taken if info.valid_data]
+        # Another writer's sample is foreign (counted by ``_from_the_device``), never used.
+        topic, reader = self.config.state_topic, self._reader
+        valid = [
+            (data, int(info.source_timestamp))
+            for data, info in taken
+            if info.valid_data
+            and self._from_the_device(reader, int(info.publication_handle), topic, now_s)
+        ]
         if not valid:
             return
         newest_ns = max(stamp for _data, stamp in valid)
         family, on_sample = self.config.family, self._grip.on_sample
         changes: list[GripChange] = []
-        bad, last, at_s = 0, None, 0.0
+        bad, jumps, last, at_s, why = 0, 0, None, 0.0, None
         for serialized, stamp in valid:  # reception order
             try:
                 q_rad = self._position(serialized, family)
@@ -127,7 +165,12 @@ class GripperDriver(DriverBase):
             # differences of one clock are used; bounded and monotonic, so a forged stamp is
             # harmless).
             age_s = min(max((newest_ns - stamp) * 1e-9, 0.0), BATCH_SPAN_S)
-            at_s = max(at_s, now_s - age_s)
+            sample_s = max(at_s, now_s - age_s)
+            implausible = self._speed.refusal((q_rad,), sample_s)
+            if implausible is not None:
+                jumps, why = jumps + 1, implausible
+                continue
+            at_s = sample_s
             change = on_sample(q_rad, at_s)
             if change is not None:
                 changes.append(change)
@@ -141,9 +184,12 @@ class GripperDriver(DriverBase):
                 log.debug("gripper %s: bad state sample: %s", self.device, exc)
         with self._lock:
             self._counts["bad_samples"] += bad
-            self._counts["dds_samples"] += len(valid) - bad
+            self._counts["implausible"] += jumps
+            self._counts["dds_samples"] += len(valid) - bad - jumps
             if bad:
                 self._last_error = f"{bad} state samples did not decode"
+            if why is not None:
+                self._last_error = why
             if reading is not None:
                 self._latest, self._fresh = (reading, at_s), True
         tau_est = reading.tau_est if reading is not None else 0.0

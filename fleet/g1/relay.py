@@ -1,6 +1,9 @@
 """The agent's side of one G1: ``rt/sportmodestate`` relayed with the FSM named, LocoClient
 calls over DDS RPC (checked first: bounds, seed 004's dynamic-state rule, the stop latch),
-and the stop action confirmed from sportmodestate.
+and the stop action confirmed from sportmodestate. Only the robot's own sportmodestate and
+rt/lowstate samples count (``fleet/devices/driver.py``: its host, and on it the first writer of
+each topic): a forged state never confirms a stop, allows an FSM-gated call or becomes the pose
+the arms' stream starts from; other writers' samples are counted (``foreign``) and dropped.
 
 Threads as for every device (``fleet/devices/driver.py``). RPC: one long-lived request writer
 and response reader; each call gets a fresh request id, and its answer is matched by that id
@@ -56,6 +59,7 @@ from fleet.g1.messages import (
     WaveHand,
 )
 from fleet.g1.probe import ServiceProbe
+from fleet.origin.directory import WriterDirectory
 from fleet.wire import keys
 from fleet.wire import messages as m
 from fleet.wire.payloads import G1_COMMAND
@@ -104,8 +108,16 @@ class G1Driver(DriverBase):
 
     commands = COMMAND
 
-    def __init__(self, config: G1Config, participant: Any, put: Put, latch: LatchView) -> None:
-        super().__init__(config.id, put, latch, ("rpc_calls", "unmatched"), config.link_stale_s)
+    def __init__(
+        self,
+        config: G1Config,
+        participant: Any,
+        directory: WriterDirectory,
+        put: Put,
+        latch: LatchView,
+    ) -> None:
+        counters = ("rpc_calls", "unmatched")
+        super().__init__(config.id, put, latch, counters, config.link_stale_s, directory)
         self.config = config
         self.stop_action = config.stop_action
         state = Topic(participant, loco.STATE_TOPIC, idl.SportModeState_)
@@ -146,9 +158,11 @@ class G1Driver(DriverBase):
         """State samples (newest kept; stop confirmation), rt/lowstate (newest kept, checked
         when used) or RPC responses (matched by id)."""
         if index == self._low_index:
-            newest = None
-            for sample in self.readers[index].take(N=64):
-                if isinstance(sample, idl.LowState_):
+            newest, reader = None, self.readers[index]
+            for sample in reader.take(N=64):
+                if isinstance(sample, idl.LowState_) and self._own(
+                    reader, sample, arms.LOWSTATE_TOPIC, now_s
+                ):
                     newest = sample
             if newest is not None:
                 with self._lock:
@@ -162,6 +176,8 @@ class G1Driver(DriverBase):
                 with self._lock:
                     self._counts["bad_samples"] += int(hasattr(sample, "__idl_typename__"))
                 continue
+            if not self._own(self._state_reader, sample, loco.STATE_TOPIC, now_s):
+                continue
             with self._lock:
                 self._counts["dds_samples"] += 1
                 old = self._latest[0] if self._latest is not None else None
@@ -170,6 +186,11 @@ class G1Driver(DriverBase):
                 self._latest = (sample, now_s)
                 if self._stop_written_s is not None and now_s > self._stop_written_s:
                     self._confirming = self._confirming + 1 if self._stopped(sample) else 0
+
+    def _own(self, reader: DataReader, sample: Any, topic: str, now_s: float) -> bool:
+        """``sample`` (a valid one, from ``reader.take`` on ``topic``) is the robot's own."""
+        handle = int(sample.sample_info.publication_handle)
+        return self._from_the_device(reader, handle, topic, now_s)
 
     def _stopped(self, sample: idl.SportModeState_) -> bool:
         if self.stop_action == "damp":

@@ -9,10 +9,10 @@ import pytest
 
 from edge_agent.commands import InFlight, Plan, Refused, plan
 from edge_agent.holds import clamp_to_limits
-from edge_agent.origins import FeedbackWriter
 from edge_agent.tracker import ArmTracker
 from fleet.d1 import protocol as p
 from fleet.inventory import ArmConfig
+from fleet.origin.trust import SampleWriter
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode
 
@@ -557,7 +557,7 @@ def test_the_arms_own_writers_on_its_host_are_trusted_a_second_angle_writer_is_n
     """Seed 000's driver publishes rt/arm_Feedback from three services (three participants on
     the arm's card): angles from one, acks from another, status from a third all count."""
     tracker = ArmTracker(ArmConfig(id="a1"))
-    angles, acks, status = (FeedbackWriter(h, ARM_HOST) for h in (7, 8, 9))
+    angles, acks, status = (SampleWriter(h, ARM_HOST) for h in (7, 8, 9))
     assert tracker.on_feedback(_feedback(HOME), 0.0, angles) is not None
     assert tracker.on_feedback(_text(p.ReceiveAck(4, True)), 0.02, acks) is not None
     assert tracker.on_feedback(_text(p.ExecuteAck(4, True)), 0.03, status) is not None
@@ -568,7 +568,7 @@ def test_the_arms_own_writers_on_its_host_are_trusted_a_second_angle_writer_is_n
     forged = (80.0, 30.0, 30.0, 0.0, 0.0, 0.0, 10.0)
     assert tracker.on_feedback(_feedback(forged), 0.06, acks) is None
     # Any writer on another host (a rogue participant elsewhere on the arm's network).
-    rogue = FeedbackWriter(11, "laptop udp/192.168.123.50")
+    rogue = SampleWriter(11, "laptop udp/192.168.123.50")
     assert tracker.on_feedback(_text(p.ExecuteAck(5, True)), 0.07, rogue) is None
     assert tracker.on_feedback(status_text, 0.08, rogue) is None
     assert tracker.foreign == 3 and tracker.angles_deg == HOME
@@ -588,11 +588,11 @@ def test_the_arms_own_writers_on_its_host_are_trusted_a_second_angle_writer_is_n
 def test_writers_of_no_named_host_are_one_group() -> None:
     """A participant that announces no host (another DDS vendor): such writers are one host."""
     tracker = ArmTracker(ArmConfig(id="a1"))
-    assert tracker.on_feedback(_feedback(HOME), 0.0, FeedbackWriter(7, None)) is not None
-    assert tracker.on_feedback(_text(p.ExecuteAck(4, True)), 0.1, FeedbackWriter(8, None))
+    assert tracker.on_feedback(_feedback(HOME), 0.0, SampleWriter(7, None)) is not None
+    assert tracker.on_feedback(_text(p.ExecuteAck(4, True)), 0.1, SampleWriter(8, None))
     forged = (80.0, 30.0, 30.0, 0.0, 0.0, 0.0, 10.0)
-    assert tracker.on_feedback(_feedback(forged), 0.2, FeedbackWriter(9, None)) is None
-    assert tracker.on_feedback(_feedback(HOME), 0.3, FeedbackWriter(9, ARM_HOST)) is None
+    assert tracker.on_feedback(_feedback(forged), 0.2, SampleWriter(9, None)) is None
+    assert tracker.on_feedback(_feedback(HOME), 0.3, SampleWriter(9, ARM_HOST)) is None
     assert tracker.foreign == 2
 
 

@@ -1,9 +1,10 @@
-"""Who wrote a feedback sample: the DDS writer's handle and the host of its participant.
+"""Who wrote a sample: the DDS writer's handle and the host of its participant.
 
 The D1's own driver publishes ``rt/arm_Feedback`` from three services (seed 000:
 marm_communication, marm_control and marm_controller, three processes on the arm's card, so
 three DDS participants): the agent cannot trust only the first writer it hears. It trusts the
-arm's *host* instead (``tracker.py`` decides), and this module says which host a writer is on.
+robot's *host* instead (``trust.py`` decides, for an arm's feedback and a device's state
+alike), and this module says which host a writer is on.
 
 CycloneDDS (which Unitree's SDK is built on) announces every participant with the properties
 ``__Hostname`` and ``__NetworkAddresses`` (``udp/192.168.123.100:7410@1``). The host of a writer
@@ -19,42 +20,33 @@ created), then the answer is cached by the writer's handle.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 from cyclonedds.builtin import BuiltinDataReader, BuiltinTopicDcpsParticipant, DcpsParticipant
 from cyclonedds.core import DDSException, Policy
 from cyclonedds.sub import DataReader
+
+from fleet.origin.trust import SampleWriter
 
 RESOLVE_TRIES = 50
 """Samples of a writer whose participant is not known yet (discovery still under way) before
 its host is taken as unknown for good."""
 
 
-@dataclass(frozen=True)
-class FeedbackWriter:
-    """One DDS writer on an arm's feedback topic."""
-
-    handle: int
-    host: str | None
-    """Host name and addresses of its participant (None: it announced none)."""
-
-
 class WriterDirectory:
-    """Maps a writer's instance handle to a ``FeedbackWriter`` (relay thread only)."""
+    """Maps a writer's instance handle to a ``SampleWriter`` (relay thread only)."""
 
     def __init__(self, participant: object) -> None:
         self._participants = BuiltinDataReader(participant, BuiltinTopicDcpsParticipant)  # type: ignore[arg-type]
         self._hosts: dict[object, str | None] = {}
-        self._writers: dict[int, FeedbackWriter] = {}
+        self._writers: dict[int, SampleWriter] = {}
         self._tries: dict[int, int] = {}
 
-    def identify(self, reader: DataReader, handle: int) -> FeedbackWriter:
+    def identify(self, reader: DataReader, handle: int) -> SampleWriter:
         """The writer ``handle`` matched with ``reader``, with its host when known."""
         known = self._writers.get(handle)
         if known is not None:
             return known
         host, resolved = self._host_of(reader, handle)
-        writer = FeedbackWriter(handle, host)
+        writer = SampleWriter(handle, host)
         tries = self._tries.get(handle, 0) + 1
         if resolved or tries >= RESOLVE_TRIES:
             self._writers[handle] = writer

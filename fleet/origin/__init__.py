@@ -1,0 +1,1 @@
+"""Who wrote a DDS sample, and whether the agent trusts it: one policy for arms and devices."""
