@@ -44,9 +44,10 @@ lint: $(STAMP)
 	$(BIN)/ruff format --check fleet edge_agent viewer tests testkit bench fuzz
 	$(BIN)/mypy fleet/wire fleet/d1
 
-# Everything: lint, then unit, e2e, browser and netlab tests on two workers (browser tests share
-# one worker, netlab tests another: --dist loadgroup). 13-15 minutes on a 2-core machine.
-TEST_WORKERS ?= 2
+# Everything: lint, then unit, e2e, browser and netlab tests on three workers (the browser tests
+# share one, the netlab tests another, --dist loadgroup; most tests wait on real processes and
+# clocks, so a third worker on 2 cores gains more than it loads). About 10 minutes on 2 cores.
+TEST_WORKERS ?= 3
 test: $(STAMP) lint
 	sh scripts/ensure-chromium
 	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadgroup --durations=40
