@@ -32,7 +32,12 @@ def start_three(h: FleetHarness, coordinator: bool = True) -> FleetClient:
     client = h.client()
     wait_until(lambda: h.all_links_ok(client), 30.0)
     if coordinator:
-        wait_until(lambda: _state(client) is not None, 10.0)
+        # The coordinator's own view (a synchronized move is refused while it knows no link).
+        wait_until(
+            lambda: (s := _state(client)) is not None
+            and all(a.online and a.link == "ok" for a in s.arms.values()),
+            10.0,
+        )
     return client
 
 

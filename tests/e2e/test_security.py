@@ -147,9 +147,14 @@ def test_a_lease_cannot_be_released_or_taken_by_another_principal(secure: FleetH
     operator, maintainer = secure.client(), secure.client("maintainer")
     # From a2 unlatched: an earlier test of this fleet may have left it stopped (at load 20 a
     # coordinator's heartbeat gap trips the watchdog of an arm it commanded), not our subject.
+    # And with its lease free: a synchronized move of an earlier test leaves the coordinator's
+    # lease on it until it expires (lease_s, 3 s).
     operator.reset("a2")
     wait_until(
-        lambda: (s := operator.snapshot(["a2"])["a2"][0]) is not None and not s.estopped, 5.0
+        lambda: (s := operator.snapshot(["a2"])["a2"][0]) is not None
+        and not s.estopped
+        and s.owner is None,
+        10.0,
     )
     assert operator.command("a2", m.MoveJoint(joint=0, angle_deg=4.0, owner="ann")).ok
     refused = maintainer.command("a2", m.MoveJoint(joint=0, angle_deg=20.0, owner="bob"))
