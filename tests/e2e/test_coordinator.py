@@ -34,8 +34,10 @@ def start_three(h: FleetHarness, coordinator: bool = True) -> FleetClient:
     if coordinator:
         # The coordinator's own view (a synchronized move is refused while it knows no link).
         wait_until(
-            lambda: (s := _state(client)) is not None
-            and all(a.online and a.link == "ok" for a in s.arms.values()),
+            lambda: (
+                (s := _state(client)) is not None
+                and all(a.online and a.link == "ok" for a in s.arms.values())
+            ),
             10.0,
         )
     return client

@@ -143,19 +143,25 @@ def test_a_heartbeat_cannot_be_forged_for_another_principal(secure: FleetHarness
     _forged_not_delivered(maintainer, reader, maintainer.keys.heartbeat_of("coordinator"))
 
 
-def test_a_lease_cannot_be_released_or_taken_by_another_principal(secure: FleetHarness) -> None:
-    operator, maintainer = secure.client(), secure.client("maintainer")
-    # From a2 unlatched: an earlier test of this fleet may have left it stopped (at load 20 a
-    # coordinator's heartbeat gap trips the watchdog of an arm it commanded), not our subject.
-    # And with its lease free: a synchronized move of an earlier test leaves the coordinator's
-    # lease on it until it expires (lease_s, 3 s).
-    operator.reset("a2")
+def _free(operator: FleetClient, arm: str) -> None:
+    """``arm`` unlatched and without a lease, as a test of a new owner needs it. An earlier test
+    of this fleet may have left it stopped (at load 20 a coordinator's heartbeat gap trips the
+    watchdog of an arm it commanded) or leased (a synchronized move leaves the coordinator's
+    lease until it expires: lease_s, 3 s); neither is the subject."""
+    operator.reset(arm)
     wait_until(
-        lambda: (s := operator.snapshot(["a2"])["a2"][0]) is not None
-        and not s.estopped
-        and s.owner is None,
+        lambda: (
+            (s := operator.snapshot([arm])[arm][0]) is not None
+            and not s.estopped
+            and s.owner is None
+        ),
         10.0,
     )
+
+
+def test_a_lease_cannot_be_released_or_taken_by_another_principal(secure: FleetHarness) -> None:
+    operator, maintainer = secure.client(), secure.client("maintainer")
+    _free(operator, "a2")
     assert operator.command("a2", m.MoveJoint(joint=0, angle_deg=4.0, owner="ann")).ok
     refused = maintainer.command("a2", m.MoveJoint(joint=0, angle_deg=20.0, owner="bob"))
     assert refused.error is not None and refused.error.code == ErrorCode.LEASE_EXISTS
@@ -172,6 +178,7 @@ def test_a_third_party_beating_a_dead_players_name_does_not_keep_its_arms_unwatc
     operator, maintainer = secure.client(), secure.client("maintainer")
     player = Liveness(operator.session, operator.keys, "player-7", operator.principal)
     impostor = Liveness(maintainer.session, maintainer.keys, "player-7", maintainer.principal)
+    _free(operator, "a1")
     try:
         time.sleep(0.4)  # the agent hears the player before it moves the arm
         move = m.MoveJoint(joint=1, angle_deg=60.0, owner="player-7")
