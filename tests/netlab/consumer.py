@@ -1,4 +1,5 @@
-"""A consumer of the fleet's state, like a viewer: subscribes to every arm's joints and status.
+"""A consumer of the fleet's state, like a viewer: subscribes to every arm's joints and status
+and to every device's state.
 
 ``--slow-s S`` makes it slow (each sample takes S seconds in its callback, which holds up its
 Zenoh session's delivery); the test freezes another one with SIGSTOP.
@@ -16,6 +17,7 @@ import time
 
 import zenoh
 
+from fleet.devices import kind_of
 from fleet.inventory import load_inventory
 from fleet.wire import keys
 from fleet.wire.session import open_client
@@ -42,6 +44,10 @@ def main(argv: list[str] | None = None) -> int:
         subs = [
             session.declare_subscriber(space.all_arms(channel), on_sample)
             for channel in (keys.JOINTS, keys.STATUS)
+        ]
+        subs += [
+            session.declare_subscriber(space.device(kind, "*", keys.STATE), on_sample)
+            for kind in sorted({kind_of(d).key for d in inventory.devices.values()})
         ]
         print("ready", flush=True)
         stop.wait()
