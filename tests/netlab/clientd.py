@@ -4,7 +4,7 @@ on stdin and reads one JSON reply per line on stdout.
 Everything goes through FleetClient's public methods (estop, reset, command, device_command,
 multi, snapshot, device_snapshot, agents_alive); ``watch`` records the joints and status samples
 of the arms and the state samples of the devices it receives, with their arrival time, for the
-relay and standstill measurements; ``diag`` reads one arm's counters.
+relay and standstill measurements; ``diag`` reads one arm's or device's counters.
 
 ``python -m tests.netlab.clientd INVENTORY`` (under ``ip netns exec``).
 """
@@ -247,17 +247,20 @@ class Daemon:
         assert self.watch is not None, "watch_start first"
         return self.watch.take()
 
-    def diag(self, arm: str, wait_s: float = 2.5) -> dict[str, Any]:
-        """The newest Diag of ``arm`` (1 Hz)."""
-        got: list[bytes] = []
+    def diag(self, unit: str, wait_s: float = 2.5, after_ns: int = 0) -> dict[str, Any]:
+        """The newest Diag of arm or device ``unit`` (1 Hz) stamped after ``after_ns``, once
+        one is heard, within ``wait_s`` (None: none)."""
+        got: list[Any] = []
         sub = self.client.session.declare_subscriber(
-            self.client.keys.arm(arm, keys.DIAG), lambda s: got.append(s.payload.to_bytes())
+            self.client.unit_key(unit, keys.DIAG),
+            lambda s: got.append(msgspec.json.decode(s.payload.to_bytes())),
         )
         deadline = time.monotonic() + wait_s
-        while time.monotonic() < deadline and not got:
+        while time.monotonic() < deadline and not any(d["stamp_ns"] > after_ns for d in got):
             time.sleep(0.05)
         sub.undeclare()
-        return {"diag": msgspec.json.decode(got[-1]) if got else None}
+        newer = [d for d in got if d["stamp_ns"] > after_ns]
+        return {"diag": newer[-1] if newer else None}
 
     def load_start(self, rate_hz: float, size: int, for_s: float) -> dict[str, Any]:
         """Publish ``size``-byte samples on the status key of an arm that does not exist

@@ -212,14 +212,16 @@ class LabFleet:
         return client
 
     def start_dds_tool(
-        self, name: str, arm: str, *args: str, wait_ready: bool = True
+        self, name: str, host: str, *args: str, wait_ready: bool = True
     ) -> subprocess.Popen[bytes]:
-        """``ddstool.py`` on ``arm``'s host, on that arm's DDS network; waits until it says it
-        is ready (a spy: matched with the agent's writer; a rogue: with the agent's reader)."""
-        host = self.arms[arm]
+        """``ddstool.py`` on robot host ``host`` (an arm's host is named like the arm; a G1's
+        host of its own like the G1), on that host's DDS network; waits until it says it is
+        ready (a spy: matched with the agent's writer; a rogue or a forger: with the agent's
+        reader)."""
+        card = self.lab.hosts[host]
         argv = ["-m", "tests.netlab.ddstool", *args, "--domain", str(self.lab.domain)]
-        argv += ["--interface", host.interface, "--peer", host.ip]
-        process = self.lab.harness.start(name, argv, prefix=self.lab.prefix(arm), inventory=False)
+        argv += ["--interface", card.interface, "--peer", card.ip]
+        process = self.lab.harness.start(name, argv, prefix=self.lab.prefix(host), inventory=False)
         if wait_ready:
             wait_until(lambda: '"ready"' in self.lab.log(name) or process.poll() is not None, 20.0)
             assert process.poll() is None, self.lab.log(name)
