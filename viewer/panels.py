@@ -369,7 +369,8 @@ class FleetPanels:
             self.events_version = self.events.version
             self.event_log.content = self.events.html()
         if self.replay is not None:
-            self.replay.update()
+            with self.server.atomic():  # its button's label and icon change together
+                self.replay.update()
         has = np.isfinite(snapshot.joints_age_s)
         blocked = snapshot.estopped | ~snapshot.online | snapshot.stale
         for i, panel in enumerate(self.arm_panels):

@@ -80,7 +80,9 @@ class ReplayControls:
         if shown == self._shown:
             return
         self._shown = shown
-        # The icon says what a click does, as the label does (it kept the play icon).
+        # The icon says what a click does, as the label does (it kept the play icon). The
+        # caller groups these updates (server.atomic()): a page that drew the new label under
+        # the old icon for a moment showed "Pause" under a play icon.
         self.play.label = "Pause" if timeline.playing else "Play"
         self.play.icon = viser.Icon.PLAYER_PAUSE if timeline.playing else viser.Icon.PLAYER_PLAY
         self.slider.value = min(max(shown[1], self.slider.min), self.slider.max)
