@@ -31,7 +31,7 @@ from typing import Any
 import pytest
 
 from testkit.harness import wait_until
-from tests.netlab.checks import datagram_linked, percentile, restore
+from tests.netlab.checks import OVERLOADED, datagram_linked, overload, percentile, restore
 from tests.netlab.fleetlab import LabFleet, RemoteClient
 from tests.netlab.labkinds import LAB_KIND_IDS, LAB_KINDS, LabKind, SharedRuns, move_devices
 from tests.netlab.rowreport import RowReport
@@ -59,12 +59,6 @@ AT_0_PCT = (
     "arm's deceleration and its standstill confirmation (three reports at 10 Hz), 470-630 ms "
     "measured, against a 600 ms goal"
 )
-OVERLOADED = 2.0
-"""A missed goal is reported as XFAIL, naming the load, when the load average exceeds this many
-runnable tasks per core: the lab's links are a userspace process and every host's threads share
-the 2 cores, so such a run measures the scheduler (measured at load 11-16: +15-30 ms received
-at 0 % loss; at load 5.5, with the lab's devices beside the arms, received p99 101 ms against
-100, 80 of them the links' own delay), not the network or the stop."""
 """At 30 % the move is started on clean links (a synchronized move through the coordinator is
 not what this row measures); the loss then runs this long before the stop, so the sessions
 carry it (TCP backing off, keep-alives lost) when the stop is put."""
@@ -193,7 +187,7 @@ def test_every_stop_is_confirmed_by_every_unit_under_loss(
     if max(still) > still_goal:
         missed.append(f"still > {still_goal:g} ms")
     load = os.getloadavg()[0]
-    if missed and load > OVERLOADED * (os.cpu_count() or 1):
+    if missed and overload() is not None:
         pytest.xfail(f"{', '.join(missed)} with load average {load:.1f}")
     if missed and loss >= 0.3:
         pytest.xfail(f"{', '.join(missed)} (load average {load:.1f}): {AT_30_PCT}")

