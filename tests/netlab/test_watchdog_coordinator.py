@@ -85,8 +85,16 @@ def _move_under_coordinator(lab1: LabFleet, client: RemoteClient, kind: LabKind)
     client's recording starts just before."""
     if kind.is_arm:
         snap = client.call("snapshot")["arms"]
-        start = {arm: snap[arm][1]["angles_deg"][0] for arm in lab1.arms}
-        target = -120.0 if sum(start.values()) > 0 else 120.0  # a long move: >= 1.3 s
+        start = [snap[arm][1]["angles_deg"][0] for arm in lab1.arms]
+        # A long move (>= 1.3 s) for every arm: an arm already at the target is not moving
+        # under the coordinator when it fails, so nothing watches it (an earlier row can leave
+        # one arm at -120 and the others elsewhere); if no end is far from every arm, from 0.
+        target = max((-120.0, 120.0), key=lambda t: min(abs(t - a) for a in start))
+        if min(abs(target - a) for a in start) < 90.0:
+            home = {"op": "move_joints", "angles_deg": [0.0] * 7, "mode": 1, "wait_reached": True}
+            reply = client.call("multi", target="all", command=home, sync=True)["reply"]
+            assert reply["ok"], reply
+            target = 120.0
         move = {"op": "move_joints", "angles_deg": [target, 0, 0, 0, 0, 0, 0], "mode": 1}
         client.call("watch_take")
         reply = client.call("multi", target="all", command=move, sync=True)["reply"]
