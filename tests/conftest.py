@@ -7,6 +7,7 @@ The helpers are in ``testkit/`` (the process harness: testkit/harness.py)."""
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -14,6 +15,7 @@ import pytest
 
 from testkit.browser import Browser, open_browser
 from testkit.harness import FleetHarness
+from testkit.priority import can_reprioritize, nice_for, set_worker_nice
 
 
 @pytest.fixture
@@ -71,3 +73,14 @@ def pytest_collection_finish(session: pytest.Session) -> None:
             f"{len(lost)} tests lost their xdist group (e.g. {lost[0]}): check the pytest and "
             "pytest-xdist versions (pyproject.toml) and that the hooks adding groups run first"
         )
+
+
+@pytest.hookimpl(tryfirst=True)  # before the fixtures: the processes they start inherit it
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    """Under xdist, tests that measure time (the lab, the browser, ``timing``) run ahead of
+    the other workers' tests (testkit/priority.py)."""
+    if "PYTEST_XDIST_WORKER" not in os.environ or not can_reprioritize():
+        return
+    group = item.get_closest_marker("xdist_group")
+    timing = item.get_closest_marker("timing") is not None
+    set_worker_nice(nice_for(group.args[0] if group else None, timing))

@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 import msgspec
+import pytest
 from mcap.reader import make_reader
 
 from fleet.api import Fleet
@@ -63,6 +64,7 @@ def _angles(client: FleetClient) -> dict[str, list[float]]:
     return {a: j.angles_deg for a, (_s, j) in client.snapshot().items() if j is not None}
 
 
+@pytest.mark.timing
 def test_script_completes_with_every_keyframe_within_tolerance(
     fleet3_harness: FleetHarness,
 ) -> None:
@@ -116,6 +118,7 @@ def test_stop_mid_script_halts_every_arm_and_says_why(fleet3_harness: FleetHarne
     assert client.command("a1", m.MoveJoints(angles_deg=[0.0] * 7)).ok
 
 
+@pytest.mark.timing
 def test_mirror_follows_a_dragged_leader(fleet3_harness: FleetHarness) -> None:
     client = start_three(fleet3_harness)
     mirror = Mirror(client, "a1", parse_mappings(["a2", "a3"], ["a3:0"]))

@@ -93,6 +93,7 @@ def _onset(samples: list[tuple[float, tuple[float, ...]]]) -> float:
     return next(t for t, p in samples if max(abs(a - b) for a, b in zip(p, start)) > MOVED_DEG)
 
 
+@pytest.mark.timing
 def test_g1_arms_follow_the_choreography_beside_a_d1_arm(fleet: FleetHarness) -> None:
     lows, states, joints = _collectors(fleet)
     client = fleet.client()

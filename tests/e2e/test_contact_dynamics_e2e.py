@@ -72,6 +72,7 @@ def _moves(client: FleetClient, arm: str) -> list[m.CommandReply]:
     return replies
 
 
+@pytest.mark.timing
 def test_unlike_arms_move_freely_and_calibration_recovers_their_constants(
     harness: FleetHarness,
 ) -> None:

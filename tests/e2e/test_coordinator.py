@@ -170,6 +170,7 @@ def test_killed_agent_is_offline_within_one_second(fleet3_harness: FleetHarness)
     assert state is not None and state.arms["a1"].online and state.arms["a3"].online
 
 
+@pytest.mark.timing
 def test_synchronized_move_starts_together(fleet3_harness: FleetHarness) -> None:
     client = start_three(fleet3_harness)
     skews = []

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import time
 
+import pytest
+
 from fleet.dex1.kind import KIND
 from fleet.dex1.messages import GripperState
 from fleet.wire import keys
@@ -15,6 +17,7 @@ from testkit.harness import FleetHarness, wait_until
 RELAY_HZ = 50.0
 
 
+@pytest.mark.timing
 def test_500_hz_state_relayed_at_the_configured_rate_without_queueing(tmp_path) -> None:  # type: ignore[no-untyped-def]
     extra = f"[grippers.gl]\nsim_rate_hz = 500.0\nrelay_hz = {RELAY_HZ}\n"
     with FleetHarness(tmp_path, arms=1, extra=extra) as fleet:

@@ -13,6 +13,7 @@ from contextlib import contextmanager
 from typing import TypeVar
 
 import msgspec
+import pytest
 import zenoh
 from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
@@ -63,6 +64,7 @@ def test_move_joints_is_acknowledged_and_reached(fleet_harness: FleetHarness) ->
     assert all(abs(a - t) <= 2.0 for a, t in zip(joints.angles_deg, target, strict=True))
 
 
+@pytest.mark.timing
 def test_joints_arrive_at_about_10_hz(fleet_harness: FleetHarness) -> None:
     client = fleet_harness.start_fleet()
     joints = Collector(client.session, _key(fleet_harness, keys.JOINTS), payloads.JOINTS.decode)
@@ -228,6 +230,7 @@ def test_muted_acks_make_commands_time_out(fleet_harness: FleetHarness) -> None:
     assert reply.ok, reply.error
 
 
+@pytest.mark.timing
 def test_sigterm_stops_every_process_with_code_0(fleet_harness: FleetHarness) -> None:
     fleet_harness.start_fleet()
     for name in ("agent", "sim", "router"):

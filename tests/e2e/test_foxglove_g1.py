@@ -147,6 +147,7 @@ def test_the_g1_is_posed_live_in_foxglove(
         lows.close()
 
 
+@pytest.mark.timing
 def test_a_recording_holds_the_g1_in_3d(fleet: FleetHarness, tmp_path: Path) -> None:
     client = fleet.client()
     out = tmp_path / "g1.mcap"

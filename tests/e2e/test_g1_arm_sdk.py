@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from fleet.g1.kind import KIND
 from fleet.g1.messages import ArmTarget, Damp, G1LowState, G1State
 from fleet.wire import keys
@@ -37,6 +39,7 @@ def _target(**joints: float) -> list[float]:
     return q
 
 
+@pytest.mark.timing
 def test_arm_sdk_stream_to_a_fake_g1_on_unitrees_sdk(  # type: ignore[no-untyped-def]
     tmp_path, closing: list[FleetHarness]
 ) -> None:

@@ -155,6 +155,7 @@ def test_a_poison_command_is_refused_and_no_agent_dies(
     assert_fleet_stops_and_serves(harness, client)
 
 
+@pytest.mark.timing
 def test_a_heartbeat_flood_never_delays_a_stop_or_grows_memory(
     fleet: tuple[FleetHarness, FleetClient],
 ) -> None:
@@ -275,6 +276,7 @@ def test_every_agent_and_the_coordinator_survive_and_diag_counts(
     assert all(code is None for code in alive(harness).values()), alive(harness)
 
 
+@pytest.mark.timing
 def test_long_multi_arm_requests_never_queue_without_bound(
     fleet: tuple[FleetHarness, FleetClient],
 ) -> None:

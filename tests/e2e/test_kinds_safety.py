@@ -219,6 +219,7 @@ def test_silent_coordinator_trips_the_watchdog(fleet: FleetHarness, kind: Kind) 
     operator.reset(kind.unit)
 
 
+@pytest.mark.timing
 @pytest.mark.parametrize("kind", KINDS, ids=KIND_IDS)
 def test_undecodable_stop_stops_and_a_command_flood_does_not_delay_a_stop(
     fleet: FleetHarness, client: FleetClient, kind: Kind

@@ -109,6 +109,7 @@ def _relay_hz(client: FleetClient, fleet: str, arm: str, samples: int = 30) -> f
     return (len(stamps) - 1) / ((stamps[-1] - stamps[0]) / 1e9)
 
 
+@pytest.mark.timing
 def test_feedback_from_three_writers_relays_completes_commands_and_confirms_stops(
     tmp_path: Path,
 ) -> None:

@@ -8,6 +8,8 @@ from __future__ import annotations
 import threading
 import time
 
+import pytest
+
 from fleet.client import FleetClient
 from fleet.wire import keys
 from fleet.wire import messages as m
@@ -23,6 +25,7 @@ def _estopped(client: FleetClient) -> bool | None:
     return None if status is None else status.estopped
 
 
+@pytest.mark.timing
 def test_duplicated_replayed_and_flooded_stop_datagrams(fleet_harness: FleetHarness) -> None:
     h = fleet_harness
     h.start_router()

@@ -133,6 +133,7 @@ def test_echo_decodes_each_sample_and_counts_garbage(fleet: FleetHarness) -> Non
     assert "2 samples, 1 undecodable, 0 dropped" in err
 
 
+@pytest.mark.timing
 def test_hz_measures_the_feedback_rate(fleet: FleetHarness) -> None:
     done = fleet_cli(fleet, "hz", "arm/*/joints", "--for-s", "3.5", "--json")
     assert done.returncode == 0, done.stderr
@@ -180,6 +181,7 @@ def test_sim_fault_from_the_cli(fleet: FleetHarness) -> None:
     assert usage.returncode == 2 and "takes no --width" in usage.stderr
 
 
+@pytest.mark.timing
 def test_doctor_passes_on_a_healthy_fleet(fleet: FleetHarness) -> None:
     done = fleet_cli(fleet, "doctor")
     assert done.returncode == 0, done.stdout + done.stderr
