@@ -239,6 +239,12 @@ class FleetHarness:
         process = self.processes[name]
         if process.poll() is None:
             process.send_signal(sig)
+        return self._reap(process, timeout_s)
+
+    @staticmethod
+    def _reap(process: subprocess.Popen[bytes], timeout_s: float) -> int:
+        """Wait for a signalled process; SIGKILL if it does not exit. Returns its code."""
+        if process.poll() is None:
             try:
                 process.wait(timeout=timeout_s)
             except subprocess.TimeoutExpired:
@@ -259,8 +265,13 @@ class FleetHarness:
         """Close clients, then stop every process, newest first."""
         for client in self._clients:
             client.close()
-        for name in reversed(list(self.processes)):
-            self.stop(name)
+        # Every process signalled first, then each waited for: they shut down side by side
+        # (one after another cost 0.6-1.1 s per test).
+        running = [p for p in reversed(list(self.processes.values())) if p.poll() is None]
+        for process in running:
+            process.send_signal(signal.SIGTERM)
+        for process in running:
+            self._reap(process, 10.0)
         self._domain_lock.close()
 
     def __enter__(self) -> FleetHarness:
