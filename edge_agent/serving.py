@@ -306,12 +306,15 @@ class CommandService:
                     d1 = held
                     if flight.targets_deg:
                         flight.targets_deg = dict(enumerate(held.angles_deg))
+                # Now, under the lock, not from the write's result: the arm's ack may overtake
+                # the write's return and complete the reply (a choreography's start skew then
+                # lacked this arm; seen at load 11).
+                flight.written_ns = flight.written_ns or time.time_ns()
                 return d1, seq
 
             written = self._writer.write(arm, compose)
             with self._lock:
                 if written is not None:
-                    flight.written_ns = flight.written_ns or written.written_ns
                     if not written.ok:
                         flight.fail(ErrorCode.SEND_FAILED, "the DDS write failed (maybe sent)")
                 stop_here = written is None or flight.error is not None
