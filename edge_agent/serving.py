@@ -314,9 +314,8 @@ class CommandService:
 
             written = self._writer.write(arm, compose)
             with self._lock:
-                if written is not None:
-                    if not written.ok:
-                        flight.fail(ErrorCode.SEND_FAILED, "the DDS write failed (maybe sent)")
+                if written is not None and not written.ok:
+                    flight.fail(ErrorCode.SEND_FAILED, "the DDS write failed (maybe sent)")
                 stop_here = written is None or flight.error is not None
                 out = Outbox()
                 if stop_here:
