@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from edge_agent.envelope import Refused
 from edge_agent.holds import allowed_while_latched, fresh_pose
 from edge_agent.tracker import ArmTracker
 from fleet.d1 import protocol as p
@@ -16,14 +17,6 @@ from fleet.d1.errors import InvalidCommand
 from fleet.d1.limits import JOINT_COUNT
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, ErrorInfo
-
-
-class Refused(Exception):
-    """The agent will not send this command; ``code`` is an ErrorCode."""
-
-    def __init__(self, code: ErrorCode, message: str) -> None:
-        super().__init__(message)
-        self.code = code
 
 
 @dataclass(frozen=True)

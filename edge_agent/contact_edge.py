@@ -27,8 +27,9 @@ from pathlib import Path
 
 import zenoh
 
+from edge_agent.arm_slot import ArmSlot
 from edge_agent.relay import ZenohRelay
-from edge_agent.slots import ArmSlot, Outbox
+from edge_agent.unit import Outbox
 from edge_agent.writer import ArmWriter, transient_seq
 from fleet.contact.calibration import Calibration, CalibrationError, load_calibration
 from fleet.contact.detector import ContactChange, ContactDetector

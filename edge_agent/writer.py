@@ -18,8 +18,8 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from edge_agent.arm_slot import ArmSlot
 from edge_agent.link import DdsLink
-from edge_agent.slots import ArmSlot
 from fleet.d1 import protocol as p
 
 Compose = Callable[[ArmSlot, float], "tuple[p.Command, int] | None"]

@@ -18,7 +18,8 @@ from __future__ import annotations
 from fuzz.common import instrumented, main
 
 with instrumented():
-    from edge_agent.commands import Plan, Refused, plan
+    from edge_agent.commands import Plan, plan
+    from edge_agent.envelope import Refused
     from edge_agent.holds import clamp_to_limits
     from edge_agent.tracker import ArmTracker
     from fleet.d1 import protocol as p

@@ -7,7 +7,8 @@ import math
 
 import pytest
 
-from edge_agent.commands import InFlight, Plan, Refused, plan
+from edge_agent.commands import InFlight, Plan, plan
+from edge_agent.envelope import Refused
 from edge_agent.holds import clamp_to_limits
 from edge_agent.tracker import ArmTracker
 from fleet.d1 import protocol as p
