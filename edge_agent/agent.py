@@ -47,10 +47,10 @@ from edge_agent.relay import JSON, ZenohRelay, principal_of
 from edge_agent.scheduler import StartScheduler
 from edge_agent.serving import CommandService
 from edge_agent.stops import SafetyLoop
-from edge_agent.tracker import ArmTracker
 from edge_agent.unit import Outbox, Unit, UnitServer
 from edge_agent.writer import ArmWriter
 from fleet.beat_limits import max_heartbeat_bytes
+from fleet.d1arm.tracker import ArmTracker
 from fleet.devices import kind_of
 from fleet.guard import ThreadGuard
 from fleet.inventory import Inventory

@@ -20,12 +20,12 @@ import zenoh
 from edge_agent.arm_serving import ArmCommands
 from edge_agent.arm_slot import ArmSlot
 from edge_agent.contact_edge import ContactEdge
-from edge_agent.holds import NO_FRESH_POSE, hold_command, stop_command
 from edge_agent.inbox import IncomingQuery
 from edge_agent.relay import ZenohRelay
 from edge_agent.unit import Later, Outbox
 from edge_agent.writer import ArmWriter, transient_seq
 from fleet.d1 import protocol as p
+from fleet.d1arm.holds import NO_FRESH_POSE, hold_command, stop_command
 from fleet.files import FILE_TIMEOUT_S, FileWatcher
 from fleet.guard import ThreadGuard
 from fleet.origin.trust import SampleWriter

@@ -14,15 +14,16 @@ import time
 from collections.abc import Callable
 
 from edge_agent.arm_slot import ArmSlot
-from edge_agent.commands import InFlight, Plan, plan
-from edge_agent.envelope import Principals, Refused, check_lease, check_order, release
-from edge_agent.holds import NO_FRESH_POSE, allowed_while_latched, hold_command
+from edge_agent.envelope import Principals, check_lease, check_order, release
 from edge_agent.inbox import IncomingQuery, owner_of
 from edge_agent.scheduler import SchedulerFull, StartScheduler
 from edge_agent.unit import Outbox
 from edge_agent.writer import ArmWriter
 from fleet.d1 import protocol as p
 from fleet.d1.seq import SeqExhausted
+from fleet.d1arm.commands import InFlight, Plan, plan
+from fleet.d1arm.holds import NO_FRESH_POSE, allowed_while_latched, hold_command
+from fleet.devices.driver import Refusal
 from fleet.wire import messages as m
 from fleet.wire import payloads
 from fleet.wire.messages import ErrorCode, ErrorInfo
@@ -78,10 +79,10 @@ class ArmCommands:
             slot.tracker.commands += 1
             try:
                 planned, flight, delay_s = self._accept(slot, item, command, now)
-            except Refused as exc:
+            except Refusal as exc:
                 slot.tracker.rejected += 1
                 slot.tracker.last_error = str(exc)[:1000]
-                refused: Refused | None = exc
+                refused: Refusal | None = exc
             else:
                 refused = None
         if refused is not None:
@@ -105,7 +106,7 @@ class ArmCommands:
     def _accept(
         self, slot: ArmSlot, item: IncomingQuery, command: m.ArmCommand, now: float
     ) -> tuple[Plan, InFlight | None, float]:
-        """Check, plan and register one command (caller holds the lock); raises Refused."""
+        """Check, plan and register one command (caller holds the lock); raises Refusal."""
         safety = slot.safety
         principal = self._principals.check(item)
         # The lease owner is the authenticated principal (from the key), then the commander
@@ -123,14 +124,14 @@ class ArmCommands:
         if command.start_at_ns is not None:
             delay_s = (command.start_at_ns - time.time_ns()) / 1e9
             if delay_s > MAX_START_DELAY_S:
-                raise Refused(
+                raise Refusal(
                     ErrorCode.PARAMETER,
                     f"start_at_ns is {delay_s:.1f} s ahead (max {MAX_START_DELAY_S:g} s); "
                     "are the hosts' clocks synchronized?",
                 )
         flights = {id(f) for f, _q in slot.in_flight.values()}
         if len(flights) >= MAX_IN_FLIGHT:
-            raise Refused(
+            raise Refusal(
                 ErrorCode.BUSY,
                 f"arm {item.arm!r} is busy: {len(flights)} commands in flight (max "
                 f"{MAX_IN_FLIGHT}); wait for their replies",
@@ -138,7 +139,7 @@ class ArmCommands:
         try:
             seqs = tuple(slot.seqs.allocate() for _ in planned.commands)
         except SeqExhausted as exc:  # cannot happen under MAX_IN_FLIGHT; never a crash
-            raise Refused(ErrorCode.BUSY, f"arm {item.arm!r} is busy: {exc}") from None
+            raise Refusal(ErrorCode.BUSY, f"arm {item.arm!r} is busy: {exc}") from None
         if (
             isinstance(command, m.MOTION_OPS)
             and owner is not None

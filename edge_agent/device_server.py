@@ -19,17 +19,17 @@ from dataclasses import dataclass, field
 
 import zenoh
 
-from edge_agent.envelope import Principals, Refused, check_lease, check_order, release
+from edge_agent.envelope import Principals, check_lease, check_order, release
 from edge_agent.inbox import IncomingQuery, owner_of
 from edge_agent.link import DdsLink
 from edge_agent.ordering import CommandOrder
 from edge_agent.relay import JSON, ZenohRelay
-from edge_agent.safety import ArmSafety
 from edge_agent.unit import Later, Outbox
 from edge_agent.writer import ArmWriter
 from fleet.devices import kind_of
 from fleet.devices.base import DeviceReply, Release
 from fleet.devices.driver import DeviceDriver, Refusal, error_reply
+from fleet.devices.safety import ArmSafety
 from fleet.inventory import Inventory
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
@@ -195,15 +195,12 @@ class DeviceServer:
                     latched = slot.safety.latched or self._stopping.is_set()
                     reason = slot.safety.last_reason
                 if latched and not driver.allowed_while_latched(command):
-                    raise Refused(
+                    raise Refusal(
                         ErrorCode.REJECTED,
                         f"{label} is stopped ({reason}); `fleet reset {item.arm}` releases it",
                     )
-                try:
-                    reply = driver.execute(command, now, lambda r: self._reply(item, r, now))
-                except Refusal as exc:
-                    raise Refused(exc.code, str(exc)) from None
-        except Refused as exc:
+                reply = driver.execute(command, now, lambda r: self._reply(item, r, now))
+        except Refusal as exc:
             self._refuse(item, slot, exc.code, str(exc), now)
             return
         if reply is not None:

@@ -9,8 +9,9 @@ import time
 
 from edge_agent.inbox import IncomingQuery
 from edge_agent.ordering import CommandOrder
-from edge_agent.safety import ArmSafety, LeaseRefused
 from fleet.devices.base import DeviceCommand
+from fleet.devices.driver import Refusal
+from fleet.devices.safety import ArmSafety, LeaseRefused
 from fleet.inventory import Inventory
 from fleet.security_config import COMMANDERS
 from fleet.wire import messages as m
@@ -18,14 +19,6 @@ from fleet.wire.messages import ErrorCode
 
 Envelope = m.ArmCommand | DeviceCommand
 """A command with the envelope every kind shares (owner, takeover, stamp_ns, lifetime_s)."""
-
-
-class Refused(Exception):
-    """The agent will not send this command; ``code`` is an ErrorCode."""
-
-    def __init__(self, code: ErrorCode, message: str) -> None:
-        super().__init__(message)
-        self.code = code
 
 
 class Principals:
@@ -38,18 +31,18 @@ class Principals:
         agent's lock)."""
 
     def check(self, item: IncomingQuery) -> str:
-        """The principal of a command; raises Refused when it names none or, with security on,
+        """The principal of a command; raises Refusal when it names none or, with security on,
         when its role may not command arms (the router refuses those first)."""
         principal = item.principal
         if principal is None:
-            raise Refused(
+            raise Refusal(
                 ErrorCode.PARAMETER,
                 f"send commands to arm/{item.arm}/cmd/<principal>, not to a wildcard principal",
             )
         if self._inventory.security.enabled:
             role = self._inventory.role_of(principal)
             if role not in COMMANDERS:
-                raise Refused(
+                raise Refusal(
                     ErrorCode.REJECTED,
                     f"principal {principal!r} (role {role}) may not command arms",
                 )
@@ -62,30 +55,30 @@ class Principals:
 
 
 def release(label: str, safety: ArmSafety, owner: str | None, now_s: float) -> None:
-    """``owner`` gives the robot up; raises Refused when another owner holds it. A robot held
+    """``owner`` gives the robot up; raises Refusal when another owner holds it. A robot held
     by nobody is already released: done, not refused (issue 26: a stop ends every lease, and
     the demo's player, releasing after each stop of its dance, filled Events and ``fleet
     diag`` with "held by nobody" refusals the user had nothing to do with)."""
     if owner is None:
-        raise Refused(ErrorCode.LEASE_INVALID, f"{label}: a release names its owner")
+        raise Refusal(ErrorCode.LEASE_INVALID, f"{label}: a release names its owner")
     if safety.release(owner):
         return
     holder = safety.holder(now_s)
     if holder is not None:
-        raise Refused(ErrorCode.LEASE_INVALID, f"{label} is held by {holder.owner}")
+        raise Refusal(ErrorCode.LEASE_INVALID, f"{label} is held by {holder.owner}")
 
 
 def check_order(
     label: str, order: CommandOrder, principal: str, owner: str | None, command: Envelope
 ) -> None:
-    """Duplicates, out-of-order commands and commands past their lifetime: Refused."""
+    """Duplicates, out-of-order commands and commands past their lifetime: Refusal."""
     refusal = order.refusal(principal, owner, command.stamp_ns)
     if refusal is not None:
-        raise Refused(ErrorCode.OUT_OF_ORDER, f"{label}: {refusal}")
+        raise Refusal(ErrorCode.OUT_OF_ORDER, f"{label}: {refusal}")
     if command.lifetime_s is not None and command.stamp_ns is not None:
         age_s = (time.time_ns() - command.stamp_ns) / 1e9
         if age_s > command.lifetime_s:
-            raise Refused(
+            raise Refusal(
                 ErrorCode.EXPIRED,
                 f"target for {label} arrived {age_s * 1000:.0f} ms after it was sent, "
                 f"past its lifetime of {command.lifetime_s * 1000:.0f} ms: not executed",
@@ -95,8 +88,8 @@ def check_order(
 def check_lease(
     label: str, safety: ArmSafety, owner: str | None, takeover: bool, now: float
 ) -> None:
-    """Refused (3207) unless ``owner`` may move the robot now; renews or takes the lease."""
+    """Refusal (3207) unless ``owner`` may move the robot now; renews or takes the lease."""
     try:
         safety.check_owner(owner, takeover, now)
     except LeaseRefused as exc:
-        raise Refused(ErrorCode.LEASE_EXISTS, f"{label} is {exc}") from None
+        raise Refusal(ErrorCode.LEASE_EXISTS, f"{label} is {exc}") from None

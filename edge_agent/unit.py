@@ -32,7 +32,7 @@ import zenoh
 
 from edge_agent.inbox import IncomingQuery
 from edge_agent.ordering import CommandOrder
-from edge_agent.safety import ArmSafety
+from fleet.devices.safety import ArmSafety
 from fleet.wire import messages as m
 from fleet.wire.stoppath import TwoPathPublisher
 

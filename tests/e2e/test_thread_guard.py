@@ -25,10 +25,10 @@ from edge_agent.device_server import DeviceServer
 from edge_agent.inbox import SafetyInbox
 from edge_agent.serving import CommandService
 from edge_agent.stops import SafetyLoop
-from edge_agent.tracker import ArmTracker
 from fleet.cli import main as fleet_main
 from fleet.client import FleetClient
 from fleet.coordinator.service import Coordinator
+from fleet.d1arm.tracker import ArmTracker
 from fleet.dex1.messages import GripperHold
 from fleet.dex1.relay import GripperDriver
 from fleet.g1.relay import G1Driver

@@ -6,9 +6,10 @@ from __future__ import annotations
 
 import pytest
 
-from edge_agent.envelope import Refused, release
-from edge_agent.safety import ArmSafety
+from edge_agent.envelope import release
 from fleet.cli.wire_tools import diag_lines
+from fleet.devices.driver import Refusal
+from fleet.devices.safety import ArmSafety
 from fleet.wire import messages as m
 
 
@@ -19,10 +20,10 @@ def test_releasing_a_robot_nobody_holds_is_done_quietly() -> None:
     release("arm 'a1'", safety, "player", 1.1)  # the player's release after the stop: fine
     safety.reset()
     safety.check_owner("alice", False, 2.0)
-    with pytest.raises(Refused, match="arm 'a1' is held by alice"):
+    with pytest.raises(Refusal, match="arm 'a1' is held by alice"):
         release("arm 'a1'", safety, "player", 2.1)  # someone else holds it: refused
     release("arm 'a1'", safety, "player", 2.0 + 3.5)  # alice's lease expired: nobody holds it
-    with pytest.raises(Refused, match="names its owner"):
+    with pytest.raises(Refusal, match="names its owner"):
         release("arm 'a1'", safety, None, 6.0)
 
 
