@@ -22,7 +22,8 @@ process exits 1 (``__main__``): a supervisor restarts it; it never runs on half 
 
 ``lock`` guards the trackers, the safety state and the in-flight table; it is never held
 across a DDS write, a Zenoh put or a reply: state is copied under the lock and the I/O happens
-after. Every D1 command goes through ``writer`` (writer.py), one arm at a time.
+after. Every write to a robot happens under its write lock (``writelocks.py``): an arm's D1
+commands through its kind's writer (``fleet/d1arm/writer.py``), a device's through its driver.
 """
 
 from __future__ import annotations
@@ -30,28 +31,30 @@ from __future__ import annotations
 import collections
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import msgspec
 
-from edge_agent.arm_server import ArmServer
-from edge_agent.arm_serving import ArmCommands
-from edge_agent.arm_slot import ArmSlot
-from edge_agent.contact_edge import ContactEdge
 from edge_agent.device_server import DeviceServer
-from edge_agent.envelope import Principals
 from edge_agent.inbox import CommandInbox, InboxCounters, SafetyInbox
 from edge_agent.latches import LatchStore, default_state_dir
 from edge_agent.link import DdsLink
 from edge_agent.relay import JSON, ZenohRelay, principal_of
-from edge_agent.scheduler import StartScheduler
+from edge_agent.scheduler import SchedulerFull, StartScheduler
 from edge_agent.serving import CommandService
 from edge_agent.stops import SafetyLoop
-from edge_agent.unit import Outbox, Unit, UnitServer
-from edge_agent.writer import ArmWriter
+from edge_agent.writelocks import WriteLocks
 from fleet.beat_limits import max_heartbeat_bytes
+from fleet.d1arm.contact_edge import ContactEdge
+from fleet.d1arm.server import ArmServer
+from fleet.d1arm.serving import ArmCommands
+from fleet.d1arm.slot import ArmSlot
 from fleet.d1arm.tracker import ArmTracker
+from fleet.d1arm.writer import ArmWriter
 from fleet.devices import kind_of
+from fleet.devices.envelope import Principals
+from fleet.devices.unit import Outbox, Unit, UnitServer
 from fleet.guard import ThreadGuard
 from fleet.inventory import Inventory
 from fleet.wire import messages as m
@@ -126,13 +129,15 @@ class EdgeAgent:
         except BaseException:
             self.link.close()
             raise
-        self.writer = ArmWriter(self.lock, arm_slots, self.link, self.relay.mirror_command)
-        self.writer.add_units(device_ids)
+        self.write_locks = WriteLocks([*arm_ids, *device_ids])
+        writer = ArmWriter(
+            self.lock, arm_slots, self.write_locks.of, (self.link.write, self.relay.mirror_command)
+        )
         self.scheduler = StartScheduler(self.guard, self.stopping)
         principals = Principals(inventory, {})
         self.devices = DeviceServer(
             self.lock,
-            self.writer,
+            self.write_locks,
             self.relay,
             principals,
             self.stopping,
@@ -146,16 +151,16 @@ class EdgeAgent:
         )
         contact = ContactEdge(
             {a: inventory.arm(a) for a in arm_ids},
-            self.relay,
+            (self.relay.session, self.relay.keys),
             self.lock,
-            self.writer,
+            writer,
             {a: inventory.calibration_path(a) for a in arm_ids},
         )
         arm_commands = ArmCommands(
             self.lock,
             arm_slots,
-            self.writer,
-            self.scheduler,
+            writer,
+            self._schedule,
             principals,
             self.stopping,
             self.flush,
@@ -163,7 +168,7 @@ class EdgeAgent:
         self.arms = ArmServer(
             self.lock,
             arm_slots,
-            (self.writer, self.relay, contact, arm_commands),
+            (writer, self.relay.publishers, contact, arm_commands),
             (self._on_still, self.flush, self._own_counts),
             self.guard,
             self.stopping,
@@ -207,6 +212,14 @@ class EdgeAgent:
         for thread in self._threads:
             thread.start()
         return self
+
+    def _schedule(self, due_s: float, run: Callable[[], None]) -> str | None:
+        """Run ``run`` at ``due_s`` on the ``starts`` thread; why not, when it is full."""
+        try:
+            self.scheduler.schedule(due_s, run)
+        except SchedulerFull as exc:
+            return str(exc)
+        return None
 
     def _on_still(self, unit: str, out: Outbox) -> None:
         """A stopped unit was seen still: its ack (caller holds the lock)."""

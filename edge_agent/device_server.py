@@ -19,17 +19,16 @@ from dataclasses import dataclass, field
 
 import zenoh
 
-from edge_agent.envelope import Principals, check_lease, check_order, release
-from edge_agent.inbox import IncomingQuery, owner_of
 from edge_agent.link import DdsLink
-from edge_agent.ordering import CommandOrder
 from edge_agent.relay import JSON, ZenohRelay
-from edge_agent.unit import Later, Outbox
-from edge_agent.writer import ArmWriter
+from edge_agent.writelocks import WriteLocks
 from fleet.devices import kind_of
 from fleet.devices.base import DeviceReply, Release
 from fleet.devices.driver import DeviceDriver, Refusal, error_reply
+from fleet.devices.envelope import Principals, check_lease, check_order, release
+from fleet.devices.ordering import CommandOrder
 from fleet.devices.safety import ArmSafety
+from fleet.devices.unit import IncomingQuery, Later, Outbox, owner_of
 from fleet.inventory import Inventory
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
@@ -63,7 +62,7 @@ class DeviceServer:
     def __init__(
         self,
         lock: threading.Lock,
-        writer: ArmWriter,
+        locks: WriteLocks,
         relay: ZenohRelay,
         principals: Principals,
         stopping: threading.Event,
@@ -71,7 +70,7 @@ class DeviceServer:
         reply_latencies_s: collections.deque[float],
     ) -> None:
         self._lock = lock
-        self._writer = writer
+        self._locks = locks
         self._relay = relay
         self._principals = principals
         self._stopping = stopping
@@ -108,7 +107,7 @@ class DeviceServer:
 
     def write(self, unit: str, stop_id: str | None, later: Later | None) -> bool:
         slot = self.slots[unit]
-        with self._writer.unit_lock(unit):
+        with self._locks.of(unit):
             now = time.monotonic()
             with self._lock:
                 stop = slot.safety.stop
@@ -190,7 +189,7 @@ class DeviceServer:
                 ):
                     slot.safety.watch(owner, now)
                 slot.order.record(principal, owner, command.stamp_ns)
-            with self._writer.unit_lock(item.arm):
+            with self._locks.of(item.arm):
                 with self._lock:
                     latched = slot.safety.latched or self._stopping.is_set()
                     reason = slot.safety.last_reason

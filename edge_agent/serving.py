@@ -13,8 +13,8 @@ from __future__ import annotations
 import threading
 import time
 
-from edge_agent.inbox import CommandInbox, IncomingQuery
-from edge_agent.unit import UnitServer
+from edge_agent.inbox import CommandInbox
+from fleet.devices.unit import IncomingQuery, UnitServer
 
 
 class CommandService:

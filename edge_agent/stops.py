@@ -31,7 +31,7 @@ from itertools import count
 from edge_agent.inbox import ResetEvent, SafetyInbox, StopEvent
 from edge_agent.latches import LatchStore
 from edge_agent.relay import ZenohRelay
-from edge_agent.unit import Later, Outbox, Unit, UnitServer
+from fleet.devices.unit import Later, Outbox, Unit, UnitServer
 from fleet.guard import ThreadGuard
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, encode

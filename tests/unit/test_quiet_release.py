@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import pytest
 
-from edge_agent.envelope import release
 from fleet.cli.wire_tools import diag_lines
 from fleet.devices.driver import Refusal
+from fleet.devices.envelope import release
 from fleet.devices.safety import ArmSafety
 from fleet.wire import messages as m
 

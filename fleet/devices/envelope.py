@@ -7,11 +7,11 @@ from __future__ import annotations
 
 import time
 
-from edge_agent.inbox import IncomingQuery
-from edge_agent.ordering import CommandOrder
 from fleet.devices.base import DeviceCommand
 from fleet.devices.driver import Refusal
+from fleet.devices.ordering import CommandOrder
 from fleet.devices.safety import ArmSafety, LeaseRefused
+from fleet.devices.unit import IncomingQuery
 from fleet.inventory import Inventory
 from fleet.security_config import COMMANDERS
 from fleet.wire import messages as m

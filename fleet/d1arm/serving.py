@@ -1,10 +1,11 @@
 """A D1 arm's commands, on the agent's ``commands`` thread: after the envelope checks every kind
-gets (``envelope.py``), the arm's own (limits, link, power, in-flight limit) and its write.
+gets (``fleet/devices/envelope.py``), the arm's own (limits, link, power, in-flight limit) and
+its write.
 
 It assigns seqs, registers them in flight (under the agent's lock, before any write, so no ack
 can arrive unmatched) and writes them through the arm's writer, now or at a synchronized start
-(``scheduler.py``). Replies are sent by whichever thread completes the command (``ArmSlot``'s
-in-flight table, collected into the agent's outbox).
+(the core's ``starts`` thread). Replies are sent by whichever thread completes the command
+(``ArmSlot``'s in-flight table, collected into the agent's outbox).
 """
 
 from __future__ import annotations
@@ -13,17 +14,15 @@ import threading
 import time
 from collections.abc import Callable
 
-from edge_agent.arm_slot import ArmSlot
-from edge_agent.envelope import Principals, check_lease, check_order, release
-from edge_agent.inbox import IncomingQuery, owner_of
-from edge_agent.scheduler import SchedulerFull, StartScheduler
-from edge_agent.unit import Outbox
-from edge_agent.writer import ArmWriter
 from fleet.d1 import protocol as p
 from fleet.d1.seq import SeqExhausted
 from fleet.d1arm.commands import InFlight, Plan, plan
 from fleet.d1arm.holds import NO_FRESH_POSE, allowed_while_latched, hold_command
+from fleet.d1arm.slot import ArmSlot
+from fleet.d1arm.writer import ArmWriter
 from fleet.devices.driver import Refusal
+from fleet.devices.envelope import Principals, check_lease, check_order, release
+from fleet.devices.unit import IncomingQuery, Outbox, owner_of
 from fleet.wire import messages as m
 from fleet.wire import payloads
 from fleet.wire.messages import ErrorCode, ErrorInfo
@@ -35,6 +34,8 @@ MAX_IN_FLIGHT = 32
 refused 4003 "busy". A real client has one or two; 65534 in flight exhausted the seqs."""
 
 Flush = Callable[[Outbox], None]
+Schedule = Callable[[float, Callable[[], None]], "str | None"]
+"""Runs a write at a monotonic time (the core's ``starts`` thread); why not, when it is full."""
 
 
 class ArmCommands:
@@ -45,7 +46,7 @@ class ArmCommands:
         lock: threading.Lock,
         slots: dict[str, ArmSlot],
         writer: ArmWriter,
-        scheduler: StartScheduler,
+        schedule: Schedule,
         principals: Principals,
         stopping: threading.Event,
         flush: Flush,
@@ -53,7 +54,7 @@ class ArmCommands:
         self._lock = lock
         self._slots = slots
         self._writer = writer
-        self._scheduler = scheduler
+        self._schedule = schedule
         self._principals = principals
         self._stopping = stopping
         self._flush = flush
@@ -98,10 +99,9 @@ class ArmCommands:
         if delay_s <= 0:
             write()
             return
-        try:
-            self._scheduler.schedule(now + delay_s, write)
-        except SchedulerFull as exc:
-            self._fail(item.arm, flight, ErrorCode.BUSY, f"busy: {exc}")
+        full = self._schedule(now + delay_s, write)
+        if full is not None:
+            self._fail(item.arm, flight, ErrorCode.BUSY, f"busy: {full}")
 
     def _accept(
         self, slot: ArmSlot, item: IncomingQuery, command: m.ArmCommand, now: float

@@ -30,11 +30,28 @@ from typing import Protocol
 
 import zenoh
 
-from edge_agent.inbox import IncomingQuery
-from edge_agent.ordering import CommandOrder
+from fleet.devices.ordering import CommandOrder
 from fleet.devices.safety import ArmSafety
 from fleet.wire import messages as m
 from fleet.wire.stoppath import TwoPathPublisher
+
+
+def owner_of(principal: str, name: str) -> str:
+    """A lease owner or heartbeat source: the authenticated ``principal``, then the name the
+    payload gives (one principal may run several commanders: a player, a mirror, a CLI)."""
+    return f"{principal}/{name}"
+
+
+@dataclass(frozen=True)
+class IncomingQuery:
+    """A command query handed from a Zenoh thread to the agent's command thread.
+    ``principal``: from the query's key (None: the key named none)."""
+
+    arm: str
+    query: zenoh.Query
+    payload: bytes
+    principal: str | None = None
+
 
 Later = list[Callable[[], None]]
 """Zenoh traffic and observers a stop runs after every unit's DDS write."""

@@ -13,19 +13,18 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from typing import Protocol
 
 import zenoh
 
-from edge_agent.arm_serving import ArmCommands
-from edge_agent.arm_slot import ArmSlot
-from edge_agent.contact_edge import ContactEdge
-from edge_agent.inbox import IncomingQuery
-from edge_agent.relay import ZenohRelay
-from edge_agent.unit import Later, Outbox
-from edge_agent.writer import ArmWriter, transient_seq
 from fleet.d1 import protocol as p
+from fleet.d1arm.contact_edge import ContactEdge
 from fleet.d1arm.holds import NO_FRESH_POSE, hold_command, stop_command
+from fleet.d1arm.serving import ArmCommands
+from fleet.d1arm.slot import ArmSlot
+from fleet.d1arm.writer import ArmWriter, transient_seq
+from fleet.devices.unit import IncomingQuery, Later, Outbox
 from fleet.files import FILE_TIMEOUT_S, FileWatcher
 from fleet.guard import ThreadGuard
 from fleet.origin.trust import SampleWriter
@@ -36,6 +35,17 @@ log = logging.getLogger("edge_agent")
 
 CALIBRATION_POLL_S = 1.0
 """How often the ``files`` thread looks for a new calibration file (``fleet calibrate``)."""
+
+
+class Publishers(Protocol):
+    """An arm's Zenoh publishers, the agent's (``edge_agent/relay.py``)."""
+
+    joints: zenoh.Publisher
+    status: zenoh.Publisher
+    diag: zenoh.Publisher
+    raw_feedback: zenoh.Publisher
+    raw_feedback_matched: bool
+
 
 OnStill = Callable[[str, Outbox], None]
 Flush = Callable[[Outbox], None]
@@ -49,14 +59,14 @@ class ArmServer:
         self,
         lock: threading.Lock,
         slots: dict[str, ArmSlot],
-        io: tuple[ArmWriter, ZenohRelay, ContactEdge, ArmCommands],
+        io: tuple[ArmWriter, Mapping[str, Publishers], ContactEdge, ArmCommands],
         hooks: tuple[OnStill, Flush, OwnCounts],
         guard: ThreadGuard,
         stopping: threading.Event,
     ) -> None:
         self._lock = lock
         self.slots = slots
-        self._writer, self._relay, self.contact, self._commands = io
+        self._writer, self._publishers, self.contact, self._commands = io
         self._on_still, self._flush, self._own_counts = hooks
         self._guard = guard
         self._writer.observers.append(self._on_written)
@@ -96,7 +106,7 @@ class ArmServer:
 
     def status(self, unit: str, now: float, now_ns: int) -> tuple[zenoh.Publisher, bytes] | None:
         tracker = self.slots[unit].tracker
-        return self._relay.publishers[unit].status, encode(tracker.status(now, now_ns))
+        return self._publishers[unit].status, encode(tracker.status(now, now_ns))
 
     def released(self, unit: str, now: float, now_ns: int) -> None:
         """The fresh measured pose becomes the target, so nothing moves."""
@@ -127,7 +137,7 @@ class ArmServer:
     ) -> None:
         """One feedback sample of ``arm``: decode, track, relay, confirm its stop."""
         stamp_ns = time.time_ns()
-        pubs = self._relay.publishers[arm]
+        pubs = self._publishers[arm]
         out = Outbox()
         with self._lock:
             slot = self.slots[arm]
@@ -197,7 +207,7 @@ class ArmServer:
         with self._lock:
             for arm, slot in self.slots.items():
                 tracker = slot.tracker
-                pubs = self._relay.publishers[arm]
+                pubs = self._publishers[arm]
                 if tracker.update_link(now) or periodic:
                     out.puts.append((pubs.status, encode(tracker.status(now, stamp_ns))))
                 if diag:

@@ -10,14 +10,14 @@ from dataclasses import dataclass, field
 import msgspec
 import zenoh
 
-from edge_agent.ordering import CommandOrder
-from edge_agent.unit import Outbox
 from fleet.d1 import protocol as p
 from fleet.d1.seq import SeqAllocator
 from fleet.d1arm.acks import AckMatcher, ExecTimeouts
 from fleet.d1arm.commands import InFlight
 from fleet.d1arm.tracker import ArmTracker
+from fleet.devices.ordering import CommandOrder
 from fleet.devices.safety import ArmSafety
+from fleet.devices.unit import Outbox
 from fleet.wire.messages import ErrorCode
 
 
