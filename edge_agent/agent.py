@@ -46,12 +46,7 @@ from edge_agent.serving import CommandService
 from edge_agent.stops import SafetyLoop
 from edge_agent.writelocks import WriteLocks
 from fleet.beat_limits import max_heartbeat_bytes
-from fleet.d1arm.contact_edge import ContactEdge
-from fleet.d1arm.server import ArmServer
-from fleet.d1arm.serving import ArmCommands
-from fleet.d1arm.slot import ArmSlot
-from fleet.d1arm.tracker import ArmTracker
-from fleet.d1arm.writer import ArmWriter
+from fleet.d1arm.host import ArmHost, serve_arms
 from fleet.devices import kind_of
 from fleet.devices.envelope import Principals
 from fleet.devices.unit import Outbox, Unit, UnitServer
@@ -84,7 +79,6 @@ class EdgeAgent:
         self.lock = threading.Lock()
         self.arm_ids = list(arm_ids)
         self.device_ids = device_ids
-        arm_slots = {a: ArmSlot(ArmTracker(inventory.arm(a))) for a in arm_ids}
         device_kinds = {d: kind_of(inventory.device(d)).key for d in device_ids}
         mounted: dict[str, list[str]] = {}
         for device in device_ids:
@@ -124,15 +118,12 @@ class EdgeAgent:
                 (self.safety_inbox, self.command_inbox),
                 self.guard,
                 device_kinds,
-                [arm for arm in mounted if arm not in arm_slots],
+                [arm for arm in mounted if arm not in arm_ids],
             )
         except BaseException:
             self.link.close()
             raise
         self.write_locks = WriteLocks([*arm_ids, *device_ids])
-        writer = ArmWriter(
-            self.lock, arm_slots, self.write_locks.of, (self.link.write, self.relay.mirror_command)
-        )
         self.scheduler = StartScheduler(self.guard, self.stopping)
         principals = Principals(inventory, {})
         self.devices = DeviceServer(
@@ -149,32 +140,24 @@ class EdgeAgent:
         self.link.add_drivers(
             {d: s.driver for d, s in self.devices.slots.items()}, self.devices.on_device
         )
-        contact = ContactEdge(
-            {a: inventory.arm(a) for a in arm_ids},
-            (self.relay.session, self.relay.keys),
-            self.lock,
-            writer,
-            {a: inventory.calibration_path(a) for a in arm_ids},
+        host = ArmHost(
+            lock=self.lock,
+            guard=self.guard,
+            stopping=self.stopping,
+            write_lock=self.write_locks.of,
+            dds_write=self.link.write,
+            mirror=self.relay.mirror_command,
+            publishers=self.relay.publishers,
+            zenoh=(self.relay.session, self.relay.keys),
+            schedule=self._schedule,
+            principals=principals,
+            on_still=self._on_still,
+            flush=self.flush,
+            own_counts=self._own_counts,
         )
-        arm_commands = ArmCommands(
-            self.lock,
-            arm_slots,
-            writer,
-            self._schedule,
-            principals,
-            self.stopping,
-            self.flush,
-        )
-        self.arms = ArmServer(
-            self.lock,
-            arm_slots,
-            (writer, self.relay.publishers, contact, arm_commands),
-            (self._on_still, self.flush, self._own_counts),
-            self.guard,
-            self.stopping,
-        )
-        self.units: dict[str, Unit] = {**arm_slots, **self.devices.slots}
-        self.servers: dict[str, UnitServer] = dict.fromkeys(arm_slots, self.arms)
+        self.arms = serve_arms(inventory, arm_ids, host)
+        self.units: dict[str, Unit] = {**self.arms.slots, **self.devices.slots}
+        self.servers: dict[str, UnitServer] = dict.fromkeys(self.arms.slots, self.arms)
         self.servers |= dict.fromkeys(self.devices.slots, self.devices)
         self.latches = LatchStore(state_dir or default_state_dir(), inventory.fleet, self.guard)
         self.safety_loop = SafetyLoop(
@@ -271,12 +254,6 @@ class EdgeAgent:
             key = self.relay.keys.command(reply.arm, principal)
             query.reply(key, encode(reply), encoding=JSON)
             query.drop()
-
-    # ------------------------------------------------------------------ state access
-
-    def tracker(self, arm: str) -> ArmTracker:
-        """The tracker of ``arm`` (read it under no assumption of consistency)."""
-        return self.arms.slots[arm].tracker
 
     # ------------------------------------------------------------------ shutdown
 
