@@ -3,9 +3,10 @@
 One core for every kind: D1 arms and the devices of other kinds share one participant, one
 Zenoh session, one safety inbox and loop, one latch store, one command thread and its envelope
 checks, the write locks and the thread guard. The core speaks to each robot through one
-per-unit contract (``unit.py``: its safety state, and its kind's ``UnitServer``): the arms'
-server (``arm_server.py``: tracker, seqs, acks, holds) and the devices' (``device_server.py``:
-a kind's driver, ``fleet/devices/driver.py``). A stop of an arm stops the devices mounted on it.
+per-unit contract (``fleet/devices/unit.py``: its safety state, and its kind's ``UnitServer``):
+the arms' server (``fleet/d1arm``, built by ``serve_arms`` from what the core gives it) and the
+devices' (``device_server.py``: a kind's driver, ``fleet/devices/driver.py``). A stop of an arm
+stops the devices mounted on it.
 
 Threads (all ours, all named, all under one ``ThreadGuard``):
 - ``relay`` (DdsLink): takes feedback from DDS, decodes it, updates the trackers, publishes

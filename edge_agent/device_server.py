@@ -1,12 +1,12 @@
-"""The devices' side of the agent (every kind of ``fleet/devices``: Dex1-1, G1): their slots,
-how a stop acts on them, their commands, their stop confirmation and diag.
+"""The devices' side of the agent (every kind of ``fleet/devices``: Dex1-1, G1): their slots, how a
+stop acts on them, their commands, their stop confirmation and diag.
 
-A device's own logic is its kind's *driver* (``fleet/devices/driver.py``): it writes its kind's
-stop action (``write_stop``) under the device's write lock and tells when its state confirms it
-(``stop_confirmed``, checked here on the relay thread after its data or tick); its state
-payload carries the latch at its next put; a reset moves nothing. Its commands get the
-envelope checks every kind gets (``envelope.py``), then, under the device's write lock, the
-latch and the driver's own checks and write (``DeviceDriver.execute``).
+A device's own logic is its kind's *driver* (``fleet/devices/driver.py``): it writes its kind's stop
+action (``write_stop``) under the device's write lock and tells when its state confirms it
+(``stop_confirmed``, checked here on the relay thread after its data or tick); its state payload
+carries the latch at its next put; a reset moves nothing. Its commands get the envelope checks every
+kind gets (``fleet/devices/envelope.py``), then, under the device's write lock, the latch and the
+driver's own checks and write (``DeviceDriver.execute``).
 """
 
 from __future__ import annotations

@@ -1,11 +1,11 @@
 """The agent's ``commands`` thread: key-space commands in, each to its unit's server.
 
 Takes queries off the command inbox and hands each to the ``UnitServer`` of the robot it names
-(``unit.py``), the same way for every kind. Every server runs the same envelope checks first
-(``envelope.py``: the principal and its role, duplicates / out-of-order / lifetime, the lease,
-the watchdog's watch of a coordinator's motion), then the kind's own checks and its write under
-the robot's write lock, with the stop latch read at the moment of writing. Queries the inbox
-could not queue are answered 4003 "busy" (``busy``, on the Zenoh thread: a reply only).
+(``fleet/devices/unit.py``), the same way for every kind. Every server runs the same envelope checks
+first (``fleet/devices/envelope.py``: the principal and its role, duplicates / out-of-order /
+lifetime, the lease, the watchdog's watch of a coordinator's motion), then the kind's own checks and
+its write under the robot's write lock, with the stop latch read at the moment of writing. Queries
+the inbox could not queue are answered 4003 "busy" (``busy``, on the Zenoh thread: a reply only).
 """
 
 from __future__ import annotations

@@ -69,8 +69,8 @@ class SafetyLoop:
         """Arm id -> the devices mounted on it that this agent serves (a stop of the arm
         stops them too; the arm may be served by another agent)."""
         self._servers = servers
-        """How a stop acts on each unit (its kind's ``UnitServer``, ``unit.py``): the only
-        kind-specific part."""
+        """How a stop acts on each unit: its kind's ``UnitServer``
+        (``fleet/devices/unit.py``), the only kind-specific part."""
         self._relay = relay
         self._inbox = inbox
         self._flush = flush

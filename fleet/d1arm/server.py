@@ -1,5 +1,5 @@
 """The D1 arms' side of the agent: how a stop acts on an arm, its feedback and periodic jobs,
-its commands (``arm_serving.py``) and its shutdown hold.
+its commands (``serving.py``) and its shutdown hold.
 
 A stop on an arm: a latch fails its commands in flight; the action (hold of the fresh measured
 pose, unload, power off) is composed from the tracker by the arm writer at the moment of

@@ -1,6 +1,6 @@
-"""The envelope checks every kind's commands get, in one place (the caller holds the agent's
-lock): the principal and its role, duplicates / out-of-order / lifetime (``ordering.py``), the
-lease (``<principal>/<owner>``, takeover, release) and which owners the watchdog watches. A
+"""The envelope checks every kind's commands get, in one place (the caller holds the agent's lock):
+the principal and its role, duplicates / out-of-order / lifetime (``fleet/devices/ordering.py``),
+the lease (``<principal>/<owner>``, takeover, release) and which owners the watchdog watches. A
 kind's own checks and its write come after (``UnitServer.serve``)."""
 
 from __future__ import annotations

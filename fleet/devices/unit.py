@@ -1,9 +1,9 @@
 """The one per-unit contract between the agent core and a robot kind's side of the agent.
 
 Every robot the agent serves is a *unit*. The core keeps what every kind shares and acts on it
-alike (``stops.py``, ``serving.py``, ``agent.py``): the latch, the lease and the watchdog
-(``Unit.safety``), the command order (``Unit.order``). For what is a kind's own, the core
-speaks to the unit's ``UnitServer`` and nothing else, keyed by the unit's id:
+alike (``edge_agent/``: ``stops.py``, ``serving.py``, ``agent.py``): the latch, the lease and
+the watchdog (``Unit.safety``), the command order (``Unit.order``). For what is a kind's own,
+the core speaks to the unit's ``UnitServer`` and nothing else, keyed by the unit's id:
 
 - what a stop does (safety thread): what a new latch ends (``latched``), its confirmation
   starting over (``started``), the stop action composed and written at the moment of writing
@@ -14,8 +14,9 @@ speaks to the unit's ``UnitServer`` and nothing else, keyed by the unit's id:
 - the periodic jobs (relay thread, ``tick``), its own threads (``threads``), and shutdown
   (``hold_if_moving``).
 
-Two servers implement it: ``ArmServer`` (a D1 arm: ``arm_server.py``, ``arm_serving.py``) and
-``DeviceServer`` (every device kind through its driver: ``device_server.py``).
+Two servers implement it: ``ArmServer`` (the D1 arms: ``fleet/d1arm/server.py``) and
+``DeviceServer`` (every device kind through its driver: ``edge_agent/device_server.py``). The
+contract sits below the kinds and the core, so a kind implements it without importing the core.
 
 ``Outbox`` holds the Zenoh puts and query replies computed under the agent's lock, performed
 after it is released.
