@@ -28,6 +28,7 @@ import zenoh
 
 from fleet.beat_limits import BeatGate, max_heartbeat_bytes
 from fleet.control import CONTROL_DEPTH, ControlFifo
+from fleet.devices.unit import IncomingQuery, owner_of
 from fleet.wire import messages as m
 from fleet.wire import payloads
 
@@ -164,23 +165,6 @@ class SafetyInbox:
             beats = list(self._beats.values())
             self._beats.clear()
         return control, beats
-
-
-def owner_of(principal: str, name: str) -> str:
-    """A lease owner or heartbeat source: the authenticated ``principal``, then the name the
-    payload gives (one principal may run several commanders: a player, a mirror, a CLI)."""
-    return f"{principal}/{name}"
-
-
-@dataclass(frozen=True)
-class IncomingQuery:
-    """A command query handed from a Zenoh thread to the agent's command thread.
-    ``principal``: from the query's key (None: the key named none)."""
-
-    arm: str
-    query: zenoh.Query
-    payload: bytes
-    principal: str | None = None
 
 
 class CommandInbox:

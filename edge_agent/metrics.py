@@ -64,7 +64,7 @@ def agent_collectors(agent: Any) -> list[Any]:
                     slot.tracker.status(now, stamp_ns),
                     len(slot.in_flight),
                 )
-                for arm, slot in agent.slots.items()
+                for arm, slot in agent.arms.slots.items()
             }
             counters = agent.counters
             own = {
@@ -77,8 +77,8 @@ def agent_collectors(agent: Any) -> list[Any]:
             for kind, name, text, get in PER_ARM
         ]
         devices = {
-            device: (slot.kind, agent.device_diag(device, now, stamp_ns), slot.safety)
-            for device, slot in agent.devices.items()
+            device: (slot.kind, agent.devices.diag(device, now, stamp_ns), slot.safety)
+            for device, slot in agent.devices.slots.items()
         }
         metrics += [
             kind(

@@ -31,8 +31,7 @@ from itertools import count
 from edge_agent.inbox import ResetEvent, SafetyInbox, StopEvent
 from edge_agent.latches import LatchStore
 from edge_agent.relay import ZenohRelay
-from edge_agent.slots import Outbox, Unit
-from edge_agent.unit_stops import Later, UnitStops
+from fleet.devices.unit import Later, Outbox, Unit, UnitServer
 from fleet.guard import ThreadGuard
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, encode
@@ -55,7 +54,7 @@ class SafetyLoop:
         self,
         lock: threading.Lock,
         slots: dict[str, Unit],
-        stops: dict[str, UnitStops],
+        servers: dict[str, UnitServer],
         relay: ZenohRelay,
         inbox: SafetyInbox,
         flush: Flush,
@@ -69,8 +68,9 @@ class SafetyLoop:
         self._mounted = mounted or {}
         """Arm id -> the devices mounted on it that this agent serves (a stop of the arm
         stops them too; the arm may be served by another agent)."""
-        self._stops = stops
-        """How a stop acts on each unit (``unit_stops.py``): the only kind-specific part."""
+        self._servers = servers
+        """How a stop acts on each unit: its kind's ``UnitServer``
+        (``fleet/devices/unit.py``), the only kind-specific part."""
         self._relay = relay
         self._inbox = inbox
         self._flush = flush
@@ -177,13 +177,13 @@ class SafetyLoop:
                     request.stamp_ns,
                 ):
                     continue
-                self._stops[arm].latched(slot, now, out)
+                self._servers[arm].latched(arm, now, out)
                 latched.append(arm)
         self._reack(repeats)
         if not latched:
             return
         for arm in latched:
-            self._stops[arm].started(self._slots[arm], now)
+            self._servers[arm].started(arm, now)
         later: list[Callable[[], None]] = []  # mirrors and observers, after every DDS write
         for arm in latched:
             self._write_stop(arm, request.stop_id, later)
@@ -194,7 +194,7 @@ class SafetyLoop:
                 ack = self._ack(arm, slot)
                 if ack is not None:
                     acks.puts.append((self._relay.stop_ack(arm), encode(ack)))
-                status = self._stops[arm].status(arm, slot, now, now_ns)
+                status = self._servers[arm].status(arm, now, now_ns)
                 if status is not None:
                     out.puts.append(status)
         self._flush(acks)
@@ -220,9 +220,9 @@ class SafetyLoop:
 
     def _write_stop(self, arm: str, stop_id: str | None, later: Later | None = None) -> bool:
         """Write the stop action of the stop latched on ``arm`` (``stop_id``; None: whichever
-        is latched), composed at the moment of writing (``UnitStops.write``). True if it is
+        is latched), composed at the moment of writing (``UnitServer.write``). True if it is
         this stop's first write (a hold without a fresh pose is written by a later repeat)."""
-        return self._stops[arm].write(arm, stop_id, later)
+        return self._servers[arm].write(arm, stop_id, later)
 
     def _ack(self, arm: str, slot: Unit) -> m.StopAck | None:
         stop = slot.safety.stop
@@ -241,7 +241,7 @@ class SafetyLoop:
 
     def reset(self, arm: str, source: str, stamp_ns: int | None = None) -> None:
         """Release the latch (unless the stop was put after the reset, ``stamp_ns``: see
-        ``ArmSafety.reset``); nothing moves (``UnitStops.released``: an arm holds its fresh
+        ``ArmSafety.reset``); nothing moves (``UnitServer.released``: an arm holds its fresh
         measured pose, a device stays as the stop left it)."""
         now, now_ns = time.monotonic(), time.time_ns()
         with self._lock:
@@ -251,7 +251,7 @@ class SafetyLoop:
                 return
             slot.safety.last_reason = f"reset by {source[:128]}"
         self._latches.forget(arm)
-        self._stops[arm].released(arm, slot, now, now_ns)
+        self._servers[arm].released(arm, now, now_ns)
         log.warning("%s reset by %s", arm, source)
 
     # ------------------------------------------------------------------ periodic
@@ -296,9 +296,9 @@ class SafetyLoop:
             for _t, source in spare[: len(table) - MAX_HEARTBEAT_SOURCES]:
                 del table[source]
 
-    def on_still(self, arm: str, slot: Unit, out: Outbox) -> None:
+    def on_still(self, arm: str, out: Outbox) -> None:
         """Feedback showed a stopped robot still: acknowledge it (caller holds the lock)."""
-        ack = self._ack(arm, slot)
+        ack = self._ack(arm, self._slots[arm])
         if ack is not None:
             out.puts.append((self._relay.stop_ack(arm), encode(ack)))
 

@@ -117,7 +117,7 @@ class ArmConfig(Struct, frozen=True, forbid_unknown_fields=True):
     exec_ack_timeout_s: float = 2.0
     exec_ack_timeouts: dict[str, float] = msgspec.field(default_factory=dict)
     """Execute-ack timeout per op (``move_joint``, ``move_joints``, ``torque``, ``power``,
-    ``zero``) over the built-in table (``edge_agent/acks.py``: moves 5 s, zero 10 s, the rest
+    ``zero``) over the built-in table (``fleet/d1arm/acks.py``: moves 5 s, zero 10 s, the rest
     ``exec_ack_timeout_s``): "executed" may mean "motion finished"."""
     joint_sign: tuple[int, ...] = (1,) * JOINT_COUNT
     watchdog_s: float = 0.5

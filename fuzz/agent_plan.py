@@ -1,4 +1,4 @@
-"""Fuzz target: the agent's command planning (``edge_agent.commands.plan``) on a decoded command
+"""Fuzz target: the agent's command planning (``fleet.d1arm.commands.plan``) on a decoded command
 payload, against an arm tracker in a state chosen by the input.
 
 Input: byte 0 picks the tracker's state (stopped or not, power on/off/unknown, stop action,
@@ -6,7 +6,7 @@ fresh or stale feedback), bytes 1..7 the measured angles it was fed (a valid ang
 possibly a hair outside the documented ranges, as real arms report), the rest is the
 ``arm/<arm>/cmd`` payload.
 
-Property: the payload decodes or gives ``PayloadError``; ``plan`` gives ``Refused`` or a
+Property: the payload decodes or gives ``PayloadError``; ``plan`` gives ``Refusal`` or a
 ``Plan`` whose every D1 command passes ``validate_command``, with angles inside the joint
 ranges (nothing out of range ever reaches DDS); a hold targets the measured pose clamped to the
 ranges; a stopped, powered-off or unfed arm gets no motion; under a ``hold`` stop nothing that
@@ -18,11 +18,12 @@ from __future__ import annotations
 from fuzz.common import instrumented, main
 
 with instrumented():
-    from edge_agent.commands import Plan, Refused, plan
-    from edge_agent.holds import clamp_to_limits
-    from edge_agent.tracker import ArmTracker
     from fleet.d1 import protocol as p
     from fleet.d1.limits import JOINT_COUNT, JOINT_RANGE_DEG
+    from fleet.d1arm.commands import Plan, plan
+    from fleet.d1arm.holds import clamp_to_limits
+    from fleet.d1arm.tracker import ArmTracker
+    from fleet.devices.driver import Refusal
     from fleet.inventory import ArmConfig
     from fleet.wire import payloads
     from fleet.wire.messages import ErrorCode
@@ -63,7 +64,7 @@ def check(data: bytes) -> None:
     tracker, now = tracker_from(data[:HEADER])
     try:
         result = plan(command, tracker, now)
-    except Refused as exc:
+    except Refusal as exc:
         assert exc.code in ErrorCode.__members__.values(), exc
         return
     _check_plan(result, tracker)

@@ -49,7 +49,8 @@ Done = Callable[[DeviceReply], None]
 
 
 class Refusal(Exception):
-    """A driver refuses a command: ``code`` (``fleet.wire.messages.ErrorCode``) and why."""
+    """A command refused, by the core's envelope checks or by a kind (its driver, its plan):
+    ``code`` (``fleet.wire.messages.ErrorCode``) and why."""
 
     def __init__(self, code: m.ErrorCode, message: str) -> None:
         super().__init__(message)

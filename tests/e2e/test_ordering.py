@@ -7,7 +7,7 @@ import time
 
 import msgspec
 
-from edge_agent.ordering import MAX_RECENT, CommandOrder
+from fleet.devices.ordering import MAX_RECENT, CommandOrder
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode
 from testkit.harness import FleetHarness

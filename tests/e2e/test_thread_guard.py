@@ -21,13 +21,14 @@ from typing import Any
 import pytest
 
 import edge_agent.__main__ as agent_main
+from edge_agent.device_server import DeviceServer
 from edge_agent.inbox import SafetyInbox
 from edge_agent.serving import CommandService
 from edge_agent.stops import SafetyLoop
-from edge_agent.tracker import ArmTracker
 from fleet.cli import main as fleet_main
 from fleet.client import FleetClient
 from fleet.coordinator.service import Coordinator
+from fleet.d1arm.tracker import ArmTracker
 from fleet.dex1.messages import GripperHold
 from fleet.dex1.relay import GripperDriver
 from fleet.g1.relay import G1Driver
@@ -196,7 +197,7 @@ def test_a_failed_coordinator_thread_stops_the_heartbeat_and_exits_1(
 DEVICE_INJECTIONS: dict[str, tuple[type, str, int]] = {
     "gripper-driver": (GripperDriver, "tick", 40),
     "g1-driver": (G1Driver, "on_data", 40),
-    "device-commands": (CommandService, "_handle_device", 1),
+    "device-commands": (DeviceServer, "serve", 1),
 }
 
 

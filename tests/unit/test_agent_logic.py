@@ -7,10 +7,11 @@ import math
 
 import pytest
 
-from edge_agent.commands import InFlight, Plan, Refused, plan
-from edge_agent.holds import clamp_to_limits
-from edge_agent.tracker import ArmTracker
 from fleet.d1 import protocol as p
+from fleet.d1arm.commands import InFlight, Plan, plan
+from fleet.d1arm.holds import clamp_to_limits
+from fleet.d1arm.tracker import ArmTracker
+from fleet.devices.driver import Refusal
 from fleet.inventory import ArmConfig
 from fleet.origin.trust import SampleWriter
 from fleet.wire import messages as m
@@ -43,8 +44,8 @@ def _tracker(
     return tracker
 
 
-def _refused(command: m.ArmCommand, tracker: ArmTracker) -> Refused:
-    with pytest.raises(Refused) as info:
+def _refused(command: m.ArmCommand, tracker: ArmTracker) -> Refusal:
+    with pytest.raises(Refusal) as info:
         plan(command, tracker, now=0.0)
     return info.value
 
@@ -198,7 +199,7 @@ def test_hold_refuses_a_start_time_and_a_stale_pose() -> None:
     assert _refused(later, _tracker()).code == ErrorCode.PARAMETER
     tracker = _tracker()
     stale_s = tracker.config.link_stale_s + 0.01
-    with pytest.raises(Refused) as info:
+    with pytest.raises(Refusal) as info:
         plan(m.Hold(), tracker, now=stale_s)
     assert info.value.code == ErrorCode.REJECTED and "fresh" in str(info.value)
 
@@ -504,7 +505,7 @@ def test_feedback_rate_is_measured_over_the_recent_window() -> None:
 
 
 def test_a_stop_also_asked_by_a_heartbeat_is_released_with_the_latched_one() -> None:
-    from edge_agent.safety import ArmSafety
+    from fleet.devices.safety import ArmSafety
 
     safety = ArmSafety(lease_s=3.0, watchdog_s=0.5)
     assert safety.latch("s1", "ann", "", 0.0, 0)
@@ -517,7 +518,7 @@ def test_a_stop_also_asked_by_a_heartbeat_is_released_with_the_latched_one() -> 
 
 
 def test_the_watchdog_counts_the_watch_start_as_a_beat() -> None:
-    from edge_agent.safety import ArmSafety
+    from fleet.devices.safety import ArmSafety
 
     safety = ArmSafety(lease_s=3.0, watchdog_s=0.5)
     safety.watch("coordinator/c", now_s=10.0)
@@ -530,7 +531,7 @@ def test_the_watchdog_counts_the_watch_start_as_a_beat() -> None:
 
 
 def test_unload_and_power_off_stops_wait_for_the_arms_status() -> None:
-    from edge_agent.safety import ArmSafety
+    from fleet.devices.safety import ArmSafety
 
     safety = ArmSafety(lease_s=3.0, watchdog_s=0.5)
     assert safety.latch("s", "x", "", 0.0, 0, action="power_off")
@@ -616,7 +617,7 @@ def test_an_impossible_jump_is_never_the_pose_unless_it_persists() -> None:
 
 
 def test_a_pose_that_drifts_after_an_enable_is_warned_once() -> None:
-    from edge_agent.sag import SagCheck
+    from fleet.d1arm.sag import SagCheck
 
     check = SagCheck()
     check.armed(HOME, 0.0, "enable_mode 1")

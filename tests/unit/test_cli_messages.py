@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from edge_agent.safety import LeaseRefused
 from fleet.choreo.script import ScriptError, parse_script
 from fleet.cli.main import build_parser, main
+from fleet.devices.safety import LeaseRefused
 from fleet.inventory import InventoryError, parse_inventory
 
 REPO = Path(__file__).resolve().parents[2]

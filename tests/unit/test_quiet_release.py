@@ -6,9 +6,10 @@ from __future__ import annotations
 
 import pytest
 
-from edge_agent.safety import ArmSafety
-from edge_agent.serving import Refused, _release
 from fleet.cli.wire_tools import diag_lines
+from fleet.devices.driver import Refusal
+from fleet.devices.envelope import release
+from fleet.devices.safety import ArmSafety
 from fleet.wire import messages as m
 
 
@@ -16,14 +17,14 @@ def test_releasing_a_robot_nobody_holds_is_done_quietly() -> None:
     safety = ArmSafety(lease_s=3.0, watchdog_s=0.5)
     safety.check_owner("player", False, 0.0)  # the player takes the arm
     assert safety.latch("s1", "viewer", "", 1.0, 1)  # a stop ends every lease
-    _release("arm 'a1'", safety, "player", 1.1)  # the player's release after the stop: fine
+    release("arm 'a1'", safety, "player", 1.1)  # the player's release after the stop: fine
     safety.reset()
     safety.check_owner("alice", False, 2.0)
-    with pytest.raises(Refused, match="arm 'a1' is held by alice"):
-        _release("arm 'a1'", safety, "player", 2.1)  # someone else holds it: refused
-    _release("arm 'a1'", safety, "player", 2.0 + 3.5)  # alice's lease expired: nobody holds it
-    with pytest.raises(Refused, match="names its owner"):
-        _release("arm 'a1'", safety, None, 6.0)
+    with pytest.raises(Refusal, match="arm 'a1' is held by alice"):
+        release("arm 'a1'", safety, "player", 2.1)  # someone else holds it: refused
+    release("arm 'a1'", safety, "player", 2.0 + 3.5)  # alice's lease expired: nobody holds it
+    with pytest.raises(Refusal, match="names its owner"):
+        release("arm 'a1'", safety, None, 6.0)
 
 
 def test_diag_shows_the_last_error_whole_and_wrapped() -> None:

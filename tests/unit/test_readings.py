@@ -9,12 +9,12 @@ import xml.etree.ElementTree as ET
 
 import pytest
 
-from edge_agent.acks import AckMatcher, ExecTimeouts
 from fleet.d1 import dds
 from fleet.d1 import protocol as p
 from fleet.d1.errors import InvalidCommand, NetworkInterfaceError
 from fleet.d1.limits import JOINT_RANGE_DEG
 from fleet.d1.topics import MAX_SUFFIX
+from fleet.d1arm.acks import AckMatcher, ExecTimeouts
 from fleet.inventory import InventoryError, parse_inventory
 
 # ----------------------------------------------------------------------------- ack seq

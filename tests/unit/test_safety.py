@@ -1,4 +1,4 @@
-"""The agent's pure safety logic (edge_agent/safety.py) with an injected clock: the stop latch,
+"""The agent's pure safety logic (fleet/devices/safety.py) with an injected clock: the stop latch,
 standstill, the lease and the watchdog. The bugs of earlier rounds lived here: a repeat that
 re-latched after a reset, a watchdog that tripped before the commander was ever heard, a lease
 that outlived a stop."""
@@ -7,7 +7,8 @@ from __future__ import annotations
 
 import pytest
 
-from edge_agent.safety import (
+from fleet.d1.standstill import STILL_SAMPLES, STILL_TOLERANCE_DEG
+from fleet.devices.safety import (
     RESET_IDS_KEPT,
     STOP_CAUSES_KEPT,
     STOP_REASON_CHARS,
@@ -16,7 +17,6 @@ from edge_agent.safety import (
     ArmSafety,
     LeaseRefused,
 )
-from fleet.d1.standstill import STILL_SAMPLES, STILL_TOLERANCE_DEG
 
 HOME = (0.0,) * 7
 LEASE_S, WATCHDOG_S = 3.0, 0.5

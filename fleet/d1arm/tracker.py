@@ -10,15 +10,15 @@ import logging
 from collections import deque
 from dataclasses import dataclass, field
 
-from edge_agent.safety import ArmSafety
-from edge_agent.sag import SagCheck
 from fleet.d1 import protocol as p
 from fleet.d1.errors import MalformedMessage, UnknownMessage
+from fleet.d1arm.sag import SagCheck
+from fleet.devices.safety import ArmSafety
 from fleet.inventory import ArmConfig
 from fleet.origin.trust import OriginFilter, SampleWriter, SpeedCheck
 from fleet.wire.messages import ArmStatus, ContactModel, Diag, LinkState
 
-log = logging.getLogger("edge_agent.tracker")
+log = logging.getLogger("fleet.d1arm.tracker")
 
 RATE_WINDOW = 20
 """Feedback rate is measured over the last 20 angle reports (about 2 s)."""

@@ -10,9 +10,9 @@ repeat writes the hold as soon as fresh feedback returns.
 
 from __future__ import annotations
 
-from edge_agent.tracker import ArmTracker
 from fleet.d1 import protocol as p
 from fleet.d1.limits import JOINT_RANGE_DEG, JointRanges
+from fleet.d1arm.tracker import ArmTracker
 from fleet.wire import messages as m
 
 NO_FRESH_POSE = (

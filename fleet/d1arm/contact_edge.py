@@ -27,18 +27,19 @@ from pathlib import Path
 
 import zenoh
 
-from edge_agent.relay import ZenohRelay
-from edge_agent.slots import ArmSlot, Outbox
-from edge_agent.writer import ArmWriter, transient_seq
 from fleet.contact.calibration import Calibration, CalibrationError, load_calibration
 from fleet.contact.detector import ContactChange, ContactDetector
 from fleet.contact.feed import feed_command
 from fleet.d1 import protocol as p
 from fleet.d1.limits import JOINT_COUNT
+from fleet.d1arm.slot import ArmSlot
+from fleet.d1arm.writer import ArmWriter, transient_seq
+from fleet.devices.unit import Outbox
 from fleet.files import file_stamp
 from fleet.inventory import ArmConfig
 from fleet.wire import keys
 from fleet.wire import messages as m
+from fleet.wire.keys import KeySpace
 from fleet.wire.messages import ErrorCode, encode
 
 log = logging.getLogger("edge_agent.contact")
@@ -67,13 +68,14 @@ class ContactEdge:
     def __init__(
         self,
         configs: dict[str, ArmConfig],
-        relay: ZenohRelay,
+        zenoh_side: tuple[zenoh.Session, KeySpace],
         lock: threading.Lock,
         writer: ArmWriter,
         calibrations: dict[str, Path] | None = None,
     ) -> None:
         self._lock = lock
         self._writer = writer
+        session, space = zenoh_side  # the agent's session and key space
         self._paths = calibrations or {}
         self._stamps: dict[str, tuple[float, int, int] | None] = {}  # files thread only
         self._problems: dict[str, str] = {}  # guarded by lock
@@ -90,8 +92,8 @@ class ContactEdge:
                 config, gripper_closing_sign=arm_config.gripper_closing_sign
             )
             # Events must arrive: BLOCK, like status (a contact is rare and small).
-            self.publishers[arm] = relay.session.declare_publisher(
-                relay.keys.arm(arm, keys.CONTACT),
+            self.publishers[arm] = session.declare_publisher(
+                space.arm(arm, keys.CONTACT),
                 encoding=zenoh.Encoding.APPLICATION_JSON,
                 congestion_control=zenoh.CongestionControl.BLOCK,
                 priority=zenoh.Priority.DATA_HIGH,

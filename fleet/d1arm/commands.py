@@ -9,21 +9,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from edge_agent.holds import allowed_while_latched, fresh_pose
-from edge_agent.tracker import ArmTracker
 from fleet.d1 import protocol as p
 from fleet.d1.errors import InvalidCommand
 from fleet.d1.limits import JOINT_COUNT
+from fleet.d1arm.holds import allowed_while_latched, fresh_pose
+from fleet.d1arm.tracker import ArmTracker
+from fleet.devices.driver import Refusal
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, ErrorInfo
-
-
-class Refused(Exception):
-    """The agent will not send this command; ``code`` is an ErrorCode."""
-
-    def __init__(self, code: ErrorCode, message: str) -> None:
-        super().__init__(message)
-        self.code = code
 
 
 @dataclass(frozen=True)
@@ -42,10 +35,10 @@ def _measured(tracker: ArmTracker, now: float, why: str) -> tuple[float, ...]:
     """The measured pose, only while it is fresh (``holds.fresh_pose``)."""
     arm = tracker.config.id
     if tracker.angles_deg is None:
-        raise Refused(ErrorCode.REJECTED, f"arm {arm!r} sent no angles yet; {why}")
+        raise Refusal(ErrorCode.REJECTED, f"arm {arm!r} sent no angles yet; {why}")
     here = fresh_pose(tracker, now)
     if here is None:
-        raise Refused(
+        raise Refusal(
             ErrorCode.REJECTED, f"arm {arm!r} has no fresh feedback (link {tracker.link}); {why}"
         )
     return here
@@ -58,41 +51,41 @@ def _check_latch(command: m.ArmCommand, tracker: ArmTracker) -> None:
         return
     if isinstance(command, (m.Torque, m.Power)) and not command.on:
         what = "torque off" if isinstance(command, m.Torque) else "power off"
-        raise Refused(
+        raise Refusal(
             ErrorCode.REJECTED,
             f"arm {arm!r} is held by a protective stop: {what} would let it fall; "
             f"`fleet reset {arm}` first (the arm then holds its pose) and send it as its owner",
         )
     if isinstance(command, m.MOTION_OPS):
-        raise Refused(
+        raise Refusal(
             ErrorCode.REJECTED,
             f"arm {arm!r} is stopped (protective stop latched); `fleet reset {arm}` releases it",
         )
-    raise Refused(ErrorCode.REJECTED, f"arm {arm!r} is stopped; reset it first")
+    raise Refusal(ErrorCode.REJECTED, f"arm {arm!r} is stopped; reset it first")
 
 
 def _check_can_move(tracker: ArmTracker) -> None:
     arm = tracker.config.id
     if tracker.link != "ok":
-        raise Refused(
+        raise Refusal(
             ErrorCode.REJECTED,
             f"arm {arm!r} has no fresh feedback (link {tracker.link}); is the arm on and wired?",
         )
     if tracker.powered is False:
-        raise Refused(
+        raise Refusal(
             ErrorCode.REJECTED, f"arm {arm!r} is powered off; send `power on` before moving it"
         )
 
 
 def plan(command: m.ArmCommand, tracker: ArmTracker, now: float) -> Plan:
     """Check ``command`` against the limits and the arm's state at ``now`` (monotonic s);
-    raises Refused."""
+    raises Refusal."""
     try:
         result = _plan(command, tracker, now)
         for d1_command in result.commands:
             p.validate_command(d1_command, tracker.config.joint_ranges_deg)
     except InvalidCommand as exc:
-        raise Refused(ErrorCode.PARAMETER, str(exc)) from None
+        raise Refusal(ErrorCode.PARAMETER, str(exc)) from None
     return result
 
 
@@ -118,7 +111,7 @@ def _plan(command: m.ArmCommand, tracker: ArmTracker, now: float) -> Plan:
         # Hold is allowed while stopped: it is what a stop does. It is written at once, with
         # the pose of that moment: a hold scheduled for later would drag the arm back to now.
         if command.start_at_ns is not None:
-            raise Refused(
+            raise Refusal(
                 ErrorCode.PARAMETER,
                 "hold takes the pose of the moment it is written: start_at_ns is refused",
             )
@@ -129,7 +122,7 @@ def _plan(command: m.ArmCommand, tracker: ArmTracker, now: float) -> Plan:
         return _plan_torque(command, tracker, now)
     if isinstance(command, m.Power):
         return Plan((p.SetPower(command.on),), {})
-    raise Refused(ErrorCode.NOT_IMPLEMENTED, f"unknown command {type(command).__name__}")
+    raise Refusal(ErrorCode.NOT_IMPLEMENTED, f"unknown command {type(command).__name__}")
 
 
 def _plan_torque(command: m.Torque, tracker: ArmTracker, now: float) -> Plan:

@@ -6,9 +6,10 @@ by that arm's write lock, and what to write is decided under the agent's lock *i
 the moment of writing (``compose``): so a motion checked before a stop latched can never be
 written after the stop's own command, and a hold takes the pose of that moment.
 
-Lock order: an arm's write lock, then the agent's lock (briefly, to compose). The agent's lock
-is never held across the DDS write or a Zenoh put; the write lock is held across the DDS write
-(that is its job) but never across a Zenoh put.
+The write locks are the core's, one per robot (``edge_agent/writelocks.py``): a device's driver
+writes under its own the same way. Lock order: an arm's write lock, then the agent's lock
+(briefly, to compose). The agent's lock is never held across the DDS write or a Zenoh put; the
+write lock is held across the DDS write (that is its job) but never across a Zenoh put.
 """
 
 from __future__ import annotations
@@ -18,9 +19,8 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from edge_agent.link import DdsLink
-from edge_agent.slots import ArmSlot
 from fleet.d1 import protocol as p
+from fleet.d1arm.slot import ArmSlot
 
 Compose = Callable[[ArmSlot, float], "tuple[p.Command, int] | None"]
 """Called with the arm's slot and the monotonic time, under the agent's lock, just before the
@@ -47,25 +47,15 @@ class ArmWriter:
         self,
         lock: threading.Lock,
         slots: dict[str, ArmSlot],
-        link: DdsLink,
-        mirror: Callable[[str, str], None],
+        unit_lock: Callable[[str], threading.Lock],
+        dds: tuple[Callable[[str, str], bool], Callable[[str, str], None]],
     ) -> None:
         self._lock = lock
         self._slots = slots
-        self._link = link
-        self._mirror = mirror  # raw/command: what was written, for recorders and debugging
-        self._arm_locks = {arm: threading.Lock() for arm in slots}
+        self._unit_lock = unit_lock  # the core's write lock of each robot
+        # the arm's DDS command writer, and raw/command: what was written, for recorders
+        self._dds_write, self._mirror = dds
         self.observers: list[Observer] = []
-
-    def add_units(self, units: list[str]) -> None:
-        """Give devices a write lock too (``unit_lock``; at start-up only)."""
-        for unit in units:
-            self._arm_locks.setdefault(unit, threading.Lock())
-
-    def unit_lock(self, unit: str) -> threading.Lock:
-        """The write lock of ``unit``: a device's driver writes under it, as an arm's commands
-        are written under it here (a stop's write and a command's never interleave)."""
-        return self._arm_locks[unit]
 
     def write(
         self, arm: str, compose: Compose, later: list[Callable[[], None]] | None = None
@@ -73,7 +63,7 @@ class ArmWriter:
         """Compose and write one command to ``arm``; None if ``compose`` chose nothing. With
         ``later``, the Zenoh mirror and the observers are appended there for the caller to run
         (a stop writes every arm's command to DDS before any Zenoh traffic)."""
-        with self._arm_locks[arm]:
+        with self._unit_lock(arm):
             now = time.monotonic()
             with self._lock:
                 slot = self._slots[arm]
@@ -85,7 +75,7 @@ class ArmWriter:
                 return None
             command, seq = chosen
             text = p.encode_command(command, seq, slot.tracker.config.joint_ranges_deg)
-            ok = self._link.write(arm, text)
+            ok = self._dds_write(arm, text)
             written = Written(ok, time.time_ns(), command, text)
 
         def tell() -> None:
