@@ -24,6 +24,7 @@ from fleet.teleop.mirror import Mirror
 from fleet.wire import messages as m
 from fleet.wire import payloads
 from testkit.harness import FleetHarness, wait_until
+from testkit.load import xfail_if_overloaded
 
 ARMS = ("a1", "a2", "a3")
 SCRIPT = """
@@ -75,9 +76,13 @@ def test_script_completes_with_every_keyframe_within_tolerance(
     assert result.ok, result.reason
     assert len(result.keyframe_error_deg) == 3
     assert max(result.keyframe_error_deg) < 5.0, result
-    # loose: other test runs share these 2 cores; typical is 0.5-1 ms (README)
-    assert result.start_skew_ms is not None and result.start_skew_ms < 60.0
     assert {"step 0", "step 2", "step 3"} <= set(frames)
+    # loose: other test runs share these 2 cores; typical is 0.5-1 ms (docs/results)
+    assert result.start_skew_ms is not None
+    xfail_if_overloaded(
+        [f"start skew {result.start_skew_ms} ms"] if result.start_skew_ms >= 60 else []
+    )
+    assert result.start_skew_ms < 60.0
     final = _angles(client)
     for arm in ARMS:
         assert max(abs(a - b) for a, b in zip(final[arm], [0, 0, 0, 0, 0, 0, 10])) < 1.0
@@ -147,7 +152,9 @@ def test_mirror_follows_a_dragged_leader(fleet3_harness: FleetHarness) -> None:
     result = results[0]
     assert result.ok and result.latencies_ms, result  # type: ignore[attr-defined]
     print(result.summary())  # type: ignore[attr-defined]
-    assert sorted(result.latencies_ms)[len(result.latencies_ms) // 2] < 50.0  # type: ignore[attr-defined]
+    median_ms = sorted(result.latencies_ms)[len(result.latencies_ms) // 2]  # type: ignore[attr-defined]
+    xfail_if_overloaded([f"median latency {median_ms:.0f} ms"] if median_ms >= 50.0 else [])
+    assert median_ms < 50.0
 
 
 def test_recording_replays_the_same_trajectory(

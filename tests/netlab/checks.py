@@ -4,12 +4,9 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from collections import Counter
 from pathlib import Path
 from typing import Any
-
-import pytest
 
 from fleet.d1 import protocol
 from tests.netlab.fleetlab import LabFleet, RemoteClient
@@ -17,29 +14,6 @@ from tests.netlab.fleetlab import LabFleet, RemoteClient
 STILL_DEG = 0.5
 """An arm whose reported angles stay within this of its final pose is still (the agent's own
 standstill test is 3 reports within 0.3 deg)."""
-
-
-OVERLOADED = 1.5
-"""A timing goal missed is reported as XFAIL, naming the load, when the load average exceeds
-this many runnable tasks per core: the lab's links are a userspace process and every host's
-threads share the 2 cores, so such a run measures the scheduler (measured at load 11-16: +15-30
-ms received at 0 % loss; at load 5.5 and again at 3.7, with the lab's devices beside the arms,
-received p99 101 ms against 100, 80 of them the links' own delay; at load 7-10 an agent's
-heartbeats held up past its 0.5 s watchdog at 10 % loss), not the network or the stop."""
-
-
-def overload() -> float | None:
-    """The load average when it is over ``OVERLOADED`` per core, else None."""
-    load = os.getloadavg()[0]
-    return load if load > OVERLOADED * (os.cpu_count() or 1) else None
-
-
-def xfail_if_overloaded(missed: list[str]) -> None:
-    """Timing goals ``missed`` on an overloaded host: an XFAIL naming them and the load (else
-    nothing: the caller asserts them)."""
-    load = overload()
-    if missed and load is not None:
-        pytest.xfail(f"{', '.join(missed)} with load average {load:.1f}")
 
 
 def restore(fleet: LabFleet, client: RemoteClient) -> None:

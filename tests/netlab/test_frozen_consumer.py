@@ -32,7 +32,8 @@ from typing import Any
 import pytest
 
 from testkit.harness import wait_until
-from tests.netlab.checks import percentile, restore, xfail_if_overloaded
+from testkit.load import xfail_if_overloaded
+from tests.netlab.checks import percentile, restore
 from tests.netlab.fleetlab import LabFleet, RemoteClient
 from tests.netlab.labkinds import LAB_KIND_IDS, LAB_KINDS, LabKind
 from tests.netlab.rowreport import RowReport

@@ -39,7 +39,7 @@ from typing import Any
 
 import pytest
 
-from tests.netlab.checks import xfail_if_overloaded
+from testkit.load import xfail_if_overloaded
 from tests.netlab.fleetlab import LabFleet
 from tests.netlab.labkinds import LAB_KIND_IDS, LAB_KINDS, LabKind, SharedRuns
 from tests.netlab.rogueruns import (

@@ -32,7 +32,8 @@ from typing import Any
 import pytest
 
 from testkit.harness import wait_until
-from tests.netlab.checks import commands_seen, joint_moves, restore, xfail_if_overloaded
+from testkit.load import xfail_if_overloaded
+from tests.netlab.checks import commands_seen, joint_moves, restore
 from tests.netlab.fleetlab import LAB_DEVICES, LabFleet, RemoteClient, site_routers
 from tests.netlab.labkinds import LAB_KIND_IDS, LAB_KINDS, LabKind, SharedRuns
 from tests.netlab.rowreport import RowReport

@@ -31,7 +31,8 @@ from typing import Any
 import pytest
 
 from testkit.harness import wait_until
-from tests.netlab.checks import OVERLOADED, datagram_linked, overload, percentile, restore
+from testkit.load import OVERLOADED, overload
+from tests.netlab.checks import datagram_linked, percentile, restore
 from tests.netlab.fleetlab import LabFleet, RemoteClient
 from tests.netlab.labkinds import LAB_KIND_IDS, LAB_KINDS, LabKind, SharedRuns, move_devices
 from tests.netlab.rowreport import RowReport

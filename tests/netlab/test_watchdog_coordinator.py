@@ -39,7 +39,8 @@ from typing import Any
 import pytest
 
 from edge_agent.stops import SAFETY_TICK_S
-from tests.netlab.checks import restore, still_since, xfail_if_overloaded
+from testkit.load import xfail_if_overloaded
+from tests.netlab.checks import restore, still_since
 from tests.netlab.fleetlab import LabFleet, RemoteClient
 from tests.netlab.labkinds import LAB_KIND_IDS, LAB_KINDS, LabKind, move_devices
 from tests.netlab.rowreport import RowReport

@@ -18,7 +18,8 @@ from collections import Counter
 
 import pytest
 
-from tests.netlab.checks import OVERLOADED, overload, restore
+from testkit.load import OVERLOADED, overload
+from tests.netlab.checks import restore
 from tests.netlab.fleetlab import LabFleet
 from tests.netlab.rowreport import RowReport
 
