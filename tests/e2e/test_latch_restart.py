@@ -44,6 +44,11 @@ def test_a_stopped_arm_comes_back_stopped_after_an_agent_restart(
         sub.undeclare()
     client.reset("a1")
     wait_until(lambda: (s := _status(client, "a1")) is not None and not s.estopped, 5.0)
+    # The reset is on disk once the latch file is gone (removed on the agent's latches thread,
+    # just after the status says so): a kill before that brings the arm back stopped, which is
+    # the safe side (seen in a fresh-clone run at load 8-14).
+    latch_file = h.tmp_path / "state" / h.inventory.fleet / "a1.stop.json"
+    wait_until(lambda: not latch_file.exists(), 5.0)
     h.stop("agent", sig=signal.SIGKILL)
     h.start_agent(name="agent")  # after a reset, a restart brings the arm back free
     wait_until(lambda: (s := _status(client, "a1")) is not None and s.link == "ok", 20.0)
