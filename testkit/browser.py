@@ -6,7 +6,8 @@ The ``browser`` fixture is in tests/conftest.py.
 from __future__ import annotations
 
 import io
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -14,6 +15,8 @@ import numpy as np
 import pytest
 from PIL import Image
 from playwright.sync_api import Page, sync_playwright
+
+from testkit.harness import wait_until
 
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMIUM_ARGS = [
@@ -86,3 +89,23 @@ def open_browser(tmp_path: Path) -> Iterator[Browser]:
             yield Browser(context.new_page())
         finally:
             context.close()
+
+
+def click_until(
+    click: Callable[[], None], done: Callable[[], object], timeout_s: float, again_s: float = 3.0
+) -> None:
+    """``click`` (an idempotent control: a safe-mode button, a stop), then wait for ``done``;
+    click again each ``again_s`` it is not (a click on a loaded host, while the page was
+    still laying out a folder just opened, was seen never to reach the viewer; one "Stop
+    move" waited 10 s for nothing). AssertionError after ``timeout_s``."""
+    clicked = [time.monotonic()]
+    click()
+
+    def clicked_and_done() -> object:
+        result = done()
+        if not result and time.monotonic() - clicked[0] > again_s:
+            click()
+            clicked[0] = time.monotonic()
+        return result
+
+    wait_until(clicked_and_done, timeout_s, interval_s=0.1)

@@ -47,6 +47,11 @@ TARGET_LIFETIME_S = 0.3
 """A streamed target older than this is refused by the agent: three control cycles."""
 PATH_WINDOW = 6
 """The measured pose is compared with the targets of the last 6 ticks (feedback lags ~0.1 s)."""
+MAX_LATE_IN_A_ROW = 3
+"""Streamed targets of one arm refused as late (past ``TARGET_LIFETIME_S``) in a row that
+abort the play: one late target is skipped (the arm keeps the previous one and the next
+supersedes it, 0.1 s later; seen at 320 ms on a loaded host), three mean the arm has had no
+fresh target for a third of a second: the link or the host cannot carry the stream."""
 MAX_PENDING = 3
 """Commands in flight per arm beyond which a tick skips the arm."""
 KEYFRAME_WINDOW_S = 0.4
@@ -70,6 +75,28 @@ class PlayResult:
     overtaken: int = 0
     """Targets the agents refused as overtaken by a newer one of ours (the pool sent them out
     of order): harmless, the newer target was taken, but counted."""
+    late: int = 0
+    """Targets the agents refused as arrived past their lifetime, fewer than
+    ``MAX_LATE_IN_A_ROW`` in a row for an arm (more abort the play): skipped, counted."""
+
+
+class LateTargets:
+    """Per unit (a D1 arm, ``g1 <id>``), its streamed targets refused as late since one of its
+    targets was taken: fewer than ``limit`` in a row are skipped, ``limit`` abort."""
+
+    def __init__(self, limit: int = MAX_LATE_IN_A_ROW) -> None:
+        self.limit = limit
+        self._in_a_row: dict[str, int] = {}
+
+    def taken(self, unit: str) -> None:
+        """A target of ``unit`` was taken."""
+        self._in_a_row[unit] = 0
+
+    def tolerable(self, unit: str) -> bool:
+        """One more target of ``unit`` was refused as late: True while fewer than ``limit``
+        in a row."""
+        self._in_a_row[unit] = self._in_a_row.get(unit, 0) + 1
+        return self._in_a_row[unit] < self.limit
 
 
 def overtaken(error: m.ErrorInfo) -> bool:
@@ -133,6 +160,7 @@ class Player:
         self.closing = {a: c.gripper_closing_sign for a, c in arms.items()}
         self.grip = {a: GripDetector(closing_sign=self.closing[a]) for a in self.d1_arms}
         self._last_seq: dict[str, int] = {}
+        self._late = LateTargets()
         # keyframes being measured: (deadline, goal per arm, best error per arm)
         self._keyframes: list[tuple[float, dict[str, Pose], dict[str, float]]] = []
         self.result = PlayResult(False, "not started")
@@ -309,12 +337,19 @@ class Player:
                 raise Abort(problem)
             replies += self.g1.done_replies()
         for reply in replies:
-            if not reply.ok and reply.error is not None and overtaken(reply.error):
+            unit = reply.arm if isinstance(reply, m.CommandReply) else f"g1 {reply.device}"
+            if reply.ok or reply.error is None:
+                self._late.taken(unit)
+            elif overtaken(reply.error):
                 self.result.overtaken += 1  # a newer target of ours was already taken
-            elif not reply.ok and reply.error is not None:
-                unit = reply.arm if isinstance(reply, m.CommandReply) else f"g1 {reply.device}"
+            elif reply.error.code == m.ErrorCode.EXPIRED and self._late.tolerable(unit):
+                self.result.late += 1  # skipped: the next target supersedes it
+            else:
+                again = f"{MAX_LATE_IN_A_ROW} in a row, the last: " * (
+                    reply.error.code == m.ErrorCode.EXPIRED
+                )
                 raise Abort(
-                    f"{unit!r} refused a target: [{reply.error.code}] {reply.error.message}"
+                    f"{unit!r} refused a target: [{reply.error.code}] {again}{reply.error.message}"
                 )
         for arm in self.script.arms:
             measured = self._measured(watch, arm)

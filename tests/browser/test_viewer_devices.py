@@ -18,7 +18,7 @@ from fleet.client import FleetClient
 from fleet.dex1.messages import GripperMove
 from fleet.g1 import loco
 from fleet.wire import messages as m
-from testkit.browser import Browser
+from testkit.browser import Browser, click_until
 from testkit.harness import FleetHarness, free_port, wait_until
 from testkit.kinds import DEVICES, KINDS, LatchWatch
 from tests.browser.test_viewer_shift import expand, open_page
@@ -98,10 +98,15 @@ def test_the_gripper_and_the_g1_from_the_page_under_the_viewers_lease(
 
         # The G1's safe mode buttons: stop move, then damp (the robot goes to FSM 1).
         expand(browser, "G1 h1")
-        page.get_by_role("button", name="Stop move").click()
-        wait_until(lambda: viewer.commander.sent_to("h1"), 10.0)  # type: ignore[union-attr]
-        page.get_by_role("button", name="Damp").click()
-        wait_until(lambda: g1.latest().fsm_id == loco.DAMP_FSM, 15.0)
+        commander = viewer.commander
+        assert commander is not None
+        click_until(
+            page.get_by_role("button", name="Stop move").click,
+            lambda: commander.sent_to("h1"),
+            15.0,
+        )
+        damp = page.get_by_role("button", name="Damp").click
+        click_until(damp, lambda: g1.latest().fsm_id == loco.DAMP_FSM, 20.0)
         failed = [e.text for e in viewer.state.events.newest() if "failed" in e.text]
         assert failed == [], failed
         browser.save_page("20-devices")
