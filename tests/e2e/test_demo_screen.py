@@ -162,5 +162,7 @@ def test_the_demos_screen_keeps_its_block_once_and_its_log_lines_whole(
         )
     assert any("WARNING" in row for row in above), "\n".join(lines)
 
-    # The stop ended the dance's player: the demo reaped it (no zombie).
-    wait_until(lambda: not Path(f"/proc/{player}").exists(), 15.0)
+    # The stop ended the dance's player: the demo reaped it (no zombie). Its ending waits for
+    # the agents up to ENDING_S (5 s) plus the G1 arms' weight ramp, and the demo reaps every
+    # 1-3 s: over 15 s on a loaded host (seen once in a fresh-clone run at load 5-8).
+    wait_until(lambda: not Path(f"/proc/{player}").exists(), 30.0)
