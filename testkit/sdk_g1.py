@@ -34,6 +34,18 @@ from fleet.d1 import dds
 STATE_TOPIC = "rt/sportmodestate"
 
 
+_EMIT_LOCK = threading.Lock()
+
+
+def _emit(record: object) -> None:
+    """One JSON line on stdout, whole: ``print`` writes the text and its newline apart, and
+    the RPC server's and the arm_sdk reader's lines interleaved (``{...}{...}``: a test read
+    a stop's StopMove call as undecodable)."""
+    with _EMIT_LOCK:
+        sys.stdout.write(json.dumps(record) + "\n")
+        sys.stdout.flush()
+
+
 def init_sdk(domain: int) -> None:
     """The SDK's ChannelFactory on ``domain``, on loopback with unicast discovery."""
     from unitree_sdk2py.core import channel
@@ -102,7 +114,7 @@ def run_client(args: argparse.Namespace) -> int:
     out["damp"] = client.SetFsmId(1)  # Damp() returns nothing
     out["damped_s"] = watch.wait(lambda s: s.fsm_id == 1, 3.0)
     out["set_task_id"] = client.SetTaskId(1)  # WaveHand(turn_flag=True), from damping: 3205
-    print(json.dumps(out), flush=True)
+    _emit(out)
     return 0
 
 
@@ -124,7 +136,7 @@ def run_server(args: argparse.Namespace) -> int:
         def handle(parameter: str) -> tuple[int, str]:
             with lock:
                 code, data = model.call(api_id, parameter, time.monotonic())
-            print(json.dumps({"api_id": api_id, "parameter": parameter, "code": code}), flush=True)
+            _emit({"api_id": api_id, "parameter": parameter, "code": code})
             return code, data
 
         return handle
@@ -137,7 +149,7 @@ def run_server(args: argparse.Namespace) -> int:
     publisher.Init()
     lowstate = _arms(lock, model) if args.arms else None
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    print(json.dumps({"ready": args.service, "state": not args.no_state}), flush=True)
+    _emit({"ready": args.service, "state": not args.no_state})
     while not stop.wait(0.01):  # 100 Hz, the G1's sportmodestate rate is not in the seeds
         if args.no_state:
             continue
@@ -166,7 +178,7 @@ def _arms(lock: threading.Lock, model: Any) -> Any:
         ok = cmd.crc == crc.Crc(cmd)
         line = {"arm": round(weight, 4), "crc_ok": ok, "t": time.monotonic()}
         line["q12"] = round(float(cmd.motor_cmd[12].q), 4)
-        print(json.dumps(line), flush=True)
+        _emit(line)
         with lock:
             if ok and model.fsm_id in (4, 500, 501):
                 for i in range(12, 29):
