@@ -88,6 +88,15 @@ def test_the_secure_fleet_works_for_those_who_belong(secure: FleetHarness) -> No
         wait_until(lambda: state.has(b'"online":true'), 5.0)
     finally:
         state.close()
+    # The coordinator's own view of every link: a synchronized move is refused while it knows
+    # none ("its link is unknown": a fresh-clone run).
+    wait_until(
+        lambda: (
+            (s := operator.fleet_state(wait_s=0.5)) is not None
+            and all(a.online and a.link == "ok" for a in s.arms.values())
+        ),
+        10.0,
+    )
     assert operator.multi("all", m.MoveJoint(joint=0, angle_deg=2.0, wait_reached=True)).ok
 
 
