@@ -59,6 +59,10 @@ STATUS_BOUNDS_S = {
 STILL_BOUND_S = WATCHDOG_S + FEEDBACK_S + MARGIN_S
 OBSERVE_S = 2.0
 """How long the arms are watched after the fault, and again after the coordinator is back."""
+ATTEMPTS = 2
+"""Runs of the fault before a unit's missing watchdog stop fails the row: a run whose units had
+all arrived before the fault measured nothing (seen once in CI: every arm at its target with
+no stop; the reply's and the writes' times are now kept to tell why)."""
 
 
 def _fault(lab1: LabFleet, how: str) -> None:
@@ -81,9 +85,11 @@ def _undo(lab1: LabFleet, how: str) -> None:
         lab1.lab.heal("coord")
 
 
-def _move_under_coordinator(lab1: LabFleet, client: RemoteClient, kind: LabKind) -> None:
+def _move_under_coordinator(lab1: LabFleet, client: RemoteClient, kind: LabKind) -> dict[str, Any]:
     """Set the kind's units moving under the coordinator (see the module docstring); the
-    client's recording starts just before."""
+    client's recording starts just before. For arms: the target, how long the synchronized
+    move's reply took and when each arm's command was written (what a run in which an arm had
+    already arrived at the fault is explained by)."""
     if kind.is_arm:
         snap = client.call("snapshot")["arms"]
         start = [snap[arm][1]["angles_deg"][0] for arm in lab1.arms]
@@ -98,14 +104,44 @@ def _move_under_coordinator(lab1: LabFleet, client: RemoteClient, kind: LabKind)
             target = 120.0
         move = {"op": "move_joints", "angles_deg": [target, 0, 0, 0, 0, 0, 0], "mode": 1}
         client.call("watch_take")
-        reply = client.call("multi", target="all", command=move, sync=True)["reply"]
+        multi = client.call("multi", target="all", command=move, sync=True)
+        reply = multi["reply"]
         assert reply["ok"], reply
-        return
+        written = {arm: r["written_ns"] for arm, r in reply["replies"].items()}
+        return {"target_deg": target, "reply_s": round(multi["elapsed_s"], 3), "written": written}
     coordinator = client.call("coordinator")["id"]
     assert coordinator is not None, "no fleet state from the coordinator"
     client.call("watch_take")
     moved = move_devices(lab1, client, kind, principal="coordinator", owner=coordinator)
     assert moved, f"a {kind.name} refused the coordinator's command"
+    return {}
+
+
+def _fault_during_a_move(
+    lab1: LabFleet, client: RemoteClient, kind: LabKind, how: str
+) -> tuple[dict[str, dict[str, Any]], list[Any], dict[str, Any]]:
+    """One run: the kind's units set moving under the coordinator, the fault, ``OBSERVE_S``
+    watched, the coordinator back, ``OBSERVE_S`` more. How each unit was held, the samples
+    after, and the move (see ``_move_under_coordinator``, with the fault's time)."""
+    restore(lab1, client)
+    client.call("watch_start")
+    move = _move_under_coordinator(lab1, client, kind)
+    fault_ns = time.time_ns()
+    try:
+        _fault(lab1, how)
+        time.sleep(OBSERVE_S)
+        during = client.call("watch_take")["samples"]
+    finally:
+        _undo(lab1, how)
+    time.sleep(OBSERVE_S)
+    after = client.call("watch_take")["samples"]
+    held = {unit: _held(kind, during, unit, fault_ns) for unit in kind.units(lab1)}
+    if "written" in move:
+        move["written_before_fault_s"] = {
+            arm: None if ns is None else round((fault_ns - ns) / 1e9, 3)
+            for arm, ns in move.pop("written").items()
+        }
+    return held, after, move
 
 
 def _held(kind: LabKind, samples: list[Any], unit: str, fault_ns: int) -> dict[str, Any]:
@@ -133,20 +169,17 @@ def test_a_lost_coordinator_gets_every_watched_unit_held_until_a_reset(
     lab1: LabFleet, how: str, kind: LabKind, row_report: RowReport
 ) -> None:
     client = lab1.clients["client"]
-    restore(lab1, client)
     units = kind.units(lab1)
-    client.call("watch_start")
-    _move_under_coordinator(lab1, client, kind)
-    fault_ns = time.time_ns()
-    try:
-        _fault(lab1, how)
-        time.sleep(OBSERVE_S)
-        during = client.call("watch_take")["samples"]
-    finally:
-        _undo(lab1, how)
-    time.sleep(OBSERVE_S)
-    after = client.call("watch_take")["samples"]
-    held = {unit: _held(kind, during, unit, fault_ns) for unit in units}
+    missed: list[dict[str, Any]] = []
+    for _attempt in range(ATTEMPTS):
+        held, after, move = _fault_during_a_move(lab1, client, kind, how)
+        idle = [u for u, h in held.items() if h["moved_after_fault_deg"] < kind.moved_min]
+        if not idle:
+            break
+        # The move had ended before the fault (its reply came after the arms arrived): the
+        # run measured nothing (nothing watched them). Kept, shown, and run once more.
+        missed.append({"idle_at_fault": idle, "held": held, "move": move})
+        print(f"\nthe move had ended before the fault for {idle}: {move}; again")
     worst_status = max(h["status_s"] or float("inf") for h in held.values())
     worst_still = max(h["still_s"] for h in held.values())
     status_s = ", ".join(f"{h['status_s'] or float('inf'):.2f}" for h in held.values())
@@ -160,12 +193,14 @@ def test_a_lost_coordinator_gets_every_watched_unit_held_until_a_reset(
         f"watchdog stop in the {'status' if kind.is_arm else 'state'} <= {status_bound:.2f} "
         f"s; still <= {STILL_BOUND_S:.2f} s; no motion for {OBSERVE_S:g} s after, also with "
         "the coordinator back, until a reset",
-        {"held": held},
+        {"held": held, "move": move, "missed_runs": missed},
     )
     for unit, h in held.items():
-        assert h["status_s"] is not None, f"{unit}: no watchdog stop in its status: {h}"
+        assert h["status_s"] is not None, (
+            f"{unit}: no watchdog stop in its status: {h}; the move: {move}; earlier runs: {missed}"
+        )
         moving = h["moved_after_fault_deg"] >= kind.moved_min
-        assert moving, f"{unit} was not moving at the fault: {h}"
+        assert moving, f"{unit} was not moving at the fault: {h}; the move: {move}; {missed}"
     slow = [f"watchdog stop > {status_bound:.2f} s"] if worst_status > status_bound else []
     slow += [f"still > {STILL_BOUND_S:.2f} s"] if worst_still > STILL_BOUND_S else []
     # Nothing moves again, also with the coordinator back, until an operator resets.
