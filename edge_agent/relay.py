@@ -41,6 +41,7 @@ from fleet.inventory import Inventory
 from fleet.security.session import datagram_session, open_session
 from fleet.wire import keys
 from fleet.wire.payloads import DEVICE_PAYLOADS
+from fleet.wire.session import close_bounded
 from fleet.wire.stoppath import TwoPathPublisher
 
 JSON = zenoh.Encoding.APPLICATION_JSON
@@ -287,4 +288,4 @@ class ZenohRelay:
             subscriber.undeclare()
         self._datagram_subscribers.clear()
         self.datagram.close()
-        self.session.close()
+        close_bounded(self.session, "session")

@@ -24,6 +24,7 @@ from fleet.security.session import datagram_session, open_session
 from fleet.wire import keys, payloads, stoppath
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, ErrorInfo, encode
+from fleet.wire.session import close_bounded
 
 JSON = zenoh.Encoding.APPLICATION_JSON
 DEVICE_REPLY = payloads.DEVICE_REPLY
@@ -464,8 +465,8 @@ class FleetClient:
             acks[1].undeclare()
         if self._own_datagram:
             self.datagram.close()
-        if self._own_session and not self.session.is_closed():
-            self.session.close()
+        if self._own_session:
+            close_bounded(self.session, "session")
 
     def __enter__(self) -> FleetClient:
         return self

@@ -32,6 +32,7 @@ from fleet.scene3d.kinematics import ArmModel, load_urdf
 from fleet.security.session import open_session
 from fleet.web.access import AccessGuard, AccessPolicy, new_token, url_host
 from fleet.wire import keys
+from fleet.wire.session import close_bounded
 from viewer.commands import Commander
 from viewer.events import REFUSED
 from viewer.g1_scene import G1Scene
@@ -228,7 +229,7 @@ class Viewer:
             self.commander.close()
         self.state.close()
         if self.session is not None:
-            self.session.close()
+            close_bounded(self.session, "session")
         self.server.stop()
 
     def __enter__(self) -> Viewer:

@@ -31,6 +31,7 @@ from fleet.inventory import Inventory
 from fleet.observe import Observed, add_observe_options
 from fleet.runtime import inventory_from_args, shutdown_event, wait_for
 from fleet.security.session import router_config
+from fleet.wire.session import close_bounded
 
 log = logging.getLogger("fleet")
 ACL_LOG = "zenoh::net::routing::interceptor::access_control"
@@ -132,7 +133,7 @@ def run_router(args: argparse.Namespace) -> int:
         with Observed(session, inventory, "router", args.metrics_port):
             wait_for(stop)
     finally:
-        session.close()
+        close_bounded(session, "router session")
     return 0
 
 

@@ -38,6 +38,7 @@ from fleet.security_config import COMMANDERS
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, encode
+from fleet.wire.session import close_bounded
 from fleet.wire.stoppath import TwoPathPublisher
 
 log = logging.getLogger("fleet.coordinator")
@@ -346,7 +347,7 @@ class Coordinator:
             publisher.undeclare()
         self.client.close()
         self.datagram.close()
-        self.session.close()
+        close_bounded(self.session, "session")
 
     def __enter__(self) -> Coordinator:
         return self

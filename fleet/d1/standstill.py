@@ -1,6 +1,7 @@
 """When a D1 is still: the one definition, from its angle reports. Pure.
 
-The agent confirms a stop with it (and acknowledges ``still_ns``), the choreography player and
+The agent confirms a stop with it (its ``still_ns`` is the first of the reports that agree: the
+arm was still from then; the ack goes with the last), the choreography player and
 the mirror wait for it before they hand an arm back, and the grip check asks it of the gripper.
 At 10 Hz feedback three reports span about 0.3 s: long enough that a decelerating arm is not
 taken for a still one, short enough that a stop is confirmed within half a second.
@@ -35,14 +36,23 @@ class Standstill:
     """Detects standstill from the last few angle reports of one arm."""
 
     window: deque[tuple[float, ...]] = field(default_factory=lambda: deque(maxlen=STILL_SAMPLES))
+    stamps: deque[int] = field(default_factory=lambda: deque(maxlen=STILL_SAMPLES))
 
-    def add(self, angles_deg: Sequence[float]) -> None:
-        """Record one angle report."""
+    def add(self, angles_deg: Sequence[float], stamp_ns: int = 0) -> None:
+        """Record one angle report (``stamp_ns``: when it was received)."""
         self.window.append(tuple(angles_deg))
+        self.stamps.append(stamp_ns)
 
     def clear(self) -> None:
         """Forget history (a new stop starts a new observation)."""
         self.window.clear()
+        self.stamps.clear()
+
+    @property
+    def still_since_ns(self) -> int | None:
+        """When still: the stamp of the first report of the window, the one the later reports
+        agree with (the arm was still from then on; the last report only confirms it)."""
+        return self.stamps[0] if self.still else None
 
     @property
     def still(self) -> bool:

@@ -221,12 +221,15 @@ class ArmSafety:
 
     def on_angles(self, angles_deg: tuple[float, ...], now_ns: int, now_s: float) -> bool:
         """Feed one angle report; True when a latched stop has just been confirmed still."""
-        self.standstill.add(angles_deg)
+        self.standstill.add(angles_deg, now_ns)
         if self.watched_by is not None and self.standstill.still and self._owner_quiet(now_s):
             self.watched_by = None  # the owner's command is over: it stopped commanding
         stop = self.stop
-        if stop is not None and stop.still_ns is None and self.standstill.still:
-            stop.still_ns = now_ns
+        since_ns = self.standstill.still_since_ns
+        if stop is not None and stop.still_ns is None and since_ns is not None:
+            # Still since the first report the others agree with; not before the stop acted
+            # (an arm already still when it came: from the stop's write, or its receipt).
+            stop.still_ns = max(since_ns, stop.dds_written_ns or stop.received_ns)
             return True
         return False
 

@@ -48,6 +48,7 @@ from fleet.ros2.devices import G1_JOINTS, gripper_joints
 from fleet.ros2.diagnostics import arm_status, device_status
 from fleet.security.session import open_session
 from fleet.wire import keys, payloads
+from fleet.wire.session import close_bounded
 
 log = logging.getLogger("fleet.ros2")
 
@@ -427,7 +428,7 @@ class Ros2Node:
         for token in self._tokens:
             token.undeclare()
         if self._own_session:
-            self.session.close()
+            close_bounded(self.session, "session")
 
     def __enter__(self) -> Ros2Node:
         return self

@@ -47,6 +47,7 @@ from fleet.tables import PinnedTable
 from fleet.tap import kind_of
 from fleet.web.access import AccessPolicy, new_token, url_host
 from fleet.wire import keys, payloads
+from fleet.wire.session import close_bounded
 
 log = logging.getLogger("fleet.foxglove")
 
@@ -240,7 +241,7 @@ class FoxgloveBridge:
             self._thread.join(timeout=2.0)
         self.gate.close()
         self.server.stop()
-        self.session.close()
+        close_bounded(self.session, "session")
 
     def __enter__(self) -> FoxgloveBridge:
         return self

@@ -52,6 +52,7 @@ from fleet.sim.faults import FAULT, FaultReply, apply_fault
 from fleet.sim.model import SimArmModel
 from fleet.wire import keys
 from fleet.wire.messages import encode
+from fleet.wire.session import close_bounded
 
 log = logging.getLogger("fleet.sim")
 
@@ -283,7 +284,7 @@ class SimulatedArms:
             queryable.undeclare()
         self._queryables.clear()
         if self._session is not None:
-            self._session.close()
+            close_bounded(self._session, "session")
             self._session = None
         for service in self._services:
             service.__del__()  # as DdsChannel.close: deletes its entities in the DDS core

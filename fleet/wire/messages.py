@@ -326,7 +326,8 @@ class StopAck(Struct, frozen=True):
     """``arm/<arm>/estop/ack``: what the agent did about a stop, with its times (wall clock, ns).
 
     Published when the stop was received and acted on, and again when feedback showed the arm
-    still (``still_ns``), so the fan-out is measurable per arm.
+    still, so the fan-out is measurable per arm. ``still_ns``: when the arm was still, the first
+    of the reports that confirm it (the ack is published with the last of them).
     """
 
     arm: Name

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import logging
+import threading
 from dataclasses import dataclass
 from typing import Literal
 
@@ -206,3 +207,34 @@ def open_datagram(
             str(exc)[:200],
         )
         return None
+
+
+CLOSE_WAIT_S = 2.0
+"""How long closing a session may hold a process's shutdown. Zenoh's own close waits up to
+10 s for a link whose router is gone (seen with a QUIC datagram session, and reported for TCP
+under loss: eclipse-zenoh/zenoh#2675); a process told to stop must not hang that long."""
+
+
+def close_bounded(session: zenoh.Session, what: str, timeout_s: float = CLOSE_WAIT_S) -> bool:
+    """Close ``session``, waiting at most ``timeout_s``; True if it closed in time. Past that,
+    the close goes on on a daemon thread (the process's exit ends it) and a warning says so."""
+    if session.is_closed():
+        return True
+
+    def close() -> None:
+        try:
+            session.close()  # type: ignore[no-untyped-call]
+        except zenoh.ZError as exc:
+            log.warning("closing the %s: %s", what, str(exc)[:200])
+
+    closer = threading.Thread(target=close, name=f"close-{what}", daemon=True)
+    closer.start()
+    closer.join(timeout_s)
+    if closer.is_alive():
+        log.warning(
+            "closing the %s took over %g s (its router unreachable?): not waiting for it",
+            what,
+            timeout_s,
+        )
+        return False
+    return True

@@ -27,6 +27,7 @@ from collections.abc import Callable
 import zenoh
 
 from fleet.wire import keys
+from fleet.wire.session import close_bounded
 
 log = logging.getLogger("fleet.stoppath")
 
@@ -54,6 +55,10 @@ DATAGRAM_QOS: dict[str, object] = {
     "express": True,
 }
 """The datagram copy: never waits (DROP: another copy follows within 10-100 ms), not batched."""
+
+DATAGRAM_CLOSE_WAIT_S = 1.0
+"""A datagram session's close may hold a shutdown this long (QUIC's close waited 10 s for a
+router that was gone: every secure process's shutdown after its router's)."""
 
 BURST_INTERVAL_S = 0.01
 """A new stop's datagram copies go every 10 ms for its first ``BURST_S`` (25 copies, ~8 kB).
@@ -131,8 +136,8 @@ class DatagramSession:
             session, self._session = self._session, None
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(timeout=1.0)
-        if session is not None and not session.is_closed():
-            session.close()  # type: ignore[no-untyped-call]
+        if session is not None:
+            close_bounded(session, "datagram session", DATAGRAM_CLOSE_WAIT_S)
 
 
 class TwoPathPublisher:

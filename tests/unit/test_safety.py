@@ -199,6 +199,35 @@ def test_a_hold_stop_is_confirmed_by_standstill_and_repeated_until_then() -> Non
     assert not _still(safety, 2.0), "confirmed twice"
 
 
+def test_a_stop_is_still_from_the_first_report_the_confirming_ones_agree_with() -> None:
+    """The stop's ``still_ns`` is when the arm stopped moving (the first report of the still
+    window), not when the last report confirmed it: the row's "put -> still" is the arm's, the
+    ack carries both (it is sent at the confirmation)."""
+    safety = _safety()
+    _latch(safety, "s1", now_s=0.0)  # received at 0 ns
+    ms = 1_000_000
+    decelerating = [(10.0,) * 7, (14.0,) * 7, (15.0,) * 7]
+    still = [(15.1,) * 7, (15.1,) * 7]
+    reports = [*decelerating, *still]
+    confirmed = [
+        safety.on_angles(pose, (k + 1) * 100 * ms, 0.1 * (k + 1)) for k, pose in enumerate(reports)
+    ]
+    assert confirmed == [False, False, False, False, True]
+    assert safety.stop is not None
+    assert safety.stop.still_ns == 300 * ms, "still from the third report (15.0) on"
+
+
+def test_an_arm_still_already_is_still_from_the_stops_write_never_before() -> None:
+    safety = _safety()
+    safety.on_angles((0.0,) * 7, 0, 0.0)  # before the stop: the latch clears the window
+    _latch(safety, "s1", now_s=1.0)
+    assert safety.stop is not None
+    safety.stop.dds_written_ns = int(1.05e9)
+    for k in range(STILL_SAMPLES):
+        safety.on_angles((0.0,) * 7, int((1.0 + 0.01 * k) * 1e9), 1.0 + 0.01 * k)
+    assert safety.stop.still_ns == int(1.05e9)
+
+
 def test_standstill_tolerates_noise_below_the_tolerance_only() -> None:
     safety = _safety()
     _latch(safety, "s1")

@@ -1,0 +1,64 @@
+"""Every process stops cleanly on SIGTERM, also when its router stops at the same moment (a
+host shutting down, a supervisor stopping a whole site): exit code 0 within seconds.
+
+Zenoh's close waits up to 10 s for a link whose router is gone: every secure process (its QUIC
+datagram session) hung 10 s at each stop and was killed by the test harness (exit -9), and a
+supervisor would have waited as long. Real processes: router, simulator, an arms' agent, a
+devices' agent (a gripper on the arm, a G1) and the coordinator, plain and with mutual TLS.
+"""
+
+from __future__ import annotations
+
+import signal
+import time
+from pathlib import Path
+
+import pytest
+
+from testkit.harness import FleetHarness, wait_until
+
+DEVICES = '[grippers.gl]\nmount = "a1"\nagent = "agent-lo"\n\n[g1.h1]\nagent = "agent-lo"\n'
+STOPPED_WITHIN_S = 6.0
+"""A session's close may take 2 s (``fleet.wire.session.CLOSE_WAIT_S``), a datagram session's
+1 s, and the rest of a shutdown well under a second on a quiet host: 6 s leaves room for a
+loaded one, and is far from the 10 s Zenoh would wait."""
+
+
+@pytest.mark.parametrize("security", ["none", "mtls"])
+def test_every_process_exits_0_within_seconds_when_its_router_stops_with_it(
+    tmp_path: Path, security: str
+) -> None:
+    with FleetHarness(tmp_path, extra=DEVICES, security=security) as h:
+        h.start_router()
+        h.start_sim()
+        h.start_agent()
+        h.start(
+            "devices",
+            ["-m", "edge_agent", "--principal", "agent-lo", "--device", "gl", "--device", "h1"],
+        )
+        h.start_coordinator()
+        client = h.client()
+        up = lambda: all(s is not None for s in client.device_snapshot(wait_s=1.0).values())  # noqa: E731
+        try:
+            wait_until(up, 40.0)
+            wait_until(lambda: h.all_links_ok(client), 30.0)
+            wait_until(lambda: client.fleet_state(wait_s=1.0) is not None, 20.0)
+        except AssertionError:
+            raise AssertionError(h.diagnose(client) + h.log("devices")[-3000:]) from None
+        client.close()
+        started = time.monotonic()
+        processes = dict(h.processes)
+        for process in processes.values():  # the router first: it is the first one started
+            process.send_signal(signal.SIGTERM)
+        exits: dict[str, tuple[int | None, float]] = {}
+        deadline = started + STOPPED_WITHIN_S
+        while len(exits) < len(processes) and time.monotonic() < deadline:
+            for name, process in processes.items():
+                if name not in exits and process.poll() is not None:
+                    exits[name] = (process.returncode, round(time.monotonic() - started, 2))
+            time.sleep(0.02)
+        hung = sorted(set(processes) - set(exits))
+        logs = {name: h.log(name)[-1500:] for name in hung}
+        assert not hung, f"still running {STOPPED_WITHIN_S:g} s after SIGTERM: {hung}\n{logs}"
+        failed = {name: e for name, e in exits.items() if e[0] != 0}
+        assert not failed, f"exit codes: {exits}\n" + "\n".join(h.log(n)[-1500:] for n in failed)
