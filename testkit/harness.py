@@ -16,6 +16,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import IO, TypeVar
@@ -146,6 +147,8 @@ class FleetHarness:
             from fleet.security.certs import make_certs
 
             make_certs(self.inventory, self.inventory.security.certs, days=2)
+        self.killed: list[str] = []
+        """Processes that had to be killed: they did not stop on their signal."""
         self.processes: dict[str, subprocess.Popen[bytes]] = {}
         self._logs: dict[str, Path] = {}
         self._clients: list[FleetClient] = []
@@ -241,15 +244,22 @@ class FleetHarness:
             process.send_signal(sig)
         return self._reap(process, timeout_s)
 
-    @staticmethod
-    def _reap(process: subprocess.Popen[bytes], timeout_s: float) -> int:
-        """Wait for a signalled process; SIGKILL if it does not exit. Returns its code."""
+    def _reap(self, process: subprocess.Popen[bytes], timeout_s: float) -> int:
+        """Wait for a signalled process; SIGKILL if it does not exit (kept in ``killed`` and
+        warned about: every process must stop on SIGTERM). Returns its code."""
         if process.poll() is None:
             try:
                 process.wait(timeout=timeout_s)
             except subprocess.TimeoutExpired:
                 process.kill()
                 process.wait(timeout=timeout_s)
+                name = next((n for n, p in self.processes.items() if p is process), "?")
+                self.killed.append(name)
+                warnings.warn(
+                    f"{name} (pid {process.pid}) did not exit within {timeout_s:g} s of its "
+                    f"signal: killed. Its log ends:\n{self.log(name)[-800:]}",
+                    stacklevel=2,
+                )
         return int(process.returncode)
 
     def log(self, name: str) -> str:
@@ -270,6 +280,7 @@ class FleetHarness:
         running = [p for p in reversed(list(self.processes.values())) if p.poll() is None]
         for process in running:
             process.send_signal(signal.SIGTERM)
+            process.send_signal(signal.SIGCONT)  # one a test left frozen acts on it too
         for process in running:
             self._reap(process, 10.0)
         self._domain_lock.close()
