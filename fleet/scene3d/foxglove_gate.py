@@ -58,6 +58,9 @@ LOOPBACK = "127.0.0.1"
 UPSTREAM_TRIES = 2
 UPSTREAM_OPEN_S = 5.0
 """Each try's wait for the private server's WebSocket handshake."""
+CLOSE_S = 1.0
+"""How long closing a connection waits for the other side's close frame (websockets' default,
+10 s, held ``fleet foxglove``'s shutdown that long when a client and its pumps closed at once)."""
 
 
 @dataclass(frozen=True)
@@ -132,6 +135,7 @@ class FoxgloveGate:
             subprotocols=list(SUBPROTOCOLS),  # type: ignore[arg-type]
             max_size=CLIENT_MESSAGE_BYTES,
             compression=None,
+            close_timeout=CLOSE_S,
         )
         self.port = int(self._server.socket.getsockname()[1])
         self._thread = guard.thread(self._server.serve_forever, "foxglove-gate")
@@ -196,6 +200,7 @@ class FoxgloveGate:
                     max_size=SERVER_MESSAGE_BYTES,
                     compression=None,
                     open_timeout=UPSTREAM_OPEN_S,
+                    close_timeout=CLOSE_S,
                 )
             except (OSError, TimeoutError, ConnectionClosed) as exc:
                 log.warning(

@@ -104,6 +104,29 @@ class BrowserCamera:
         return inside, float(max(np.ptp(x) / (1.0 + right_edge), np.ptp(y) / 2.0))
 
 
+def _framed(
+    camera: BrowserCamera, points: npt.NDArray[np.float64], what: str, after_reports: int = -1
+) -> float:
+    """Wait until one report of the browser's camera (after ``after_reports`` of them) has
+    every point inside and spanning over 60 % of the view; that span. Inside and spanning in
+    the same report: the browser reports position and look-at apart, and a report between the
+    two has the new position with the old look-at."""
+    seen: list[tuple[bool, float]] = []
+
+    def framed() -> bool:
+        if camera.reports <= after_reports:
+            return False
+        seen.append(camera.span(points))
+        return seen[-1][0] and seen[-1][1] > 0.6
+
+    try:
+        wait_until(framed, 15.0)
+    except AssertionError:
+        why = f"{what} does not frame every arm: (inside, span) {seen[-3:]}"
+        raise AssertionError(why) from None
+    return seen[-1][1]
+
+
 def arm_points(viewer: Viewer) -> npt.NDArray[np.float64]:
     """The points the viewer frames: every arm's whole reach (and its label), in the world."""
     return viewer.scene.view_points()
@@ -118,8 +141,7 @@ def check_the_fit(browser: Browser, viewer: Viewer) -> None:
     assert browser.page.locator(SHARE_ICON).count() == 0  # no share button (a public tunnel)
     camera = BrowserCamera(viewer)
     points = arm_points(viewer)
-    inside, span = wait_until(lambda: (c := camera.span(points))[1] > 0.6 and c, 15.0)
-    assert inside, "an arm is outside the first view"
+    span = _framed(camera, points, "the first view")
     print(f"first view: the arms span {span:.0%} of it")
     browser.save_page("10-fit-at-start")
 
@@ -130,10 +152,7 @@ def check_the_fit(browser: Browser, viewer: Viewer) -> None:
     reports = camera.reports
     browser.page.get_by_role("button", name="Fit view").click()
     # The server sets the camera at once; the browser's own report of it is the proof.
-    inside, span = wait_until(
-        lambda: camera.reports > reports and (c := camera.span(points))[1] > 0.6 and c, 15.0
-    )
-    assert inside
+    span = _framed(camera, points, "Fit view", after_reports=reports)
     print(f"after Fit view: the arms span {span:.0%} of the view")
     browser.save_page("11-fit-after-button")
 

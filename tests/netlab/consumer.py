@@ -13,14 +13,13 @@ import argparse
 import signal
 import sys
 import threading
-import time
 
 import zenoh
 
 from fleet.devices import kind_of
 from fleet.inventory import load_inventory
 from fleet.wire import keys
-from fleet.wire.session import open_client
+from fleet.wire.session import close_bounded, open_client
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -38,9 +37,12 @@ def main(argv: list[str] | None = None) -> int:
     def on_sample(_sample: zenoh.Sample) -> None:
         count[0] += 1
         if args.slow_s:
-            time.sleep(args.slow_s)
+            # Slow until told to stop: then its backlog drains at once and it exits (a sleep
+            # here held its shutdown until the harness killed it, 10 s later).
+            stop.wait(args.slow_s)
 
-    with open_client(inventory.endpoints) as session:
+    session = open_client(inventory.endpoints)
+    try:
         subs = [
             session.declare_subscriber(space.all_arms(channel), on_sample)
             for channel in (keys.JOINTS, keys.STATUS)
@@ -53,6 +55,8 @@ def main(argv: list[str] | None = None) -> int:
         stop.wait()
         for sub in subs:
             sub.undeclare()
+    finally:
+        close_bounded(session, "session")
     print(f"received {count[0]}", flush=True)
     return 0
 
