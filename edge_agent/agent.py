@@ -4,20 +4,20 @@ One core for every kind: D1 arms and the devices of other kinds share one partic
 Zenoh session, one safety inbox and loop, one latch store, one command thread and its envelope
 checks, the write locks and the thread guard. The core speaks to each robot through one
 per-unit contract (``fleet/devices/unit.py``: its safety state, and its kind's ``UnitServer``):
-the arms' server (``fleet/d1arm``, built by ``serve_arms`` from what the core gives it) and the
-devices' (``device_server.py``: a kind's driver, ``fleet/devices/driver.py``). A stop of an arm
-stops the devices mounted on it.
+the server a served kind builds from what the core shares with it (``fleet/devices/served.py``;
+the registry lists them: the D1 arms, ``fleet/d1arm``) and the devices' (``device_server.py``:
+a kind's driver, ``fleet/devices/driver.py``). A stop of an arm stops the devices mounted on it.
 
 Threads (all ours, all named, all under one ``ThreadGuard``):
-- ``relay`` (DdsLink): takes feedback from DDS, decodes it, updates the trackers, publishes
-  joints/status and completes commands whose acks or targets arrived; between samples, the
+- ``relay`` (DdsLink): takes every kind's samples from DDS, decodes them, updates the trackers,
+  publishes joints/status and completes commands whose acks or targets arrived; between samples, the
   periodic jobs (link state, command deadlines, status at 4 Hz, diag at 1 Hz) every 50 ms;
 - ``commands`` (CommandService, serving.py): hands each query to its unit's server, which
   checks it, assigns seqs and writes DDS;
 - ``starts`` (StartScheduler): writes synchronized starts at their time;
 - ``safety`` (SafetyLoop, stops.py): stops and resets first, then heartbeats, the watchdog;
 - ``latches`` (LatchStore): writes latched stops to disk;
-- ``files`` (the arms' server): reads calibration files.
+- a kind's own (the arms' ``files``: reads calibration files).
 If any of them (or a Zenoh callback) fails, the guard latches and stops every arm, and the
 process exits 1 (``__main__``): a supervisor restarts it; it never runs on half alive.
 
@@ -47,9 +47,10 @@ from edge_agent.serving import CommandService
 from edge_agent.stops import SafetyLoop
 from edge_agent.writelocks import WriteLocks
 from fleet.beat_limits import max_heartbeat_bytes
-from fleet.d1arm.host import ArmHost, serve_arms
 from fleet.devices import kind_of
 from fleet.devices.envelope import Principals
+from fleet.devices.registry import served_kinds
+from fleet.devices.served import CoreServices, KindSide
 from fleet.devices.unit import Outbox, Unit, UnitServer
 from fleet.guard import ThreadGuard
 from fleet.inventory import Inventory
@@ -98,20 +99,9 @@ class EdgeAgent:
         self.command_inbox = CommandInbox(
             self.counters, lambda item: self.commands.busy(item), principal_of
         )
-        suffixes = {a: inventory.arm(a).suffix for a in arm_ids}
         # DDS first: if the interface is wrong we fail before announcing anything on Zenoh.
         self._next_status = self._next_diag = 0.0
-        self.link = DdsLink(
-            network,
-            suffixes,
-            (
-                lambda *feedback: self.arms.on_feedback(*feedback),
-                lambda arm, why: self.arms.on_bad_sample(arm, why),
-                self._tick,
-            ),
-            TICK_PERIOD_S,
-            self.guard,
-        )
+        self.link = DdsLink(network, self._tick, TICK_PERIOD_S, self.guard)
         try:
             self.relay = ZenohRelay(
                 inventory,
@@ -124,42 +114,12 @@ class EdgeAgent:
         except BaseException:
             self.link.close()
             raise
-        self.write_locks = WriteLocks([*arm_ids, *device_ids])
-        self.scheduler = StartScheduler(self.guard, self.stopping)
-        principals = Principals(inventory, {})
-        self.devices = DeviceServer(
-            self.lock,
-            self.write_locks,
-            self.relay,
-            principals,
-            self.stopping,
-            (self._on_still, self._own_counts),
-            self.reply_latencies_s,
-        )
-        for device in device_ids:
-            self.devices.add(inventory, device, self.link)
-        self.link.add_drivers(
-            {d: s.driver for d, s in self.devices.slots.items()}, self.devices.on_device
-        )
-        host = ArmHost(
-            lock=self.lock,
-            guard=self.guard,
-            stopping=self.stopping,
-            write_lock=self.write_locks.of,
-            dds_write=self.link.write,
-            mirror=self.relay.mirror_command,
-            publishers=self.relay.publishers,
-            zenoh=(self.relay.session, self.relay.keys),
-            schedule=self._schedule,
-            principals=principals,
-            on_still=self._on_still,
-            flush=self.flush,
-            own_counts=self._own_counts,
-        )
-        self.arms = serve_arms(inventory, arm_ids, host)
-        self.units: dict[str, Unit] = {**self.arms.slots, **self.devices.slots}
-        self.servers: dict[str, UnitServer] = dict.fromkeys(self.arms.slots, self.arms)
-        self.servers |= dict.fromkeys(self.devices.slots, self.devices)
+        try:
+            self._build_kinds(inventory, [*arm_ids, *device_ids])
+        except BaseException:
+            self.link.close()
+            self.relay.close()  # an open session can hang the process at exit
+            raise
         self.latches = LatchStore(state_dir or default_state_dir(), inventory.fleet, self.guard)
         self.safety_loop = SafetyLoop(
             self.lock,
@@ -174,7 +134,7 @@ class EdgeAgent:
             mounted,
         )
         # The envelope's watchdog reads the safety loop's heartbeat table.
-        principals.heartbeats = self.safety_loop.last_heartbeat_s
+        self.principals.heartbeats = self.safety_loop.last_heartbeat_s
         # Stops latched before a restart, before any command can be served.
         for unit in self.units:
             request = self.latches.load(unit)
@@ -186,9 +146,56 @@ class EdgeAgent:
             self.guard.thread(self.commands.run, "commands"),
             self.scheduler.thread,
             self.latches.thread,
-            *self.arms.threads,
-            *self.devices.threads,
+            *(thread for server in self._kind_servers for thread in server.threads),
         ]
+
+    def _build_kinds(self, inventory: Inventory, unit_ids: list[str]) -> None:
+        """Every kind's side on the core's participant and session, then the tokens: the
+        device kinds' drivers, and each served kind the same way, in the registry's order (its
+        readers first in the relay's WaitSet, then the drivers')."""
+        self.write_locks = WriteLocks(unit_ids)
+        self.scheduler = StartScheduler(self.guard, self.stopping)
+        self.principals = principals = Principals(inventory, {})
+        self.devices = DeviceServer(
+            self.lock,
+            self.write_locks,
+            self.relay,
+            principals,
+            self.stopping,
+            (self._on_still, self._own_counts),
+            self.reply_latencies_s,
+        )
+        for device in self.device_ids:
+            self.devices.add(inventory, device, self.link)
+        core = CoreServices(
+            lock=self.lock,
+            guard=self.guard,
+            stopping=self.stopping,
+            write_lock=self.write_locks.of,
+            dds=(self.link.participant, self.link.directory),
+            zenoh=(self.relay.session, self.relay.keys),
+            schedule=self._schedule,
+            principals=principals,
+            on_still=self._on_still,
+            flush=self.flush,
+            own_counts=self._own_counts,
+        )
+        self.sides: dict[str, KindSide] = {
+            kind.name: kind.build(inventory, unit_ids, core) for kind in served_kinds()
+        }
+        for side in self.sides.values():
+            self.link.add_part(side.link)
+        self.link.add_drivers(
+            {d: s.driver for d, s in self.devices.slots.items()}, self.devices.on_device
+        )
+        self.relay.announce([side.close for side in self.sides.values()])
+        served = [(side.server, side.units) for side in self.sides.values()]
+        self._kind_servers: list[UnitServer] = [*(s for s, _ in served), self.devices]
+        self.units: dict[str, Unit] = {}
+        self.servers: dict[str, UnitServer] = {}
+        for server, units in [*served, (self.devices, self.devices.slots)]:
+            self.units |= units
+            self.servers |= dict.fromkeys(units, server)
 
     def start(self) -> EdgeAgent:
         """Start relaying and serving commands."""
@@ -227,7 +234,7 @@ class EdgeAgent:
         if diag:
             self._next_diag = now + DIAG_PERIOD_S
         out = Outbox()
-        for server in (self.arms, self.devices):
+        for server in self._kind_servers:
             server.tick(now, stamp_ns, periodic, diag, out)
         self.flush(out)
 

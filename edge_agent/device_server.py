@@ -14,7 +14,6 @@ from __future__ import annotations
 import collections
 import threading
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import zenoh
@@ -28,14 +27,12 @@ from fleet.devices.driver import DeviceDriver, Refusal, error_reply
 from fleet.devices.envelope import Principals, check_lease, check_order, release
 from fleet.devices.ordering import CommandOrder
 from fleet.devices.safety import ArmSafety
+from fleet.devices.served import OnStill, OwnCounts
 from fleet.devices.unit import IncomingQuery, Later, Outbox, owner_of
 from fleet.inventory import Inventory
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, encode
-
-OnStill = Callable[[str, Outbox], None]
-OwnCounts = Callable[[m.Diag], m.Diag]
 
 
 @dataclass

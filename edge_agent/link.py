@@ -1,12 +1,14 @@
-"""The agent's DDS side and its relay thread: one participant for its (domain, interface), one
-long-lived command writer and one feedback reader per arm, the device drivers' readers and
-writers (``fleet/devices/driver.py``, created on this participant), and the ``relay`` thread.
+"""The agent's DDS side and its relay thread: one participant for its (domain, interface), the
+kinds' readers and writers created on it once, at start-up (a served kind's ``LinkPart``,
+``fleet/devices/served.py``: the D1 arms' feedback readers and command writers; a device
+kind's driver, ``fleet/devices/driver.py``), and the ``relay`` thread.
 
-The relay thread waits on a DDS WaitSet over one ReadCondition per reader. The wait is done in
-CycloneDDS's C core and names the readers that have data, so a sample costs no Python on DDS's
-own receive thread, no queue and no second thread: this thread takes every ready sample of every
-ready reader in one wake-up and hands each to ``on_feedback``, which decodes it and puts it on
-Zenoh. (The Python listener it replaces cost about 100 us of CPU per sample at 100 arms: a
+The relay thread waits on a DDS WaitSet over one ReadCondition per reader of every kind. The
+wait is done in CycloneDDS's C core and names the readers that have data, so a sample costs no
+Python on DDS's own receive thread, no queue and no second thread: this thread takes every
+ready sample of every ready reader in one wake-up, through the taker its part bound to that
+reader at start-up (an arm's hands each sample to its server, which decodes it and puts it on
+Zenoh). (The Python listener it replaces cost about 100 us of CPU per sample at 100 arms: a
 crossing into Python on the receive thread, then a hand-off.) Between samples the same thread
 runs the agent's periodic jobs (``on_tick`` every ``tick_s``) and each device driver's ``tick``
 when the time it asked for comes (a gripper polls its 500 Hz state there, at its relay rate);
@@ -19,12 +21,10 @@ when a writer is created, which a stop cannot afford.
 from __future__ import annotations
 
 import ctypes
-import logging
 import threading
 import time
 from collections.abc import Callable
 
-from cyclonedds._clayer import ddspy_take, ddspy_write
 from cyclonedds.core import (
     DDSException,
     GuardCondition,
@@ -34,26 +34,15 @@ from cyclonedds.core import (
     ViewState,
     WaitSet,
 )
-from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
-from cyclonedds.topic import Topic
 
 from fleet.d1 import dds
 from fleet.devices.driver import DeviceDriver
+from fleet.devices.served import LinkPart
 from fleet.guard import ThreadGuard
 from fleet.inventory import DdsNetwork
 from fleet.origin.directory import WriterDirectory
-from fleet.origin.trust import SampleWriter
 
-log = logging.getLogger("edge_agent.link")
-
-TAKE_BATCH = 64
-ANY_SAMPLE = SampleState.Any | ViewState.Any | InstanceState.Any
-
-FeedbackHandler = Callable[[str, bytes, float, "SampleWriter | None"], None]
-"""(arm id, feedback text as UTF-8 bytes, monotonic receive time, the DDS writer and its host)."""
-BadSampleHandler = Callable[[str, str], None]
-"""(arm id, why the sample is not an ArmString_)."""
 TickHandler = Callable[[float], None]
 """(monotonic now): the periodic jobs."""
 DeviceHandler = Callable[[str, float], None]
@@ -107,47 +96,44 @@ class ReadySet:
 
 
 class DdsLink:
-    """DDS endpoints for every arm the agent serves on one domain and interface."""
+    """The DDS side of the agent on one domain and interface: every kind's readers, one
+    relay thread."""
 
     def __init__(
-        self,
-        network: DdsNetwork,
-        suffixes: dict[str, str],
-        handlers: tuple[FeedbackHandler, BadSampleHandler, TickHandler],
-        tick_s: float,
-        guard: ThreadGuard,
+        self, network: DdsNetwork, on_tick: TickHandler, tick_s: float, guard: ThreadGuard
     ) -> None:
         self._channel = dds.DdsChannel(*network)
-        participant = self._channel.participant
-        self._on_feedback, self._on_bad_sample, self._on_tick = handlers
+        self.participant = self._channel.participant
+        self._on_tick = on_tick
         self._tick_s = tick_s
-        self._readers: list[tuple[str, DataReader]] = []
-        self._writers: dict[str, tuple[DataWriter, bool]] = {}
-        self.write_failures = 0
-        for arm, suffix in suffixes.items():
-            fb = Topic(participant, dds.feedback_topic(suffix), dds.ArmString_)
-            cmd = Topic(participant, dds.command_topic(suffix), dds.ArmString_)
-            reader = DataReader(participant, fb, qos=dds.FEEDBACK_READER_QOS)
-            self._readers.append((arm, reader))
-            writer = DataWriter(participant, cmd, qos=dds.COMMAND_WRITER_QOS)
-            self._writers[arm] = (writer, bool(getattr(writer, "_use_version_2", False)))
-        self.participant = participant
+        self._parts: list[LinkPart] = []
         self._drivers: dict[str, DeviceDriver] = {}
         self._on_device: DeviceHandler = lambda _device, _now: None
         self._ready: ReadySet | None = None
-        self.directory = WriterDirectory(participant)
-        """Who wrote a sample (the arms' feedback and the drivers' state; relay thread)."""
+        self.directory = WriterDirectory(self.participant)
+        """Who wrote a sample (every kind's readings; relay thread)."""
         self._stop = threading.Event()
         self._thread = guard.thread(self._run, "relay")
+
+    def add_part(self, part: LinkPart) -> None:
+        """Take ``part``'s readers on the relay thread too (before ``start``)."""
+        self._parts.append(part)
 
     def add_drivers(self, drivers: dict[str, DeviceDriver], on_device: DeviceHandler) -> None:
         """Serve ``drivers`` on the relay thread too (before ``start``)."""
         self._drivers = dict(drivers)
         self._on_device = on_device
 
+    @property
+    def write_failures(self) -> int:
+        """DDS writes the parts' writers refused since start (the agent's diag)."""
+        return sum(part.write_failures for part in self._parts)
+
     def start(self) -> None:
         """Start relaying feedback and running the periodic jobs."""
-        readers = [reader for _arm, reader in self._readers]
+        sources = [source for part in self._parts for source in part.readers]
+        readers = [reader for reader, _take in sources]
+        self._takers = [take for _reader, take in sources]
         self._device_readers: list[tuple[str, DeviceDriver, int]] = []
         for device, driver in self._drivers.items():
             for index, reader in enumerate(driver.readers):
@@ -156,29 +142,20 @@ class DdsLink:
         self._ready = ReadySet(self.participant, readers)
         self._thread.start()
 
-    def write(self, arm: str, text: str) -> bool:
-        """Write one command string; False if DDS refused it (treat as "maybe sent")."""
-        writer, version_2 = self._writers[arm]
-        ret = ddspy_write(writer._ref, dds.arm_string_sample(text, version_2))
-        if ret < 0:
-            self.write_failures += 1
-            log.warning("DDS write to arm %s failed: %s", arm, DDSException(ret, "write"))
-            return False
-        return True
-
     def _run(self) -> None:
         assert self._ready is not None
-        arms = len(self._readers)
+        takers = self._takers
+        parts = len(takers)
         next_tick = time.monotonic()
         due = dict.fromkeys(self._drivers, next_tick)
         while not self._stop.is_set():
             wake = min(next_tick, *due.values()) if due else next_tick
             ticked: set[str] = set()
             for index in self._ready.wait(wake - time.monotonic()):
-                if index < arms:
-                    self._take(*self._readers[index])
+                if index < parts:
+                    takers[index]()
                     continue
-                device, driver, local = self._device_readers[index - arms]
+                device, driver, local = self._device_readers[index - parts]
                 driver.on_data(local, time.monotonic())
                 ticked.add(device)
             now = time.monotonic()
@@ -189,22 +166,6 @@ class DdsLink:
             if now >= next_tick:
                 next_tick = max(next_tick + self._tick_s, now)
                 self._on_tick(now)
-
-    def _take(self, arm: str, reader: DataReader) -> None:
-        taken = ddspy_take(reader._ref, ANY_SAMPLE, TAKE_BATCH)
-        if isinstance(taken, int):
-            raise DDSException(taken, f"taking feedback of arm {arm}")
-        now = time.monotonic()
-        for serialized, info in taken:
-            if not info.valid_data:  # a writer went away: no data, only a state change
-                continue
-            try:
-                text = dds.arm_string_bytes(serialized)
-            except ValueError as exc:
-                self._on_bad_sample(arm, str(exc))
-                continue
-            writer = self.directory.identify(reader, int(info.publication_handle))
-            self._on_feedback(arm, text, now, writer)
 
     def close(self) -> None:
         """Stop the thread, then delete the participant (idempotent)."""

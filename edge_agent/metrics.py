@@ -8,6 +8,7 @@ import time
 from typing import Any
 
 from fleet.metrics import FunctionCollector, LatencySink, counter, gauge
+from fleet.wire.keys import ARM
 
 # (counter or gauge, name, help, value from (diag, status, commands in flight)) per arm
 PER_ARM: tuple[tuple[Any, str, str, Any], ...] = (
@@ -64,7 +65,7 @@ def agent_collectors(agent: Any) -> list[Any]:
                     slot.tracker.status(now, stamp_ns),
                     len(slot.in_flight),
                 )
-                for arm, slot in agent.arms.slots.items()
+                for arm, slot in agent.sides[ARM].units.items()
             }
             counters = agent.counters
             own = {

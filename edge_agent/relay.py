@@ -1,24 +1,16 @@
-"""The agent's Zenoh side: per-arm publishers, liveliness tokens and command queryables.
+"""The agent's Zenoh side: stop and reset subscriptions, command queryables, stop acks and
+liveliness tokens for every unit, and the device kinds' publishers (a served kind, the D1 arm,
+declares its own on this session: ``fleet/d1arm/publishers.py``).
 
 Publisher QoS, and why:
-- ``joints`` and ``raw/*``: congestion control DROP. They are latest-wins state at 10 Hz; a slow
-  subscriber must never stall the relay of the next sample (the newest sample is what counts).
-  ``raw/feedback`` is put only while a subscriber matches it (Zenoh's matching status): it is
-  for debugging and recording, nobody reads it most of the time, and it doubled the puts of the
-  hot path. ``raw/command`` is always put: it is rare, and a recorder that subscribed just
-  before a command must see it (the agent learns of a new subscriber a moment after the
-  router does).
-- ``status`` and ``diag``: DROP, DATA_HIGH: both repeat (4 Hz, 1 Hz), so a lost sample is
-  replaced within 0.25 s; BLOCK let one subscriber that stopped reading (a frozen viewer) stall
-  the router for every other session (measured on the test bed: 5-10 s without joints).
+- a device's ``state``, ``lowstate`` and ``diag``: DROP (they repeat); ``contact``: BLOCK
+  (events, rare and small).
 - ``estop/ack``: REAL_TIME, on both paths (``fleet/wire/stoppath.py``), DROP: an
   ack goes with every repeat of its stop (the sender repeats until confirmed), and a put that
   waited for room in a TCP link backed off by loss held the safety thread (measured: seconds).
-- ``raw/command``: DROP for the same reason (it is put from the safety thread after a stop's
-  DDS write); a recorder may miss a mirror while the link to the router is congested.
 - command replies go back on the query itself.
 Callbacks run under the agent's guard: they only decode and hand off to the bounded inboxes
-(``inbox.py``); they never block. The per-arm stop, reset and matching callbacks run directly on
+(``inbox.py``); they never block. The per-unit stop and reset callbacks run directly on
 Zenoh's receive thread (``direct``): by default zenoh-python gives every callback a Python thread
 of its own, which at 250 arms was 770 threads in one agent. Two kinds keep their thread: the
 heartbeat (anyone allowed to beat can flood it; on the receive thread each beat would wait for
@@ -30,7 +22,6 @@ that receives the stops).
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import zenoh
 
@@ -45,30 +36,6 @@ from fleet.wire.session import close_bounded
 from fleet.wire.stoppath import TwoPathPublisher
 
 JSON = zenoh.Encoding.APPLICATION_JSON
-
-
-@dataclass
-class ArmPublishers:
-    """The publishers of one arm."""
-
-    joints: zenoh.Publisher
-    status: zenoh.Publisher
-    diag: zenoh.Publisher
-    raw_feedback: zenoh.Publisher
-    raw_command: zenoh.Publisher
-    stop_ack: TwoPathPublisher
-    raw_feedback_matched: bool = False
-
-    def all(self) -> tuple[zenoh.Publisher | TwoPathPublisher, ...]:
-        """Every publisher (for undeclaring)."""
-        return (
-            self.joints,
-            self.status,
-            self.diag,
-            self.raw_feedback,
-            self.raw_command,
-            self.stop_ack,
-        )
 
 
 def principal_of(key: object) -> str | None:
@@ -165,37 +132,41 @@ class ZenohRelay:
                     direct(wrap(on_datagram_stop, "estop")),
                 ),
             ]
-        self.publishers: dict[str, ArmPublishers] = {}
-        self._matching: list[zenoh.MatchingListener[None]] = []
+        self.stop_acks: dict[str, TwoPathPublisher] = {}
+        """Every served unit's ``estop/ack`` (the safety thread's)."""
         self._tokens: list[zenoh.LivelinessToken] = []
         self._queryables: list[zenoh.Queryable[None]] = []
+        self._kinds_closing: list[Callable[[], None]] = []
         for arm in arm_ids:
-            pubs = self.publishers[arm] = self._declare_publishers(arm)
-            on_matching = wrap(self._matcher(pubs), "matching")
-            self._matching.append(pubs.raw_feedback.declare_matching_listener(direct(on_matching)))
+            ack_key = self.keys.arm(arm, keys.ESTOP_ACK)
+            self.stop_acks[arm] = TwoPathPublisher(self.session, self.datagram, ack_key)
             self._queryables.append(
                 self.session.declare_queryable(self.keys.commands(arm), on_query(arm))
             )
-        self.device_publishers: dict[str, dict[str, zenoh.Publisher | TwoPathPublisher]] = {}
+        self.device_publishers: dict[str, dict[str, zenoh.Publisher]] = {}
         for device, kind in devices.items():
             self.device_publishers[device] = self._declare_device_publishers(kind, device)
+            ack_key = self.keys.device(kind, device, keys.ESTOP_ACK)
+            self.stop_acks[device] = TwoPathPublisher(self.session, self.datagram, ack_key)
             commands_key = f"{self.keys.device(kind, device, keys.CMD)}/*"
             self._queryables.append(self.session.declare_queryable(commands_key, on_query(device)))
-        # Tokens last: an agent is announced only once it can serve its robots.
-        tokens = [self.keys.arm(arm, keys.AGENT) for arm in arm_ids]
-        tokens += [self.keys.device(kind, d, keys.AGENT) for d, kind in devices.items()]
-        for token in tokens:
+        self._token_keys = [self.keys.arm(arm, keys.AGENT) for arm in arm_ids]
+        self._token_keys += [self.keys.device(kind, d, keys.AGENT) for d, kind in devices.items()]
+
+    def announce(self, kinds_closing: list[Callable[[], None]]) -> None:
+        """Declare the agent's tokens, once every kind declared its publishers: an agent is
+        announced only once it can serve its robots. ``kinds_closing`` undeclare what the
+        kinds declared on this session (at ``close``, after the tokens)."""
+        self._kinds_closing = list(kinds_closing)
+        for token in self._token_keys:
             self._tokens.append(self.session.liveliness().declare_token(token))
 
-    def _declare_device_publishers(
-        self, kind: str, device: str
-    ) -> dict[str, zenoh.Publisher | TwoPathPublisher]:
-        """state, lowstate (a G1's) and diag: DROP (they repeat); contact: BLOCK (events);
-        estop/ack: both paths."""
+    def _declare_device_publishers(self, kind: str, device: str) -> dict[str, zenoh.Publisher]:
+        """state, lowstate (a G1's) and diag: DROP (they repeat); contact: BLOCK (events)."""
         drop, block = zenoh.CongestionControl.DROP, zenoh.CongestionControl.BLOCK
         lowstate = keys.LOWSTATE in DEVICE_PAYLOADS.get(kind, {})
         extra = ((keys.LOWSTATE, drop, zenoh.Priority.DATA),) if lowstate else ()
-        publishers: dict[str, zenoh.Publisher | TwoPathPublisher] = {
+        return {
             channel: self.session.declare_publisher(
                 self.keys.device(kind, device, channel),
                 encoding=JSON,
@@ -209,14 +180,10 @@ class ZenohRelay:
                 *extra,
             )
         }
-        ack_key = self.keys.device(kind, device, keys.ESTOP_ACK)
-        publishers[keys.ESTOP_ACK] = TwoPathPublisher(self.session, self.datagram, ack_key)
-        return publishers
 
-    def stop_ack(self, unit: str) -> zenoh.Publisher | TwoPathPublisher:
+    def stop_ack(self, unit: str) -> TwoPathPublisher:
         """The ``estop/ack`` publisher of arm or device ``unit``."""
-        pubs = self.publishers.get(unit)
-        return pubs.stop_ack if pubs is not None else self.device_publishers[unit][keys.ESTOP_ACK]
+        return self.stop_acks[unit]
 
     def device_put(self, device: str) -> Callable[[str, bytes, bool], None]:
         """A driver's ``Put`` onto its device's publishers."""
@@ -227,59 +194,23 @@ class ZenohRelay:
 
         return put
 
-    def _declare_publishers(self, arm: str) -> ArmPublishers:
-        def pub(
-            channel: str, congestion: zenoh.CongestionControl, priority: zenoh.Priority
-        ) -> zenoh.Publisher:
-            return self.session.declare_publisher(
-                self.keys.arm(arm, channel),
-                encoding=JSON,
-                congestion_control=congestion,
-                priority=priority,
-            )
-
-        drop = zenoh.CongestionControl.DROP
-        data, high = zenoh.Priority.DATA, zenoh.Priority.DATA_HIGH
-        return ArmPublishers(
-            joints=pub(keys.JOINTS, drop, data),
-            status=pub(keys.STATUS, drop, high),
-            diag=pub(keys.DIAG, drop, data),
-            raw_feedback=pub(keys.RAW_FEEDBACK, drop, data),
-            raw_command=pub(keys.RAW_COMMAND, drop, data),
-            stop_ack=TwoPathPublisher(
-                self.session, self.datagram, self.keys.arm(arm, keys.ESTOP_ACK)
-            ),
-        )
-
-    @staticmethod
-    def _matcher(pubs: ArmPublishers) -> Callable[[zenoh.MatchingStatus], None]:
-        def on_matching(status: zenoh.MatchingStatus) -> None:
-            pubs.raw_feedback_matched = status.matching
-
-        return on_matching
-
-    def mirror_command(self, arm: str, text: str) -> None:
-        """Publish a command string written to ``arm`` on ``raw/command``."""
-        self.publishers[arm].raw_command.put(text)
-
     def close(self) -> None:
         """Undeclare tokens first (the fleet sees the agent leave), then close the session."""
         for token in self._tokens:
             token.undeclare()
         self._tokens.clear()
-        for listener in self._matching:
-            listener.undeclare()
-        self._matching.clear()
+        for undeclare in self._kinds_closing:
+            undeclare()
+        self._kinds_closing.clear()
         for queryable in self._queryables:
             queryable.undeclare()
         self._queryables.clear()
         for subscriber in self._subscribers:
             subscriber.undeclare()
         self._subscribers.clear()
-        for pubs in self.publishers.values():
-            for publisher in pubs.all():
-                publisher.undeclare()
-        self.publishers.clear()
+        for ack in self.stop_acks.values():
+            ack.undeclare()
+        self.stop_acks.clear()
         for device_pubs in self.device_publishers.values():
             for publisher in device_pubs.values():
                 publisher.undeclare()

@@ -13,17 +13,18 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable, Mapping
-from typing import Protocol
+from collections.abc import Mapping
 
 import zenoh
 
 from fleet.d1 import protocol as p
 from fleet.d1arm.contact_edge import ContactEdge
 from fleet.d1arm.holds import NO_FRESH_POSE, hold_command, stop_command
+from fleet.d1arm.publishers import ArmPublishers
 from fleet.d1arm.serving import ArmCommands
 from fleet.d1arm.slot import ArmSlot
 from fleet.d1arm.writer import ArmWriter, transient_seq
+from fleet.devices.served import Flush, OnStill, OwnCounts
 from fleet.devices.unit import IncomingQuery, Later, Outbox
 from fleet.files import FILE_TIMEOUT_S, FileWatcher
 from fleet.guard import ThreadGuard
@@ -37,21 +38,6 @@ CALIBRATION_POLL_S = 1.0
 """How often the ``files`` thread looks for a new calibration file (``fleet calibrate``)."""
 
 
-class Publishers(Protocol):
-    """An arm's Zenoh publishers, the agent's (``edge_agent/relay.py``)."""
-
-    joints: zenoh.Publisher
-    status: zenoh.Publisher
-    diag: zenoh.Publisher
-    raw_feedback: zenoh.Publisher
-    raw_feedback_matched: bool
-
-
-OnStill = Callable[[str, Outbox], None]
-Flush = Callable[[Outbox], None]
-OwnCounts = Callable[[m.Diag], m.Diag]
-
-
 class ArmServer:
     """Every D1 arm of the agent."""
 
@@ -59,7 +45,7 @@ class ArmServer:
         self,
         lock: threading.Lock,
         slots: dict[str, ArmSlot],
-        io: tuple[ArmWriter, Mapping[str, Publishers], ContactEdge, ArmCommands],
+        io: tuple[ArmWriter, Mapping[str, ArmPublishers], ContactEdge, ArmCommands],
         hooks: tuple[OnStill, Flush, OwnCounts],
         guard: ThreadGuard,
         stopping: threading.Event,

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable
 
 from fleet.d1 import protocol as p
 from fleet.d1.seq import SeqExhausted
@@ -22,6 +21,7 @@ from fleet.d1arm.slot import ArmSlot
 from fleet.d1arm.writer import ArmWriter
 from fleet.devices.driver import Refusal
 from fleet.devices.envelope import Principals, check_lease, check_order, release
+from fleet.devices.served import Flush, Schedule
 from fleet.devices.unit import IncomingQuery, Outbox, owner_of
 from fleet.wire import messages as m
 from fleet.wire import payloads
@@ -32,10 +32,6 @@ MAX_START_DELAY_S = 5.0
 MAX_IN_FLIGHT = 32
 """Commands in flight per arm (waiting for acks, a target or a start time); one more is
 refused 4003 "busy". A real client has one or two; 65534 in flight exhausted the seqs."""
-
-Flush = Callable[[Outbox], None]
-Schedule = Callable[[float, Callable[[], None]], "str | None"]
-"""Runs a write at a monotonic time (the core's ``starts`` thread); why not, when it is full."""
 
 
 class ArmCommands:

@@ -184,12 +184,13 @@ KIND_PACKAGES = ("fleet.d1arm", "fleet.dex1", "fleet.g1")
 @cache
 def _loaded_by_name() -> dict[str, frozenset[str]]:
     """What is imported by name at run time (importlib): the registry loads every kind's
-    ``kind.py``, and each ``DeviceKind`` names its driver and simulator modules."""
+    ``kind.py`` (device kinds and served kinds), and each ``DeviceKind`` names its driver and
+    simulator modules."""
     import importlib
 
-    from fleet.devices.registry import KIND_MODULES
+    from fleet.devices.registry import KIND_MODULES, SERVED_MODULES
 
-    edges = {"fleet.devices.registry": frozenset(KIND_MODULES)}
+    edges = {"fleet.devices.registry": frozenset((*KIND_MODULES, *SERVED_MODULES))}
     for name in KIND_MODULES:
         kind = importlib.import_module(name).KIND
         edges[name] = frozenset(entry.partition(":")[0] for entry in (kind.agent, kind.sim))
@@ -224,12 +225,27 @@ def test_the_kinds_loaded_by_name_exist_and_close_no_circle() -> None:
 def test_a_kind_never_imports_the_core_its_siblings_or_the_registry(kind: str) -> None:
     """Kinds are siblings below the agent core (``edge_agent``): the core serves them through
     the per-unit contract, they never reach up into it, into each other, or into the registry
-    (the D1 arm's kind package has no ``kind.py``: the device registry does not list it)."""
+    that loads their ``kind.py`` (the D1 arm's lists it as a served kind)."""
     siblings = tuple(k for k in KIND_PACKAGES if k != kind)
     forbidden = ("edge_agent", "viewer", "fleet.coordinator", "fleet.devices.registry", *siblings)
     assert _violations(kind, forbidden) == []
     if f"{kind}.kind" in _modules():
         assert "fleet.devices.registry" not in imports_of(f"{kind}.kind")
+
+
+def test_every_kind_package_is_in_the_registry() -> None:
+    """Every kind package below the core is loaded through the registry, which the walk and
+    the import rules above then cover."""
+    from fleet.devices.registry import KIND_MODULES, SERVED_MODULES
+
+    listed = {name.rpartition(".")[0] for name in (*KIND_MODULES, *SERVED_MODULES)}
+    assert listed == set(KIND_PACKAGES)
+
+
+def test_the_core_names_no_kind() -> None:
+    """``edge_agent/`` builds every kind from the registry: it imports no kind's package (a
+    fourth kind is one package and one registry line, no line in the core)."""
+    assert _violations("edge_agent", KIND_PACKAGES) == []
 
 
 @pytest.mark.parametrize("folder", ["bench", "fuzz", "testkit"])
