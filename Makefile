@@ -45,14 +45,16 @@ lint: $(STAMP)
 	$(BIN)/mypy fleet/wire fleet/d1
 
 # Everything: lint, then unit, e2e, browser and netlab tests on two workers (the browser tests
-# share one, the netlab tests another, --dist loadgroup), about 11-12 minutes on 2 cores; the
-# tests that measure time run at a higher priority than the rest (testkit/priority.py).
+# share one, the netlab tests another, --dist loadgroup), about 11 minutes on 2 cores; the
+# tests that measure time run at a higher priority than the rest (testkit/priority.py). Every
+# test's time is kept in artifacts/test-results.xml (JUnit XML).
 # TEST_WORKERS=3 takes about 9 but loads the host to 5-14, where a test in every run measured
 # the scheduler (six fresh-clone runs, none green).
 TEST_WORKERS ?= 2
 test: $(STAMP) lint
 	sh scripts/ensure-chromium
-	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadgroup --durations=40
+	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadgroup --durations=40 \
+		--junitxml=artifacts/test-results.xml
 
 # The pure tests only (tests/unit: no process, no network), in under a minute: while working.
 test-fast: $(STAMP)
