@@ -66,7 +66,6 @@ class ZenohRelay:
         # The stops' datagram path: stops and heartbeats also arrive over UDP, acks
         # also leave that way; opened here, before anything is announced.
         self.datagram = datagram_session(inventory)
-        datagram = self.datagram.open()
         safety, commands = inboxes
         wrap = guard.wrap
 
@@ -107,19 +106,20 @@ class ZenohRelay:
         self._subscribers.append(sub(self.keys.heartbeat, on_heartbeat))
         # Resets never take the datagram path: a reset must not overtake the stop before it.
         self._datagram_subscribers: list[zenoh.Subscriber[None]] = []
-        if datagram is not None:
+        units = dict(stop_keys)
+        safety_stop = safety.on_stop
+
+        def on_datagram_stop(sample: zenoh.Sample) -> None:
+            key = keys.reliable_key(str(sample.key_expr))
+            if key in units:
+                safety_stop(units[key], sample.payload.to_bytes())
+
+        def declare_datagram(datagram: zenoh.Session) -> None:
             # Wildcards only, on this session: Zenoh sends a put's key as "declared resource +
             # suffix" when the session declared a prefix of it (a subscriber on arm/a1/estop
             # makes arm/a1/estop/ack refer to it), and a datagram referring to a declaration
-            # lost on the way is dropped by the router for good ("unknown scope").
-            units = dict(stop_keys)
-            safety_stop = safety.on_stop
-
-            def on_datagram_stop(sample: zenoh.Sample) -> None:
-                key = keys.reliable_key(str(sample.key_expr))
-                if key in units:
-                    safety_stop(units[key], sample.payload.to_bytes())
-
+            # lost on the way is dropped by the router for good ("unknown scope"). Now, or
+            # when a later try opens the session (DatagramSession.open).
             twin = keys.datagram_key
             self._datagram_subscribers += [
                 # The datagram copies' own keys (``keys.DATAGRAM``), on the receive thread
@@ -132,6 +132,9 @@ class ZenohRelay:
                     direct(wrap(on_datagram_stop, "estop")),
                 ),
             ]
+
+        self.datagram.on_open(declare_datagram)
+        self.datagram.open()
         self.stop_acks: dict[str, TwoPathPublisher] = {}
         """Every served unit's ``estop/ack`` (the safety thread's)."""
         self._tokens: list[zenoh.LivelinessToken] = []

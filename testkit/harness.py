@@ -162,6 +162,8 @@ class FleetHarness:
         ``inventory`` is False); output to a log file. ``prefix`` runs it through another
         command, e.g. ``ip netns exec <ns>``."""
         log_path = self.tmp_path / f"{name}.log"
+        if log_path.exists():  # a restart: the previous run's output is kept beside it
+            log_path.replace(log_path.with_suffix(".log.1"))
         self._logs[name] = log_path
         extra = ["--inventory", str(self.inventory_path)] if inventory else []
         with open(log_path, "wb") as log:

@@ -56,6 +56,9 @@ DATAGRAM_QOS: dict[str, object] = {
 }
 """The datagram copy: never waits (DROP: another copy follows within 10-100 ms), not batched."""
 
+REOPEN_MAX_S = 10.0
+"""The longest wait between two tries to open a datagram session that found no router."""
+
 DATAGRAM_CLOSE_WAIT_S = 1.0
 """A datagram session's close may hold a shutdown this long (QUIC's close waited 10 s for a
 router that was gone: every secure process's shutdown after its router's)."""
@@ -80,6 +83,9 @@ class DatagramSession:
         self, opener: Callable[[], zenoh.Session | None] | None, endpoints: str | None = None
     ) -> None:
         self._opener = opener
+        self._declares: list[Callable[[zenoh.Session], None]] = []  # guarded by _lock
+        self._retry: threading.Thread | None = None
+        self._closing = threading.Event()
         self._endpoints = endpoints
         """Where it connects (``path``), e.g. ``quic/10.0.0.1:7447?rel=0``."""
         self._lock = threading.Lock()
@@ -101,19 +107,60 @@ class DatagramSession:
             return None
         return self._endpoints
 
+    def on_open(self, declare: Callable[[zenoh.Session], None]) -> None:
+        """Run ``declare`` with the session once it is open: now if it is, else when a later
+        try opens it (on that try's thread). What a process subscribes to on this path."""
+        with self._lock:
+            session = self._session
+            if session is None:
+                self._declares.append(declare)
+        if session is not None:
+            declare(session)
+
     def open(self) -> zenoh.Session | None:
-        """Open it now (once); the session, or None."""
-        opener, self._opener = self._opener, None
+        """Try to open it now; the session, or None. A try that finds no router (one
+        restarting, a link still down) is tried again in the background, every 1 s, doubling
+        up to ``REOPEN_MAX_S``, until one opens or ``close``: a process started at the wrong
+        moment must not keep only the reliable path for its whole life (measured: a
+        coordinator restarted while its router's UDP did not answer sent every later beat over
+        TCP only, and at 10 % loss each arm tripped its watchdog 6-8 times in 40 s)."""
+        session = self._try()
+        configured = self._opener is not None and self._endpoints is not None
+        if session is None and configured and self._retry is None and not self._closed:
+            self._retry = threading.Thread(target=self._reopen, name="datagram-reopen", daemon=True)
+            self._retry.start()
+        return session
+
+    def _try(self) -> zenoh.Session | None:
+        with self._lock:
+            if self._session is not None or self._closed:
+                return self._session  # open already (never a second session), or closing
+        opener = self._opener
         session = opener() if opener is not None else None
         with self._lock:
             if self._closed:
-                late = session
-                session = None
+                late, session = session, None
             else:
                 self._session, late = session, None
+            declares = list(self._declares) if session is not None else []
+            if session is not None:
+                self._declares.clear()
         if late is not None:
-            late.close()  # type: ignore[no-untyped-call]  # closed while opening
+            close_bounded(late, "datagram session", DATAGRAM_CLOSE_WAIT_S)  # closed meanwhile
+        for declare in declares:
+            declare(session)  # type: ignore[arg-type]
         return session
+
+    def _reopen(self) -> None:
+        wait_s = 1.0
+        while not self._closing.wait(wait_s):
+            try:
+                if self._try() is not None:
+                    log.warning("datagram path for stops open (a later try): %s", self._endpoints)
+                    return
+            except Exception:  # never a crash: stops keep the reliable path
+                log.exception("reopening the datagram session failed")
+            wait_s = min(wait_s * 2.0, REOPEN_MAX_S)
 
     def start(self) -> None:
         """Open it on a thread of its own (a failure is logged: stops then take the reliable
@@ -134,8 +181,10 @@ class DatagramSession:
         with self._lock:
             self._closed = True
             session, self._session = self._session, None
-        if self._thread is not None and self._thread is not threading.current_thread():
-            self._thread.join(timeout=1.0)
+        self._closing.set()
+        for thread in (self._thread, self._retry):
+            if thread is not None and thread is not threading.current_thread():
+                thread.join(timeout=1.0)
         if session is not None:
             close_bounded(session, "datagram session", DATAGRAM_CLOSE_WAIT_S)
 

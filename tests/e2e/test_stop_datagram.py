@@ -81,3 +81,41 @@ def test_duplicated_replayed_and_flooded_stop_datagrams(fleet_harness: FleetHarn
     finally:
         rogue.close()
         client.reset(source="test")
+
+
+def test_an_agent_started_before_its_routers_datagram_path_opens_it_later(
+    fleet_harness: FleetHarness,
+) -> None:
+    """A datagram session that found no router at start is tried again until one answers: an
+    agent started while its router had no UDP endpoint (here: a router without one, then the
+    router restarted with it) gets the datagram path once the endpoint is there, and acts on
+    a stop that comes only that way."""
+    h = fleet_harness
+    no_udp = h.tmp_path / "router-no-datagram.toml"
+    text = h.inventory_path.read_text(encoding="utf-8")
+    no_udp.write_text(text.replace("[zenoh]\n", "[zenoh]\ndatagram = false\n", 1), "utf-8")
+    router_argv = ["-m", "fleet.cli.main", "router", "--inventory"]
+    h.start("router", [*router_argv, str(no_udp)], inventory=False)
+    wait_until(h._port_open, 15.0)
+    h.start_sim()
+    h.start_agent("a1")
+    wait_until(lambda: "no datagram path for stops" in h.log("agent"), 20.0)
+    h.stop("router")
+    h.start_router()  # the fleet's own inventory: TCP and its UDP twin
+    client = h.client()
+    wait_until(lambda: h.all_links_ok(client), 30.0)
+    wait_until(lambda: "datagram path for stops open (a later try)" in h.log("agent"), 30.0)
+    sender = open_datagram(h.inventory.endpoints, h.inventory.datagram)
+    assert sender is not None
+    try:
+        request = client.stop_request(reason="datagram only", source="test")
+
+        def latched() -> bool:
+            twin = keys.datagram_key(client.keys.estop)
+            sender.put(twin, m.encode(request), encoding=JSON, **DATAGRAM_QOS)  # type: ignore[arg-type]
+            return bool(_estopped(client))
+
+        wait_until(latched, 15.0, interval_s=0.3)
+    finally:
+        sender.close()
+        client.reset(source="test")
