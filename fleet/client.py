@@ -10,7 +10,7 @@ import socket
 import threading
 import time
 import uuid
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from typing import Any, TypeVar
 
 import msgspec
@@ -30,6 +30,14 @@ JSON = zenoh.Encoding.APPLICATION_JSON
 DEVICE_REPLY = payloads.DEVICE_REPLY
 REPLY_MARGIN_S = 2.0
 """A command's query waits this much longer than the command's own timeout."""
+AS_THEY_COME = zenoh.ConsolidationMode.NONE
+"""How a command's query takes its replies: each one the moment it arrives. Zenoh's default
+(latest per key) holds every reply until the query is final, and a query is final only when
+every queryable the routers sent it to has answered: one that never does (a stale route after a
+session reconnected under loss, a frozen or hostile process declaring the key) held every
+command's reply until its timeout (measured in the network lab after 30 % loss: a synchronized
+move's reply 5.0 s after the arms had moved). The agents reply on each arm's own key, so there
+is nothing to merge."""
 COMMAND_LIFETIME_S = 5.0
 """A command that reaches its agent later than this after it was sent is refused (4005): a
 replay, or a network that held it, never executes it late. Hosts' clocks must agree to well
@@ -120,10 +128,7 @@ class FleetClient:
         self.inventory.arm(arm)  # unknown arm: InventoryError with the known ones
         command = self.stamp(command)
         timeout = (command.timeout_s if command.wait_reached else 3.0) + REPLY_MARGIN_S
-        replies = self.session.get(
-            self.command_key(arm), payload=encode(command), encoding=JSON, timeout=timeout
-        )
-        for reply in replies:
+        for reply in self.ask(self.command_key(arm), encode(command), timeout):
             if reply.ok is None:
                 continue
             try:
@@ -151,7 +156,7 @@ class FleetClient:
         kind = kind_of(self.inventory.device(device)).key
         key = self.keys.device_command(kind, device, self.principal)
         data = command if isinstance(command, bytes) else encode(self.stamp(command))
-        for reply in self.session.get(key, payload=data, encoding=JSON, timeout=timeout_s):
+        for reply in self.ask(key, data, timeout_s):
             if reply.ok is None:
                 continue
             try:
@@ -183,7 +188,7 @@ class FleetClient:
         )
         timeout = (command.timeout_s if command.wait_reached else 3.0) + 2 * REPLY_MARGIN_S
         key = self.keys.coordinator_command(self.principal)
-        for reply in self.session.get(key, payload=encode(request), encoding=JSON, timeout=timeout):
+        for reply in self.ask(key, encode(request), timeout):
             if reply.ok is not None:
                 try:
                     return payloads.MULTI_REPLY.decode(reply.ok.payload.to_bytes())
@@ -192,6 +197,15 @@ class FleetClient:
                     return m.MultiArmReply(False, {}, None, ErrorInfo(int(ErrorCode.UNKNOWN), why))
         why = f"no coordinator answered on {key}; is `fleet coordinator` running?"
         return m.MultiArmReply(False, {}, None, ErrorInfo(int(ErrorCode.NO_AGENT), why))
+
+    def ask(self, key: str, payload: bytes, timeout_s: float) -> Iterator[zenoh.Reply]:
+        """A command's query: its replies as they arrive (``AS_THEY_COME``), for up to
+        ``timeout_s``."""
+        return iter(
+            self.session.get(
+                key, payload=payload, encoding=JSON, consolidation=AS_THEY_COME, timeout=timeout_s
+            )
+        )
 
     def command_key(self, arm: str) -> str:
         """Where this client's commands to ``arm`` go (``arm/<arm>/cmd/<principal>``)."""

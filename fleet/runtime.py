@@ -4,6 +4,7 @@ signals, the inventory options."""
 from __future__ import annotations
 
 import argparse
+import faulthandler
 import json
 import logging
 import logging.handlers
@@ -142,16 +143,30 @@ def setup_logging_from_args(args: argparse.Namespace, role: str) -> None:
     )
 
 
-def shutdown_event(quiet: bool = False) -> threading.Event:
+SHUTDOWN_BOUND_S = 8.0
+"""A process still running this long after its first SIGINT/SIGTERM/SIGHUP prints every
+thread's stack to stderr and exits (code 1): a shutdown stuck in a library call (a Zenoh
+undeclare or close, a DDS delete, a join) must neither outlive its supervisor's patience (the
+demo and the tests wait 10 s, then SIGKILL, which says nothing) nor leave no trace of where it
+hung. Normal shutdowns take 0.1-3 s (``close_bounded`` caps a session's close at 2 s)."""
+
+
+def shutdown_event(
+    quiet: bool = False, bound_s: float | None = SHUTDOWN_BOUND_S
+) -> threading.Event:
     """An Event set by SIGINT, SIGTERM or SIGHUP (its terminal closed): call from the main
     thread. A service logs the signal; ``quiet``: a command a user ends with Ctrl-C (``status
-    --watch``, ``hz``, ``echo``, ``diag``) just ends, no log line."""
+    --watch``, ``hz``, ``echo``, ``diag``) just ends, no log line. From the first signal the
+    process has ``bound_s`` to exit (``SHUTDOWN_BOUND_S``; None: no bound, for a supervisor
+    that bounds its children's shutdowns itself)."""
     stop = threading.Event()
 
     def handler(signum: int, _frame: FrameType | None) -> None:
         if not quiet:
             name = signal.Signals(signum).name
             logging.getLogger("fleet").info("received %s, shutting down", name)
+        if bound_s is not None and not stop.is_set():
+            faulthandler.dump_traceback_later(bound_s, exit=True)
         stop.set()
 
     signal.signal(signal.SIGINT, handler)

@@ -10,6 +10,7 @@ from __future__ import annotations
 import fcntl
 import itertools
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -81,6 +82,11 @@ def free_port() -> int:
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
         return int(probe.getsockname()[1])
+
+
+HUNG_AT_SHUTDOWN = re.compile(r"^Timeout \(\d+:\d\d:\d\d(\.\d+)?\)!$", re.MULTILINE)
+"""What a process prints when its shutdown outlasted ``fleet.runtime.SHUTDOWN_BOUND_S`` (its
+threads' stacks follow)."""
 
 
 def wait_until(predicate: Callable[[], T], timeout_s: float, interval_s: float = 0.05) -> T:
@@ -282,11 +288,14 @@ class FleetHarness:
         for process in running:
             self._reap(process, 10.0)
         self._domain_lock.close()
-        if self.killed:
+        hung = [name for name in self.processes if HUNG_AT_SHUTDOWN.search(self.log(name))]
+        if self.killed or hung:
             # After every process is reaped: the suite's filterwarnings turn this into an error.
             logs = "\n".join(f"{name}: ...{self.log(name)[-600:]}" for name in self.killed)
+            logs += "\n".join(f"{name}: ...{self.log(name)[-4000:]}" for name in hung)
             warnings.warn(
-                f"killed, no exit within 10 s of SIGTERM: {', '.join(self.killed)}\n{logs}",
+                f"killed, no exit within 10 s of SIGTERM: {', '.join(self.killed) or 'none'}; "
+                f"stuck at shutdown, stacks printed: {', '.join(hung) or 'none'}\n{logs}",
                 stacklevel=2,
             )
 

@@ -329,7 +329,7 @@ def _run_demo(args: argparse.Namespace, inventory: Inventory) -> int:
     if busy:
         print(busy_message("fleet demo", busy), file=sys.stderr)
         return 3
-    stop = shutdown_event()
+    stop = shutdown_event(bound_s=None)  # its children are bounded each (_stop_children)
     common = _common_argv(args, inventory)
     screen = Screen(sys.stdout)
     spawner = _Children(screen)

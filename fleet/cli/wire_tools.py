@@ -374,7 +374,7 @@ def run_fault(args: argparse.Namespace) -> int:
         return 2
     with FleetClient(inventory, connect_timeout_s=args.connect_timeout) as client:
         key = client.keys.arm(arm, keys.SIM_FAULT)
-        for reply in client.session.get(key, payload=m.encode(request), timeout=3.0):
+        for reply in client.ask(key, m.encode(request), 3.0):
             if reply.ok is None:
                 continue
             try:

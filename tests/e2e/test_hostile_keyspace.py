@@ -18,7 +18,7 @@ from fleet.client import FleetClient
 from fleet.wire import keys
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode
-from fleet.wire.session import open_client
+from fleet.wire.session import close_bounded, open_client
 from testkit.harness import FleetHarness, wait_until
 from testkit.hostile import (
     POISONS,
@@ -265,6 +265,49 @@ def test_a_query_flood_is_answered_busy_never_dropped(
     assert set(codes) <= {0, ErrorCode.BUSY, ErrorCode.TIMEOUT}, codes
     assert codes.get(ErrorCode.TIMEOUT, 0) <= 10, codes
     assert_fleet_stops_and_serves(harness, client)
+
+
+def test_a_queryable_that_never_answers_delays_no_command_reply(
+    fleet: tuple[FleetHarness, FleetClient],
+) -> None:
+    """A process declares every arm's command key and the coordinator's, takes each query and
+    never answers it (a frozen or hostile process; in the network lab, a route left stale by a
+    session that reconnected under loss). The genuine replies must not wait for it: with
+    Zenoh's default consolidation each one arrived at its query's timeout (a command 5 s, a
+    synchronized move 5 s through the coordinator's own command queries)."""
+    harness, client = fleet
+    wait_reset(client, ARMS)
+    held: list[zenoh.Query] = []
+    mute = open_client([harness.endpoint])
+    try:
+        for key in (client.keys.all_arms(keys.CMD) + "/*", client.keys.coordinator_cmd):
+            mute.declare_queryable(key, held.append)
+        wait_until(lambda: _held_one(client, held), 10.0)
+        started = time.monotonic()
+        reply = client.command("a1", m.Hold())
+        command_s = time.monotonic() - started
+        move = m.MoveJoint(joint=0, angle_deg=5.0)
+        started = time.monotonic()
+        multi = client.multi("all", move)
+        multi_s = time.monotonic() - started
+        print(f"with a mute queryable: command replied in {command_s:.3f} s, a move of both arms")
+        print(f"through the coordinator in {multi_s:.3f} s; {len(held)} queries held")
+        assert reply.ok, reply
+        assert multi.ok, multi
+        # A reply held to the timeout takes 5 s (3 + REPLY_MARGIN_S); half of that is far off.
+        assert command_s < 2.5 and multi_s < 2.5, (command_s, multi_s)
+    finally:
+        held.clear()
+        close_bounded(mute, "mute queryable session")
+    client.reset()
+    assert_fleet_stops_and_serves(harness, client)
+
+
+def _held_one(client: FleetClient, held: list[zenoh.Query]) -> bool:
+    """The mute queryable's declaration reached the router: a query to a1 reaches it."""
+    before = len(held)
+    client.command("a1", m.Hold())
+    return len(held) > before
 
 
 def test_every_agent_and_the_coordinator_survive_and_diag_counts(

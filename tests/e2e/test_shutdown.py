@@ -10,12 +10,14 @@ devices' agent (a gripper on the arm, a G1) and the coordinator, plain and with 
 from __future__ import annotations
 
 import signal
+import subprocess
+import sys
 import time
 from pathlib import Path
 
 import pytest
 
-from testkit.harness import FleetHarness, wait_until
+from testkit.harness import HUNG_AT_SHUTDOWN, FleetHarness, wait_until
 
 DEVICES = '[grippers.gl]\nmount = "a1"\nagent = "agent-lo"\n\n[g1.h1]\nagent = "agent-lo"\n'
 STOPPED_WITHIN_S = 6.0
@@ -62,3 +64,45 @@ def test_every_process_exits_0_within_seconds_when_its_router_stops_with_it(
         assert not hung, f"still running {STOPPED_WITHIN_S:g} s after SIGTERM: {hung}\n{logs}"
         failed = {name: e for name, e in exits.items() if e[0] != 0}
         assert not failed, f"exit codes: {exits}\n" + "\n".join(h.log(n)[-1500:] for n in failed)
+
+
+STUCK_AT_SHUTDOWN = """
+import sys, threading, time
+from fleet.runtime import shutdown_event
+stop = shutdown_event(bound_s=float(sys.argv[1]))
+print("ready", flush=True)
+stop.wait(30)
+
+def stuck_close():  # a close that never returns, as a library call could
+    threading.Event().wait(60)
+
+stuck_close()
+"""
+
+
+def test_a_process_stuck_at_shutdown_prints_where_and_exits_within_its_bound() -> None:
+    """The bound every process has from its first SIGTERM (``fleet.runtime.SHUTDOWN_BOUND_S``;
+    here 0.5 s): a shutdown stuck in a call exits with code 1 and every thread's stack on
+    stderr, naming the call, instead of waiting for a supervisor's SIGKILL."""
+    with subprocess.Popen(
+        [sys.executable, "-c", STUCK_AT_SHUTDOWN, "0.5"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    ) as process:
+        try:
+            assert process.stdout is not None and process.stdout.readline() == "ready\n"
+            started = time.monotonic()
+            process.send_signal(signal.SIGTERM)
+            _out, stderr = process.communicate(timeout=10.0)
+            took_s = time.monotonic() - started
+            code = process.returncode
+        finally:
+            if process.poll() is None:
+                process.kill()
+                process.communicate()
+    print(f"stuck at shutdown: exit {code} after {took_s:.2f} s")
+    assert code == 1, stderr
+    assert 0.5 <= took_s < 5.0, took_s
+    assert HUNG_AT_SHUTDOWN.search(stderr), stderr
+    assert "stuck_close" in stderr, stderr

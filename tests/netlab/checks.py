@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from fleet.d1 import protocol
+from testkit.harness import wait_until
 from tests.netlab.fleetlab import LabFleet, RemoteClient
 
 STILL_DEG = 0.5
@@ -16,9 +17,17 @@ STILL_DEG = 0.5
 standstill test is 3 reports within 0.3 deg)."""
 
 
+DATAGRAM_LINK_S = 15.0
+"""How long ``restore`` waits for every process's datagram session: after a router restart or
+a spell of heavy loss a session over UDP learns its link died only after a lease without
+keep-alives (3 s, ``fleet.wire.session.LEASE_S``), then reconnects. A row run with one missing
+would measure the reliable path alone for that process, and say nothing about it."""
+
+
 def restore(fleet: LabFleet, client: RemoteClient) -> None:
     """Put the lab back in order before a test: clean links, every process up (a dead
-    coordinator restarted), every arm ready and unlatched."""
+    coordinator restarted), every arm ready and unlatched, every process's datagram session
+    linked to its router."""
     fleet.lab.clear()
     for name, code in fleet.lab.alive().items():
         if code is None:
@@ -32,6 +41,18 @@ def restore(fleet: LabFleet, client: RemoteClient) -> None:
     assert ready["ready"], f"the lab fleet is not ready: {ready}\n{fleet.diagnose()}"
     cleared = client.call("reset_wait", _timeout=40.0, timeout_s=30.0)
     assert cleared["clear"], cleared
+    processes = fleet.lab.harness.processes
+    names = [n for n in processes if n.startswith("agent-")] + ["coordinator", "client"]
+    linked: dict[str, bool] = {}
+
+    def all_linked() -> bool:
+        linked.update(datagram_linked(fleet, [n for n in names if n in processes]))
+        return all(linked.values())
+
+    try:
+        wait_until(all_linked, DATAGRAM_LINK_S, interval_s=0.2)
+    except AssertionError:
+        raise AssertionError(f"no datagram link to the router: {linked}") from None
 
 
 def _router_of(fleet: LabFleet) -> str:

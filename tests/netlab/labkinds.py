@@ -10,6 +10,7 @@ agent's ``STILL_RAD_S`` over a sample period is under 1 mrad), a G1's ``fsm_mode
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Hashable
 from dataclasses import dataclass
 from typing import Any, TypeVar
@@ -102,6 +103,7 @@ def move_devices(
     kind: LabKind,
     principal: str | None = None,
     owner: str | None = None,
+    timings: dict[str, dict[str, float]] | None = None,
 ) -> bool:
     """Send each of the lab's devices of ``kind`` its ``long_move`` (as ``principal``, owned by
     ``owner``) and wait until its state shows it moving; True if every command was accepted.
@@ -109,7 +111,9 @@ def move_devices(
     Up to ``MOVE_TRIES`` commands per device, each from its newest state: after a level of
     heavy loss the client's copy of a state can be old (a gripper already at the end the
     command chose does not move), or a command can meet a session still reconnecting. Setting
-    the units moving is this helper's job, not what a row measures; the tries are printed."""
+    the units moving is this helper's job, not what a row measures; the tries are printed.
+    ``timings`` (if given) gets each unit's last command: how long its reply took and when its
+    state showed it moving, in seconds from that command, and ``moving_ns`` (the clock's)."""
     ok = True
     for unit in kind.units(fleet):
         tries: list[dict[str, Any]] = []
@@ -120,10 +124,18 @@ def move_devices(
         while len(tries) < MOVE_TRIES:
             state = client.call("device_state", unit=unit)["state"]
             command = kind.long_move(state) | ({"owner": owner} if owner else {})
+            sent = time.monotonic()
             moved = client.call("device_command", unit=unit, command=command, principal=principal)
+            replied = time.monotonic()
             tries.append({"state": state, "command": command, "reply": moved["reply"]})
             try:
                 wait_until(moving, MOVING_WITHIN_S)
+                if timings is not None:
+                    timings[unit] = {
+                        "reply_s": round(replied - sent, 3),
+                        "moving_s": round(time.monotonic() - sent, 3),
+                        "moving_ns": time.time_ns(),
+                    }
                 break
             except AssertionError:
                 continue

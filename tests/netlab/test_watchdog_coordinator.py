@@ -112,9 +112,10 @@ def _move_under_coordinator(lab1: LabFleet, client: RemoteClient, kind: LabKind)
     coordinator = client.call("coordinator")["id"]
     assert coordinator is not None, "no fleet state from the coordinator"
     client.call("watch_take")
-    moved = move_devices(lab1, client, kind, principal="coordinator", owner=coordinator)
+    timings: dict[str, dict[str, float]] = {}
+    moved = move_devices(lab1, client, kind, "coordinator", coordinator, timings)
     assert moved, f"a {kind.name} refused the coordinator's command"
-    return {}
+    return {"commands": timings}
 
 
 def _fault_during_a_move(
@@ -136,6 +137,9 @@ def _fault_during_a_move(
     time.sleep(OBSERVE_S)
     after = client.call("watch_take")["samples"]
     held = {unit: _held(kind, during, unit, fault_ns) for unit in kind.units(lab1)}
+    for timing in move.get("commands", {}).values():
+        # A G1 walks 3 s: a command whose reply (or motion) came late can end before a fault.
+        timing["moving_before_fault_s"] = round((fault_ns - timing.pop("moving_ns")) / 1e9, 3)
     if "written" in move:
         move["written_before_fault_s"] = {
             arm: None if ns is None else round((fault_ns - ns) / 1e9, 3)
