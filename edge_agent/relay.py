@@ -105,7 +105,6 @@ class ZenohRelay:
             self._subscribers.append(sub(key, on_stop(unit)))
         self._subscribers.append(sub(self.keys.heartbeat, on_heartbeat))
         # Resets never take the datagram path: a reset must not overtake the stop before it.
-        self._datagram_subscribers: list[zenoh.Subscriber[None]] = []
         units = dict(stop_keys)
         safety_stop = safety.on_stop
 
@@ -114,26 +113,16 @@ class ZenohRelay:
             if key in units:
                 safety_stop(units[key], sample.payload.to_bytes())
 
-        def declare_datagram(datagram: zenoh.Session) -> None:
-            # Wildcards only, on this session: Zenoh sends a put's key as "declared resource +
-            # suffix" when the session declared a prefix of it (a subscriber on arm/a1/estop
-            # makes arm/a1/estop/ack refer to it), and a datagram referring to a declaration
-            # lost on the way is dropped by the router for good ("unknown scope"). Now, or
-            # when a later try opens the session (DatagramSession.open).
-            twin = keys.datagram_key
-            self._datagram_subscribers += [
-                # The datagram copies' own keys (``keys.DATAGRAM``), on the receive thread
-                # (``direct``: decoding a beat and keeping the newest per source is
-                # microseconds). The TCP subscriptions stay: if this session is down or lost
-                # its declaration, the reliable copies still arrive.
-                datagram.declare_subscriber(twin(self.keys.heartbeat), direct(on_heartbeat)),
-                datagram.declare_subscriber(
-                    twin(f"{self.keys.prefix}/**/{keys.ESTOP}"),
-                    direct(wrap(on_datagram_stop, "estop")),
-                ),
-            ]
-
-        self.datagram.on_open(declare_datagram)
+        # The datagram copies' own keys (``keys.DATAGRAM``), on the receive thread (``direct``:
+        # decoding a beat and keeping the newest per source is microseconds), declared again
+        # and again (``DatagramSession.subscribe``). The TCP subscriptions stay: if this
+        # session is down, the reliable copies still arrive.
+        self._datagram_subscriptions = [
+            self.datagram.subscribe(self.keys.heartbeat, direct(on_heartbeat)),
+            self.datagram.subscribe(
+                f"{self.keys.prefix}/**/{keys.ESTOP}", direct(wrap(on_datagram_stop, "estop"))
+            ),
+        ]
         self.datagram.open()
         self.stop_acks: dict[str, TwoPathPublisher] = {}
         """Every served unit's ``estop/ack`` (the safety thread's)."""
@@ -218,8 +207,8 @@ class ZenohRelay:
             for publisher in device_pubs.values():
                 publisher.undeclare()
         self.device_publishers.clear()
-        for subscriber in self._datagram_subscribers:
-            subscriber.undeclare()
-        self._datagram_subscribers.clear()
+        for subscription in self._datagram_subscriptions:
+            subscription.cancel()
+        self._datagram_subscriptions.clear()
         self.datagram.close()
         close_bounded(self.session, "session")

@@ -97,6 +97,7 @@ class FleetClient:
         self._stop_pubs: dict[str, stoppath.TwoPathPublisher] = {}  # guarded by _stop_lock
         self._stop_lock = threading.Lock()
         self._ack_subscribers: list[zenoh.Subscriber[None]] = []  # guarded by _stop_lock
+        self._datagram_acks: stoppath.DatagramSubscription | None = None
         self._ack_waiters: dict[str, Callable[[str, m.StopAck], None]] = {}  # by stop_id
         if session is None:
             session = open_session(inventory, connect_timeout_s=connect_timeout_s)
@@ -299,10 +300,8 @@ class FleetClient:
                 self._ack_subscribers.append(
                     self.session.declare_subscriber(key, self._on_stop_ack)
                 )
-            datagram = self.datagram.session
-            if datagram is not None and len(self._ack_subscribers) == 1:
-                twin = keys.datagram_key(key)  # the acks' datagram copies
-                self._ack_subscribers.append(datagram.declare_subscriber(twin, self._on_stop_ack))
+                # The acks' datagram copies, now or once that session opens.
+                self._datagram_acks = self.datagram.subscribe(key, self._on_stop_ack)
 
     def _on_stop_ack(self, sample: zenoh.Sample) -> None:
         """An ack of an arm (labelled by its id) or a device (``<kind>/<id>``), handed to the
@@ -475,8 +474,9 @@ class FleetClient:
                 publisher.undeclare()
             if acks:
                 acks[0].undeclare()
-        if len(acks) > 1 and self.datagram.session is not None:
-            acks[1].undeclare()
+        datagram_acks, self._datagram_acks = self._datagram_acks, None
+        if datagram_acks is not None:
+            datagram_acks.cancel()
         if self._own_datagram:
             self.datagram.close()
         if self._own_session:

@@ -77,6 +77,17 @@ def datagram_key(key: str) -> str:
     return f"{root}/{fleet}/{DATAGRAM}/{rest}"
 
 
+def datagram_subscription(key: str) -> str:
+    """How a datagram session over UDP subscribes to ``key``'s datagram copies:
+    ``*/<fleet>/dg/<rest>``, its first chunk a wildcard. A subscriber declares the non-wildcard
+    start of its key as a resource, and the session then sends each put under it as "resource
+    id + suffix": with ``fleet/<fleet>/dg/...`` every datagram put of the session (stops, acks,
+    beats) referred to ``fleet/<fleet>/dg``, and a session that reconnected under loss and lost
+    that one re-declaration had every later put dropped by the router. With no declared prefix
+    every put carries its whole key, and the router sends the copies to it whole too."""
+    return "*/" + datagram_key(key).split("/", 1)[1]
+
+
 def is_datagram_key(key: str) -> bool:
     """A datagram copy's key (``fleet/<fleet>/dg/...``)."""
     parts = key.split("/", 3)

@@ -9,13 +9,14 @@ import threading
 import time
 
 import pytest
+import zenoh
 
 from fleet.client import FleetClient
-from fleet.wire import keys
+from fleet.wire import keys, stoppath
 from fleet.wire import messages as m
-from fleet.wire.session import open_datagram
+from fleet.wire.session import Datagram, open_datagram, zenoh_config
 from fleet.wire.stoppath import DATAGRAM_QOS, JSON
-from testkit.harness import FleetHarness, wait_until
+from testkit.harness import FleetHarness, free_port, wait_until
 
 FLOOD_S = 3.0
 
@@ -119,3 +120,49 @@ def test_an_agent_started_before_its_routers_datagram_path_opens_it_later(
     finally:
         sender.close()
         client.reset(source="test")
+
+
+def test_a_datagram_session_whose_link_was_re_made_is_replaced_and_keeps_its_subscriptions(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The router goes away and comes back (a link re-made, as a reconnection under loss
+    makes it): the session is replaced by a new one (a new transport at the router, its state
+    made afresh; in the lab a reconnected session's copies reached no agent for good), and a
+    subscription made before still receives, on the new session. Real router and sessions on
+    loopback UDP."""
+    monkeypatch.setattr(stoppath, "LINK_CHECK_S", 0.2)
+    monkeypatch.setattr(stoppath, "REDECLARE_S", 0.5)
+    port = free_port()
+    tcp = [f"tcp/127.0.0.1:{port}"]
+    udp = [f"udp/127.0.0.1:{port}"]
+
+    def router() -> zenoh.Session:
+        return zenoh.open(zenoh_config("router", listen=tcp, datagram=Datagram()))
+
+    first = router()
+    session = stoppath.DatagramSession(lambda: open_datagram(tcp, Datagram(), 5.0), udp[0])
+    got: list[str] = []
+    sender = None
+    try:
+        subscription = session.subscribe("fleet/lab/arm/a1/estop", lambda s: got.append("x"))
+        opened = session.open()
+        assert opened is not None
+        assert subscription.key == "*/lab/dg/arm/a1/estop", subscription.key
+        wait_until(lambda: list(opened.info.links()), 5.0)
+        time.sleep(0.5)  # the refresher has looked at the first link (LINK_CHECK_S 0.2)
+        first.close()  # type: ignore[no-untyped-call]
+        first = router()
+        wait_until(lambda: session.session is not opened, 15.0)
+        sender = open_datagram(tcp, Datagram(), 5.0)
+        assert sender is not None
+
+        def heard() -> bool:
+            sender.put("fleet/lab/dg/arm/a1/estop", b"stop")  # type: ignore[union-attr]
+            return bool(got)
+
+        wait_until(heard, 10.0, interval_s=0.1)
+    finally:
+        if sender is not None:
+            sender.close()  # type: ignore[no-untyped-call]
+        session.close()
+        first.close()  # type: ignore[no-untyped-call]
