@@ -56,7 +56,7 @@ carry it (TCP backing off, keep-alives lost) when the stop is put."""
 AT_30_PCT = (
     "at 30 % loss the goals held in some runs and not in others: in the failing runs single "
     "agents got no datagram copy for seconds and some acks never reached the client (the "
-    "datagram sessions' keep-alives and re-declarations ride lossy UDP: see README)"
+    "datagram sessions' declarations ride lossy UDP: docs/design/stop-path.md, 30 % loss)"
 )
 
 
