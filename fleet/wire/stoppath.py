@@ -308,11 +308,7 @@ class DatagramSubscription:
                 return
             new = session.declare_subscriber(self.key, self._handler)
             old, self._subscriber = self._subscriber, new
-        if old is not None:
-            try:
-                old.undeclare()  # type: ignore[no-untyped-call]
-            except Exception:  # a declaration of a session closed meanwhile: nothing to undo
-                log.debug("undeclaring a replaced datagram subscriber failed", exc_info=True)
+        _undeclare(old)
 
     def cancel(self) -> None:
         """Stop receiving (idempotent)."""
@@ -320,11 +316,17 @@ class DatagramSubscription:
         with self._lock:
             self._cancelled = True
             subscriber, self._subscriber = self._subscriber, None
-        if subscriber is not None:
-            try:
-                subscriber.undeclare()  # type: ignore[no-untyped-call]
-            except Exception:
-                log.debug("undeclaring a datagram subscriber failed", exc_info=True)
+        _undeclare(subscriber)
+
+
+def _undeclare(subscriber: zenoh.Subscriber[None] | None) -> None:
+    """Undeclare ``subscriber`` if any; one of a session closed meanwhile has nothing to undo."""
+    if subscriber is None:
+        return
+    try:
+        subscriber.undeclare()  # type: ignore[no-untyped-call]
+    except Exception:
+        log.debug("undeclaring a datagram subscriber failed", exc_info=True)
 
 
 class TwoPathPublisher:
