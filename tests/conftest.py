@@ -15,13 +15,7 @@ import pytest
 
 from testkit.browser import Browser, open_browser
 from testkit.harness import FleetHarness
-from testkit.priority import (
-    can_reprioritize,
-    in_foreground,
-    make_background_group,
-    remove_background_group,
-    set_worker_priority,
-)
+from testkit.priority import can_reprioritize, nice_for, set_worker_nice
 
 
 @pytest.fixture
@@ -89,22 +83,4 @@ def pytest_runtest_setup(item: pytest.Item) -> None:
         return
     group = item.get_closest_marker("xdist_group")
     timing = item.get_closest_marker("timing") is not None
-    set_worker_priority(in_foreground(group.args[0] if group else None, timing))
-
-
-BACKGROUND_GROUP = pytest.StashKey[Path | None]()
-
-
-def pytest_configure(config: pytest.Config) -> None:
-    """The controller of an xdist run makes the run's background CPU group before its
-    workers start (they inherit where it is: testkit/priority.py)."""
-    workers = getattr(config.option, "numprocesses", None)
-    if "PYTEST_XDIST_WORKER" in os.environ or not workers:
-        return
-    config.stash[BACKGROUND_GROUP] = make_background_group(str(os.getpid()))
-
-
-def pytest_unconfigure(config: pytest.Config) -> None:
-    group = config.stash.get(BACKGROUND_GROUP, None)
-    if group is not None:
-        remove_background_group(group)
+    set_worker_nice(nice_for(group.args[0] if group else None, timing))
