@@ -103,7 +103,13 @@ class ZenohRelay:
             self._subscribers.append(sub(reset, on_reset(device)))
         for key, unit in stop_keys[1:]:
             self._subscribers.append(sub(key, on_stop(unit)))
-        self._subscribers.append(sub(self.keys.heartbeat, on_heartbeat))
+        datagram = self.datagram
+
+        def on_reliable_heartbeat(sample: zenoh.Sample) -> None:
+            datagram.heard_reliably()
+            on_heartbeat(sample)
+
+        self._subscribers.append(sub(self.keys.heartbeat, on_reliable_heartbeat))
         # Resets never take the datagram path: a reset must not overtake the stop before it.
         units = dict(stop_keys)
         safety_stop = safety.on_stop
@@ -118,7 +124,9 @@ class ZenohRelay:
         # and again (``DatagramSession.subscribe``). The TCP subscriptions stay: if this
         # session is down, the reliable copies still arrive.
         self._datagram_subscriptions = [
-            self.datagram.subscribe(self.keys.heartbeat, direct(on_heartbeat)),
+            # watched: the beats come on both paths, so a datagram session that hears none
+            # while TCP delivers them is deaf and is replaced (``stoppath.DEAF_S``)
+            self.datagram.subscribe(self.keys.heartbeat, direct(on_heartbeat), watched=True),
             self.datagram.subscribe(
                 f"{self.keys.prefix}/**/{keys.ESTOP}", direct(wrap(on_datagram_stop, "estop"))
             ),

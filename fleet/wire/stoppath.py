@@ -72,8 +72,19 @@ life. A new declaration of the same key heals that within this period, for one s
 per subscription every 5 s."""
 
 LINK_CHECK_S = 1.0
-"""How often a datagram session looks whether its link to the router was made anew (then it
-is replaced: ``DatagramSession._replace``)."""
+"""How often a datagram session looks whether its link to the router was made anew, or it has
+gone deaf (then it is replaced: ``DatagramSession._replace``)."""
+
+DEAF_S = 3.0
+"""A datagram session that heard copies on a watched subscription before, and none for this
+long while the same traffic kept coming over the reliable path (``heard_reliably`` within
+``RELIABLE_FRESH_S``), is deaf and is replaced. Measured in the lab after spells of 30 % loss:
+datagram-only stops reached none of 5 agents with no link re-made. The agents' watch is the
+coordinator's beat (10 Hz on both paths): at 30 % loss per link a copy crosses four links with
+24 %, so 30 copies in a row are all lost with 0.03 %."""
+
+RELIABLE_FRESH_S = 1.0
+"""The reliable path counts as delivering when it did within this long."""
 
 REOPEN_MAX_S = 10.0
 """The longest wait between two tries to open a datagram session that found no router."""
@@ -112,6 +123,27 @@ class DatagramSession:
         self._thread: threading.Thread | None = None
         self._subscriptions: list[DatagramSubscription] = []  # guarded by _lock
         self._refresher: threading.Thread | None = None
+        self._heard_at: float | None = None
+        """When a watched subscription last heard a copy on the current session (None: not
+        yet, so a sender without a datagram path never makes a session look deaf)."""
+        self._reliable_at = float("-inf")
+
+    def heard_reliably(self) -> None:
+        """The watched traffic arrived over the reliable path (the deaf check's reference)."""
+        self._reliable_at = time.monotonic()
+
+    def _heard(self) -> None:
+        self._heard_at = time.monotonic()
+
+    def deaf(self, now: float) -> bool:
+        """Whether the session heard watched copies before and none for ``DEAF_S`` while the
+        reliable path delivered."""
+        heard = self._heard_at
+        return (
+            heard is not None
+            and now - heard > DEAF_S
+            and now - self._reliable_at < RELIABLE_FRESH_S
+        )
 
     @property
     def session(self) -> zenoh.Session | None:
@@ -137,11 +169,18 @@ class DatagramSession:
             return keys.datagram_subscription(key)
         return keys.datagram_key(key)
 
-    def subscribe(self, key: str, handler: Callable[[zenoh.Sample], None]) -> DatagramSubscription:
+    def subscribe(
+        self, key: str, handler: Callable[[zenoh.Sample], None], watched: bool = False
+    ) -> DatagramSubscription:
         """Receive ``key``'s datagram copies (``subscription``) on ``handler`` until
         ``cancel``: declared once the session is open (now, or when a later try opens it) and
         declared again every ``REDECLARE_S`` (the old declaration undeclared after the new
-        one: a copy in between may come twice; every receiver de-duplicates)."""
+        one: a copy in between may come twice; every receiver de-duplicates). ``watched``:
+        traffic that also comes reliably (``heard_reliably``), so its silence here makes the
+        session deaf (``deaf``)."""
+        if watched:
+            handler = self._watching(handler)
+
         entry = DatagramSubscription(self, self.subscription(key), handler)
         with self._lock:
             self._subscriptions.append(entry)
@@ -149,6 +188,21 @@ class DatagramSession:
         if session is not None:
             entry.declare(session)
         return entry
+
+    def _watching(self, handler: Callable[[zenoh.Sample], None]) -> Callable[[zenoh.Sample], None]:
+        """``handler``, noting each copy as heard first (run where ``handler`` would run: a
+        ``direct`` callback stays on the receiving thread)."""
+
+        def heard_then(sample: zenoh.Sample) -> None:
+            self._heard()
+            handler(sample)
+
+        if isinstance(handler, zenoh.handlers.Callback):
+            watching: Callable[[zenoh.Sample], None] = zenoh.handlers.Callback(
+                heard_then, handler.drop, indirect=handler.indirect
+            )
+            return watching
+        return heard_then
 
     def _forget(self, entry: DatagramSubscription) -> None:
         with self._lock:
@@ -169,14 +223,23 @@ class DatagramSession:
 
     def _refresh_once(self, seen: set[str] | None, redeclare: bool) -> set[str] | None:
         """Replace the session if its link to the router was made anew since the last look
-        (``seen``: its links' local ends), else with ``redeclare`` declare its subscriptions
-        again; the links now."""
+        (``seen``: its links' local ends) or it is ``deaf``, else with ``redeclare`` declare
+        its subscriptions again; the links now."""
         with self._lock:
             session, entries = self._session, list(self._subscriptions)
         if session is None or session.is_closed():
             return seen
         links = {str(link.src) for link in session.info.links()}
-        if seen is not None and links and not links & seen:
+        remade = seen is not None and bool(links) and not links & seen
+        if remade or self.deaf(time.monotonic()):
+            if remade:
+                log.warning("datagram session: its link to the router was re-made")
+            else:
+                self._heard_at = time.monotonic()  # a failed replacement is tried again later
+                log.warning(
+                    "datagram session deaf: no copy for %.0f s while the reliable path delivers",
+                    DEAF_S,
+                )
             fresh = self._replace(session)
             if fresh is not None:  # its links are looked at next time (none yet, maybe)
                 return {str(link.src) for link in fresh.info.links()} or None
@@ -186,11 +249,11 @@ class DatagramSession:
         return links or seen  # no link now: reconnecting, judged once one is up
 
     def _replace(self, old: zenoh.Session) -> zenoh.Session | None:
-        """A new session in place of ``old``, whose link was re-made: a reconnection under
-        loss left the router routing this session's copies to its old link, or without its
-        declarations, for good (measured in the lab after 30 % loss: datagram-only stops
-        reached none of 5 agents while every UDP link was up). A new session is a new
-        transport at the router, its state made afresh."""
+        """A new session in place of ``old``, whose link was re-made or which went deaf: a
+        reconnection under loss left the router routing this session's copies to its old link,
+        or without its declarations, for good (measured in the lab after 30 % loss:
+        datagram-only stops reached none of 5 agents while every UDP link was up). A new
+        session is a new transport at the router, its state made afresh."""
         opener = self._opener
         fresh = opener() if opener is not None else None
         if fresh is None:
@@ -200,11 +263,12 @@ class DatagramSession:
                 stale, fresh = fresh, None
             else:
                 self._session, stale = fresh, old
+                self._heard_at = None  # judged again once the new session hears a copy
             entries = list(self._subscriptions)
         if fresh is not None:
             for entry in entries:
                 entry.declare(fresh)
-            log.warning("datagram session re-opened: its link to the router was re-made")
+            log.warning("datagram session re-opened")
         close_bounded(stale, "datagram session", DATAGRAM_CLOSE_WAIT_S)
         return fresh
 

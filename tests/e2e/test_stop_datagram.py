@@ -5,6 +5,7 @@ genuine stop. (A forged stop still only stops: anyone may stop, on either path.)
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 
@@ -166,3 +167,64 @@ def test_a_datagram_session_whose_link_was_re_made_is_replaced_and_keeps_its_sub
             sender.close()  # type: ignore[no-untyped-call]
         session.close()
         first.close()  # type: ignore[no-untyped-call]
+
+
+def test_a_deaf_datagram_session_is_replaced_and_hears_again(
+    monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The router stops routing copies to one datagram session while its link stays up and
+    the same traffic keeps coming over the reliable path (in the lab, after 30 % loss,
+    datagram-only stops reached none of 5 agents with no link re-made): the session is deaf,
+    is replaced by a new one (a new transport), and its subscription hears again. Here the
+    router loses the session's subscription (undeclared behind its back, and not declared
+    again within the test: ``REDECLARE_S`` is long), so only the deaf check can heal it. A
+    sender that never used the datagram path never makes a session look deaf. Real router and
+    sessions on loopback."""
+    monkeypatch.setattr(stoppath, "LINK_CHECK_S", 0.2)
+    monkeypatch.setattr(stoppath, "REDECLARE_S", 600.0)
+    monkeypatch.setattr(stoppath, "DEAF_S", 1.0)
+    port = free_port()
+    tcp = [f"tcp/127.0.0.1:{port}"]
+    router = zenoh.open(zenoh_config("router", listen=tcp, datagram=Datagram()))
+    session = stoppath.DatagramSession(lambda: open_datagram(tcp, Datagram(), 5.0), "udp/")
+    sender = open_datagram(tcp, Datagram(), 5.0)
+    assert sender is not None
+    heard: list[int] = []
+    beating = threading.Event()
+    done = threading.Event()
+
+    def beats() -> None:  # the coordinator's beat on both paths (10 Hz; here 20 Hz)
+        for _ in range(1200):  # bounded: at most 60 s
+            if done.wait(0.05):
+                return
+            session.heard_reliably()
+            if beating.is_set():
+                sender.put("fleet/lab/dg/heartbeat", b"beat", **DATAGRAM_QOS)  # type: ignore[arg-type]
+
+    beater = threading.Thread(target=beats, name="beats", daemon=True)
+    try:
+        subscription = session.subscribe(
+            "fleet/lab/heartbeat", lambda _s: heard.append(1), watched=True
+        )
+        first = session.open()
+        assert first is not None
+        beater.start()
+        # Silence from a sender that never used the datagram path: never deaf.
+        time.sleep(3 * stoppath.DEAF_S)  # a window in which no replacement must happen
+        assert session.session is first, "replaced though no copy was ever heard"
+        beating.set()
+        wait_until(lambda: heard, 10.0)
+
+        caplog.set_level(logging.WARNING, logger="fleet.stoppath")
+        subscription._subscriber.undeclare()  # type: ignore[union-attr,no-untyped-call]
+        wait_until(lambda: session.session is not first, 10.0)
+        why = [r.getMessage() for r in caplog.records if "datagram session" in r.getMessage()]
+        assert why and "deaf" in why[0], why
+        count = len(heard)
+        wait_until(lambda: len(heard) > count + 5, 10.0)
+    finally:
+        done.set()
+        beater.join(timeout=2.0)
+        session.close()
+        sender.close()  # type: ignore[no-untyped-call]
+        router.close()  # type: ignore[no-untyped-call]
