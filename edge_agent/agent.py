@@ -248,6 +248,11 @@ class EdgeAgent:
             busy=counters.busy,
             dropped_events=counters.dropped_events,
             write_failures=self.link.write_failures,
+            stop_copies_reliable=counters.stop_copies[False],
+            stop_copies_datagram=counters.stop_copies[True],
+            beat_copies_reliable=counters.beat_copies[False],
+            beat_copies_datagram=counters.beat_copies[True],
+            datagram_replaced=self.relay.datagram.replaced,
         )
 
     def flush(self, out: Outbox) -> None:

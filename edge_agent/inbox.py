@@ -22,7 +22,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import zenoh
 
@@ -68,6 +68,10 @@ class InboxCounters:
     undecodable_stops: int = 0
     dropped_events: int = 0
     busy: int = 0
+    stop_copies: dict[bool, int] = field(default_factory=lambda: {False: 0, True: 0})
+    """Stop copies received, per path (True: the datagram path)."""
+    beat_copies: dict[bool, int] = field(default_factory=lambda: {False: 0, True: 0})
+    """Heartbeat copies received, per path (True: the datagram path)."""
 
 
 class SafetyInbox:
@@ -94,8 +98,11 @@ class SafetyInbox:
         """Stops and resets waiting for the safety thread (metrics)."""
         return len(self._control)
 
-    def on_stop(self, arm: str | None, data: bytes) -> None:
-        """A sample on ``estop`` or ``arm/<arm>/estop`` (Zenoh thread)."""
+    def on_stop(self, arm: str | None, data: bytes, datagram: bool = False) -> None:
+        """A sample on ``estop`` or ``arm/<arm>/estop`` (Zenoh thread); ``datagram``: its copy
+        on the datagram path."""
+        with self._lock:
+            self.counters.stop_copies[datagram] += 1
         try:
             event = StopEvent(arm, payloads.STOP.decode(data))
         except payloads.PayloadError as exc:
@@ -121,7 +128,9 @@ class SafetyInbox:
             return
         self.wake.set()
 
-    def on_heartbeat(self, principal: str | None, data: bytes | zenoh.ZBytes) -> None:
+    def on_heartbeat(
+        self, principal: str | None, data: bytes | zenoh.ZBytes, datagram: bool = False
+    ) -> None:
         """A sample on ``heartbeat/<principal>`` (Zenoh thread): keep the newest per source.
         The source is ``<principal>/<coordinator>``: the principal comes from the key (the
         router lets only it publish there), the payload only names one of its commanders.
@@ -129,6 +138,7 @@ class SafetyInbox:
         per principal; what does not pass is counted in ``dropped_events``."""
         arrived = time.monotonic()
         with self._lock:
+            self.counters.beat_copies[datagram] += 1
             refused = len(data) > self.max_beat_bytes or not self._gate.admit(principal or "")
             if refused:
                 self.counters.dropped_events += 1

@@ -30,6 +30,10 @@ PER_ARM: tuple[tuple[Any, str, str, Any], ...] = (
 
 
 # The same for every device (gripper, G1), from its diag and the core's safety state.
+PATHS = (("reliable", False), ("datagram", True))
+"""A stop's or heartbeat's two paths (``fleet/wire/stoppath.py``): label, and the counters'
+key."""
+
 PER_DEVICE: tuple[tuple[Any, str, str, Any], ...] = (
     (counter, "d1_agent_device_relayed", "state samples relayed", lambda d, s: d.relayed),
     (counter, "d1_agent_device_malformed", "state that did not decode", lambda d, s: d.malformed),
@@ -53,7 +57,7 @@ PER_DEVICE: tuple[tuple[Any, str, str, Any], ...] = (
 def agent_collectors(agent: Any) -> list[Any]:
     """The collectors of an ``EdgeAgent`` (registered by ``--metrics-port``; typed Any: nothing
     imports edge_agent.agent but __main__). Reads its ``lock``, ``slots``, ``counters``,
-    inboxes and ``reply_latencies_s``."""
+    inboxes, ``reply_latencies_s`` and its relay's datagram session."""
     latency = LatencySink(pending=agent.reply_latencies_s)
 
     def collect() -> list[Any]:
@@ -72,6 +76,13 @@ def agent_collectors(agent: Any) -> list[Any]:
                 "d1_agent_bad_payloads": counters.bad_payloads,
                 "d1_agent_busy": counters.busy,
                 "d1_agent_dropped_events": counters.dropped_events,
+            }
+            copies = {
+                name: [([path], per_path[datagram]) for path, datagram in PATHS]
+                for name, per_path in (
+                    ("d1_agent_stop_copies", counters.stop_copies),
+                    ("d1_agent_heartbeat_copies", counters.beat_copies),
+                )
             }
         metrics = [
             kind(name, text, ["arm"], [([arm], get(*row)) for arm, row in rows.items()])
@@ -93,6 +104,18 @@ def agent_collectors(agent: Any) -> list[Any]:
         metrics += [
             counter(name, "the agent's own count", [], [([], v)]) for name, v in own.items()
         ]
+        metrics += [
+            counter(name, "copies received per path, before de-duplication", ["path"], rows)
+            for name, rows in copies.items()
+        ]
+        metrics.append(
+            counter(
+                "d1_agent_datagram_replaced",
+                "times the datagram session was replaced (link re-made, or deaf)",
+                [],
+                [([], agent.relay.datagram.replaced)],
+            )
+        )
         depths = [
             (["safety"], agent.safety_inbox.depth()),
             (["commands"], agent.command_inbox.depth()),

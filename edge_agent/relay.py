@@ -82,12 +82,14 @@ class ZenohRelay:
         def on_query(arm: str):  # type: ignore[no-untyped-def]
             return wrap(lambda query: commands.on_query(arm, query), "cmd")
 
-        on_heartbeat = wrap(
-            lambda sample: safety.on_heartbeat(  # length checked before any copy
-                principal_of(sample.key_expr), sample.payload
-            ),
-            "heartbeat",
-        )
+        def on_heartbeat(datagram: bool):  # type: ignore[no-untyped-def]
+            return wrap(
+                lambda sample: safety.on_heartbeat(  # length checked before any copy
+                    principal_of(sample.key_expr), sample.payload, datagram
+                ),
+                "heartbeat",
+            )
+
         sub = self.session.declare_subscriber
         self._subscribers: list[zenoh.Subscriber[None]] = [
             sub(self.keys.estop, on_stop(None)),
@@ -103,11 +105,11 @@ class ZenohRelay:
             self._subscribers.append(sub(reset, on_reset(device)))
         for key, unit in stop_keys[1:]:
             self._subscribers.append(sub(key, on_stop(unit)))
-        datagram = self.datagram
+        datagram, on_reliable_beat = self.datagram, on_heartbeat(False)
 
         def on_reliable_heartbeat(sample: zenoh.Sample) -> None:
             datagram.heard_reliably()
-            on_heartbeat(sample)
+            on_reliable_beat(sample)
 
         self._subscribers.append(sub(self.keys.heartbeat, on_reliable_heartbeat))
         # Resets never take the datagram path: a reset must not overtake the stop before it.
@@ -117,7 +119,7 @@ class ZenohRelay:
         def on_datagram_stop(sample: zenoh.Sample) -> None:
             key = keys.reliable_key(str(sample.key_expr))
             if key in units:
-                safety_stop(units[key], sample.payload.to_bytes())
+                safety_stop(units[key], sample.payload.to_bytes(), True)
 
         # The datagram copies' own keys (``keys.DATAGRAM``), on the receive thread (``direct``:
         # decoding a beat and keeping the newest per source is microseconds), declared again
@@ -126,7 +128,7 @@ class ZenohRelay:
         self._datagram_subscriptions = [
             # watched: the beats come on both paths, so a datagram session that hears none
             # while TCP delivers them is deaf and is replaced (``stoppath.DEAF_S``)
-            self.datagram.subscribe(self.keys.heartbeat, direct(on_heartbeat), watched=True),
+            self.datagram.subscribe(self.keys.heartbeat, direct(on_heartbeat(True)), watched=True),
             self.datagram.subscribe(
                 f"{self.keys.prefix}/**/{keys.ESTOP}", direct(wrap(on_datagram_stop, "estop"))
             ),

@@ -98,7 +98,7 @@ class FleetClient:
         self._stop_lock = threading.Lock()
         self._ack_subscribers: list[zenoh.Subscriber[None]] = []  # guarded by _stop_lock
         self._datagram_acks: stoppath.DatagramSubscription | None = None
-        self._ack_waiters: dict[str, Callable[[str, m.StopAck], None]] = {}  # by stop_id
+        self._ack_waiters: dict[str, Callable[[str, m.StopAck, bool], None]] = {}  # by stop_id
         if session is None:
             session = open_session(inventory, connect_timeout_s=connect_timeout_s)
         self.session = session
@@ -222,6 +222,7 @@ class FleetClient:
         timeout_s: float = 3.0,
         wait_still: bool = True,
         request: m.StopRequest | None = None,
+        copies: dict[str, list[int]] | None = None,
     ) -> dict[str, m.StopAck | None]:
         """Stop one arm or device (or every arm and device) and wait for the agents'
         acknowledgments (devices are named ``<kind>/<id>`` in the result).
@@ -233,6 +234,8 @@ class FleetClient:
         the datagram path repeats it every 10 ms. Returns the last ack per arm (None: no ack
         within ``timeout_s``: is that arm's agent running?).
         ``request``: a stop already put once (its repeats and acks are handled here).
+        ``copies``: filled with each unit's count of ack copies received, ``[reliable,
+        datagram]`` (which path confirmed it, or that neither did).
         """
         if arm is not None and arm in self.inventory.devices:
             arms: list[str] = []
@@ -249,11 +252,14 @@ class FleetClient:
             request = self.stop_request(reason, source)
         acks: dict[str, m.StopAck | None] = dict.fromkeys([*arms, *devices])
         lock = threading.Lock()
+        counts = copies if copies is not None else {}
+        counts.update({label: [0, 0] for label in acks})
 
-        def on_ack(label: str, ack: m.StopAck) -> None:
+        def on_ack(label: str, ack: m.StopAck, datagram: bool) -> None:
             if ack.stop_id != request.stop_id or label not in acks:
                 return
             with lock:
+                counts[label][datagram] += 1
                 held = acks[label]
                 if held is None or not held.done:  # the two paths may deliver out of order
                     acks[label] = ack
@@ -306,7 +312,8 @@ class FleetClient:
     def _on_stop_ack(self, sample: zenoh.Sample) -> None:
         """An ack of an arm (labelled by its id) or a device (``<kind>/<id>``), handed to the
         ``estop`` waiting for its stop (the label from the key, not the payload)."""
-        key = keys.reliable_key(str(sample.key_expr))
+        received_on = str(sample.key_expr)
+        key = keys.reliable_key(received_on)
         label = key[len(self.keys.prefix) + 1 :].removesuffix(f"/{keys.ESTOP_ACK}")
         kind, _, unit = label.partition("/")
         if kind == keys.ARM:
@@ -318,7 +325,7 @@ class FleetClient:
         with self._stop_lock:
             waiter = self._ack_waiters.get(ack.stop_id)
         if waiter is not None:
-            waiter(label, ack)
+            waiter(label, ack, received_on != key)
 
     def device_snapshot(self, wait_s: float = 1.2) -> dict[str, Any]:
         """``<kind>/<id>`` -> the newest decoded state of every device (None: none heard

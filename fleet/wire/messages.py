@@ -153,6 +153,17 @@ class Diag(Struct, frozen=True):
     """Resets and heartbeat sources dropped at a full queue (a flood); stops are never dropped."""
     write_failures: Count = 0
     """DDS writes that failed (maybe sent)."""
+    stop_copies_reliable: Count = 0
+    """Stop requests received over the reliable path (every copy and repeat, before the
+    de-duplication by ``stop_id``)."""
+    stop_copies_datagram: Count = 0
+    """The same over the datagram path (0 with none: ``fleet/wire/stoppath.py``)."""
+    beat_copies_reliable: Count = 0
+    """Heartbeats received over the reliable path (before any check)."""
+    beat_copies_datagram: Count = 0
+    """The same over the datagram path."""
+    datagram_replaced: Count = 0
+    """Times the agent's datagram session was replaced (its link re-made, or deaf)."""
     foreign_feedback: Count = 0
     """Valid-looking feedback the arm did not send (dropped): from a writer on another host,
     or a second writer of a periodic report on the arm's host."""

@@ -127,6 +127,8 @@ class DatagramSession:
         """When a watched subscription last heard a copy on the current session (None: not
         yet, so a sender without a datagram path never makes a session look deaf)."""
         self._reliable_at = float("-inf")
+        self.replaced = 0
+        """Times the session was replaced (its link re-made, or deaf)."""
 
     def heard_reliably(self) -> None:
         """The watched traffic arrived over the reliable path (the deaf check's reference)."""
@@ -264,6 +266,7 @@ class DatagramSession:
             else:
                 self._session, stale = fresh, old
                 self._heard_at = None  # judged again once the new session hears a copy
+                self.replaced += 1
             entries = list(self._subscriptions)
         if fresh is not None:
             for entry in entries:

@@ -106,6 +106,12 @@ def test_every_process_serves_metrics_on_loopback(tmp_path: Path) -> None:
         assert value(last, "d1_stop_last_arm_received_latency_seconds_count") == 1.0
         assert value(stops, "d1_coordinator_arm_online", arm="a2") == 1.0
         assert value(scrape(ports["agent"]), "d1_agent_estopped", arm="a2") == 1.0
+        # The coordinator's beats and the stop came on both paths, each counted on its own.
+        after_stop = scrape(ports["agent"])
+        for family in ("d1_agent_stop_copies_total", "d1_agent_heartbeat_copies_total"):
+            for path in ("reliable", "datagram"):
+                assert (value(after_stop, family, path=path) or 0) > 0, (family, path)
+        assert value(after_stop, "d1_agent_datagram_replaced_total") == 0.0
         # The reports count up as the simulator runs (the whole test may take under 2 s).
         first = value(scrape(ports["sim"]), "d1_sim_reports_total")
         assert first is not None and first > 0

@@ -18,6 +18,7 @@ from fleet.wire import messages as m
 from fleet.wire.session import Datagram, open_datagram, zenoh_config
 from fleet.wire.stoppath import DATAGRAM_QOS, JSON
 from testkit.harness import FleetHarness, free_port, wait_until
+from testkit.hostile import decode, latest
 
 FLOOD_S = 3.0
 
@@ -49,6 +50,15 @@ def test_duplicated_replayed_and_flooded_stop_datagrams(fleet_harness: FleetHarn
         acks = client.estop(request=request, timeout_s=10.0)
         assert acks["a1"] is not None and acks["a1"].done, acks
         assert h.log("agent").count("stopped a1 by") == 1, h.log("agent")
+
+        def copies_counted() -> m.Diag | None:
+            diag = decode(m.Diag, latest(client, client.keys.arm("a1", keys.DIAG)))
+            assert isinstance(diag, m.Diag)
+            return diag if diag.stop_copies_datagram >= 50 else None
+
+        # Every copy is counted on its own path (diag), before the de-duplication.
+        diag = wait_until(copies_counted, 10.0)
+        assert diag.stop_copies_reliable >= 1, diag
 
         client.reset(source="test")
         wait_until(lambda: _estopped(client) is False, 10.0)

@@ -151,14 +151,21 @@ class Daemon:
     def estop(
         self, arm: str | None = None, timeout_s: float = 5.0, reason: str = "", again: bool = False
     ) -> dict[str, Any]:
-        """A protective stop, timed: the request's stamp, when estop() returned, the acks.
+        """A protective stop, timed: the request's stamp, when estop() returned, the acks and
+        each unit's ack copies per path (``[reliable, datagram]``).
         ``again``: the previous stop once more (same stop_id), e.g. after a partition."""
         if again and self._last_stop is not None:
             request = self._last_stop
         else:
             request = self._last_stop = self.client.stop_request(reason=reason, source="netlab")
-        acks = self.client.estop(arm=arm, timeout_s=timeout_s, request=request)
-        return {"stamp_ns": request.stamp_ns, "returned_ns": time.time_ns(), "acks": acks}
+        copies: dict[str, list[int]] = {}
+        acks = self.client.estop(arm=arm, timeout_s=timeout_s, request=request, copies=copies)
+        return {
+            "stamp_ns": request.stamp_ns,
+            "returned_ns": time.time_ns(),
+            "acks": acks,
+            "copies": copies,
+        }
 
     def reset(self, arm: str | None = None) -> dict[str, Any]:
         """One reset put."""

@@ -115,8 +115,11 @@ def _figures(result: dict[str, Any], labels: list[str]) -> dict[str, Any]:
     acks = {label: every.get(label) for label in labels}
     missing = [a for a in labels if acks[a] is None or acks[a]["still_ns"] is None]
     received = [(a["received_ns"] - stamp) / 1e6 for a in acks.values() if a]
+    copies = result.get("copies", {})
     return {
         "missing": missing,
+        # Which path confirmed each missing unit (its ack copies [reliable, datagram]):
+        "missing_copies": {a: copies.get(a) for a in missing},
         "acks": acks,
         "received_all_ms": received,
         "received_ms": max(received, default=float("inf")),
@@ -161,6 +164,7 @@ def test_every_stop_is_confirmed_by_every_unit_under_loss(
         "still_ms": still,
         "returned_ms": [r["returned_ms"] for r in runs],
         "missing": [r["missing"] for r in runs],
+        "missing_copies": [r["missing_copies"] for r in runs],
         "moves_ok": sum(r["move_ok"] for r in runs),
     }
     row_report(line, bound, figures)
