@@ -4,6 +4,7 @@ signals, the inventory options."""
 from __future__ import annotations
 
 import argparse
+import contextlib
 import faulthandler
 import json
 import logging
@@ -151,6 +152,46 @@ demo and the tests wait 10 s, then SIGKILL, which says nothing) nor leave no tra
 hung. Normal shutdowns take 0.1-3 s (``close_bounded`` caps a session's close at 2 s)."""
 
 
+class _SignalRelay:
+    """Sets a process's shutdown Event on a thread of its own, told by its signal handler
+    through a pipe. A Python signal handler runs in the main thread between two bytecodes,
+    and the main thread may be inside ``Event.wait`` holding the very lock ``Event.set`` takes:
+    a handler that set the Event itself deadlocked (seen once in a suite run: a simulator's
+    main thread in ``Condition.wait`` -> ``_release_save`` -> the handler -> ``Event.set`` ->
+    the same lock, until the shutdown bound killed it). Logging takes locks too, so the
+    signal's log line is written here as well. Writing to a pipe takes none."""
+
+    def __init__(self) -> None:
+        self._read, self._write = os.pipe()
+        os.set_blocking(self._write, False)
+        self.target: tuple[threading.Event, bool] | None = None
+        """The Event to set and whether to log the signal (the newest ``shutdown_event``)."""
+        threading.Thread(target=self._run, name="signals", daemon=True).start()
+
+    def notify(self, signum: int) -> None:
+        """From the signal handler: no lock, no allocation beyond the byte."""
+        with contextlib.suppress(OSError):  # full: the relay has signals to act on already
+            os.write(self._write, bytes([signum]))
+
+    def _run(self) -> None:
+        while True:
+            signums = os.read(self._read, 64)
+            if not signums:
+                return
+            target = self.target
+            if target is None:
+                continue
+            stop, quiet = target
+            if not quiet:
+                for signum in signums:
+                    name = signal.Signals(signum).name
+                    logging.getLogger("fleet").info("received %s, shutting down", name)
+            stop.set()
+
+
+_relay: _SignalRelay | None = None
+
+
 def shutdown_event(
     quiet: bool = False, bound_s: float | None = SHUTDOWN_BOUND_S
 ) -> threading.Event:
@@ -158,16 +199,21 @@ def shutdown_event(
     thread. A service logs the signal; ``quiet``: a command a user ends with Ctrl-C (``status
     --watch``, ``hz``, ``echo``, ``diag``) just ends, no log line. From the first signal the
     process has ``bound_s`` to exit (``SHUTDOWN_BOUND_S``; None: no bound, for a supervisor
-    that bounds its children's shutdowns itself)."""
+    that bounds its children's shutdowns itself). The Event is set just after the handler
+    returns, by the process's signal relay (``_SignalRelay``: never from the handler)."""
+    global _relay
+    if _relay is None:
+        _relay = _SignalRelay()
+    relay = _relay
     stop = threading.Event()
+    relay.target = (stop, quiet)
+    armed = [False]
 
     def handler(signum: int, _frame: FrameType | None) -> None:
-        if not quiet:
-            name = signal.Signals(signum).name
-            logging.getLogger("fleet").info("received %s, shutting down", name)
-        if bound_s is not None and not stop.is_set():
+        if bound_s is not None and not armed[0]:
+            armed[0] = True
             faulthandler.dump_traceback_later(bound_s, exit=True)
-        stop.set()
+        relay.notify(signum)
 
     signal.signal(signal.SIGINT, handler)
     signal.signal(signal.SIGTERM, handler)

@@ -106,3 +106,34 @@ def test_a_process_stuck_at_shutdown_prints_where_and_exits_within_its_bound() -
     assert 0.5 <= took_s < 5.0, took_s
     assert HUNG_AT_SHUTDOWN.search(stderr), stderr
     assert "stuck_close" in stderr, stderr
+
+
+SIGNAL_WHILE_WAITING = """
+import os, signal, sys
+from fleet.runtime import shutdown_event
+stop = shutdown_event(bound_s=None)
+# The moment the suite once hit: the main thread inside stop.wait(), holding the lock that
+# Event.set() takes, when the signal handler runs. Held here on purpose (CPython's Event keeps
+# it in _cond), the signal sent, and the handler run, all while it is held.
+stop._cond.acquire()
+os.kill(os.getpid(), signal.SIGTERM)
+for _ in range(1000):  # bytecodes: the handler runs at one of them
+    pass
+stop._cond.release()
+print("set" if stop.wait(5.0) else "not set", flush=True)
+"""
+
+
+def test_a_signal_while_the_main_thread_holds_the_events_lock_still_stops_it() -> None:
+    """A signal handler runs in the main thread between two bytecodes, which may be inside
+    ``Event.wait`` with the Event's lock held: a handler that set the Event itself deadlocked
+    there (a simulator in a suite run, stopped only by its shutdown bound). The Event is set by
+    the signal relay's thread instead (``fleet.runtime._SignalRelay``): the handler returns at
+    once, and the Event is set once the lock is free."""
+    result = subprocess.run(
+        [sys.executable, "-c", SIGNAL_WHILE_WAITING],
+        capture_output=True,
+        text=True,
+        timeout=20.0,
+    )
+    assert result.returncode == 0 and result.stdout == "set\n" and not result.stderr, result
