@@ -77,11 +77,69 @@ def unique_domain() -> int:
     return 1 + next(_domains) % 99
 
 
+_PORT_LOCKS = Path(tempfile.gettempdir()) / "d1-fleet-test-ports"
+_held_ports: dict[int, IO[bytes]] = {}
+
+
+def _test_ports() -> range:
+    """The ports tests listen on: above the kernel's ephemeral range (32768-60999 here), so
+    that none is taken meanwhile as the local port of some process's outgoing socket (a
+    datagram session's UDP socket, a client's TCP connection). Measured: a test's router found
+    the ephemeral port it had been given so taken ("in use") in a fresh-clone run. Below
+    32768 are the DDS domains' ports. Where the ephemeral range reaches the top, none."""
+    try:
+        _low, high = map(int, Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split())
+    except (OSError, ValueError):
+        return range(0)
+    return range(high + 1, 65536) if high < 65000 else range(0)
+
+
+_ports = itertools.count(os.getpid() * 13)
+
+
+def _bindable(port: int) -> bool:
+    """True when nothing holds ``port`` on 127.0.0.1, TCP or UDP (a router takes both)."""
+    for kind in (socket.SOCK_STREAM, socket.SOCK_DGRAM):
+        with socket.socket(socket.AF_INET, kind) as probe:
+            try:
+                probe.bind(("127.0.0.1", port))
+            except OSError:
+                return False
+    return True
+
+
 def free_port() -> int:
-    """A TCP port on 127.0.0.1 that nothing listens on right now."""
+    """A port on 127.0.0.1 free for TCP and UDP right now, outside the ephemeral range, and
+    reserved against this run's other workers and other runs by a lock file until
+    ``release_port`` (or this process's end). Where no such range exists, an ephemeral one."""
+    ports = _test_ports()
+    if ports:
+        _PORT_LOCKS.mkdir(exist_ok=True)
+        for _ in range(len(ports)):
+            port = ports[next(_ports) % len(ports)]
+            if port in _held_ports:
+                continue
+            lock = open(_PORT_LOCKS / f"{port}.lock", "wb")  # noqa: SIM115 - held until release
+            try:
+                fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                lock.close()
+                continue
+            if not _bindable(port):
+                lock.close()
+                continue
+            _held_ports[port] = lock
+            return port
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
         return int(probe.getsockname()[1])
+
+
+def release_port(port: int) -> None:
+    """Let other tests have ``port`` again (its user stopped listening)."""
+    lock = _held_ports.pop(port, None)
+    if lock is not None:
+        lock.close()
 
 
 HUNG_AT_SHUTDOWN = re.compile(r"^Timeout \(\d+:\d\d:\d\d(\.\d+)?\)!$", re.MULTILINE)
@@ -288,6 +346,7 @@ class FleetHarness:
         for process in running:
             self._reap(process, 10.0)
         self._domain_lock.close()
+        release_port(self.port)
         hung = [name for name in self.processes if HUNG_AT_SHUTDOWN.search(self.log(name))]
         if self.killed or hung:
             # After every process is reaped: the suite's filterwarnings turn this into an error.
