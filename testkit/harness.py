@@ -52,22 +52,31 @@ def _domain_in_use(domain: int) -> bool:
     return False
 
 
+def _reserve(locks: Path, number: int, in_use: Callable[[int], bool]) -> IO[bytes] | None:
+    """The lock file that reserves ``number`` (a domain, a port) against other test processes
+    until closed (the OS drops it if the process dies), or None when another holds it or
+    ``in_use`` says something else uses it."""
+    locks.mkdir(exist_ok=True)
+    lock = open(locks / f"{number}.lock", "wb")  # noqa: SIM115 - held until close
+    try:
+        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        lock.close()
+        return None
+    if in_use(number):
+        lock.close()
+        return None
+    return lock
+
+
 def claim_domain() -> tuple[int, IO[bytes]]:
     """A DDS domain id no other process of this host uses, with the lock file that reserves it
     against other test runs until closed (the OS drops the lock if the run dies)."""
-    _DOMAIN_LOCKS.mkdir(exist_ok=True)
     for _ in range(99):
         domain = 1 + next(_domains) % 99
-        lock = open(_DOMAIN_LOCKS / f"{domain}.lock", "wb")  # noqa: SIM115 - held until close
-        try:
-            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            lock.close()
-            continue
-        if _domain_in_use(domain):
-            lock.close()
-            continue
-        return domain, lock
+        lock = _reserve(_DOMAIN_LOCKS, domain, _domain_in_use)
+        if lock is not None:
+            return domain, lock
     raise RuntimeError("every DDS domain 1..99 is in use on this host")
 
 
@@ -113,21 +122,12 @@ def free_port() -> int:
     reserved against this run's other workers and other runs by a lock file until
     ``release_port`` (or this process's end). Where no such range exists, an ephemeral one."""
     ports = _test_ports()
-    if ports:
-        _PORT_LOCKS.mkdir(exist_ok=True)
-        for _ in range(len(ports)):
-            port = ports[next(_ports) % len(ports)]
-            if port in _held_ports:
-                continue
-            lock = open(_PORT_LOCKS / f"{port}.lock", "wb")  # noqa: SIM115 - held until release
-            try:
-                fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except BlockingIOError:
-                lock.close()
-                continue
-            if not _bindable(port):
-                lock.close()
-                continue
+    for _ in range(len(ports)):
+        port = ports[next(_ports) % len(ports)]
+        if port in _held_ports:
+            continue
+        lock = _reserve(_PORT_LOCKS, port, lambda p: not _bindable(p))
+        if lock is not None:
             _held_ports[port] = lock
             return port
     with socket.socket() as probe:
