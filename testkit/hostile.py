@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 import msgspec
+import zenoh
 
 from fleet.client import FleetClient
 from fleet.wire import messages as m
@@ -47,9 +48,14 @@ STOP_ACK_BOUND_MS = 500.0
 and is still far below the 3-5 s a flood used to cause."""
 
 
-def put(client: FleetClient, key: str, payload: bytes) -> None:
-    """One put from the test's own (hostile) Zenoh session."""
-    client.session.put(key, payload)
+def put(client: FleetClient, key: str, payload: bytes, *, every_one: bool = False) -> None:
+    """One put from the test's own (hostile) Zenoh session. ``every_one`` puts it with
+    congestion control BLOCK: Zenoh's default, DROP, may drop the puts that follow a 1 MiB one
+    on the sender's own queue, and a test that counts what arrived must send all of it."""
+    if every_one:
+        client.session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
+    else:
+        client.session.put(key, payload)
 
 
 def alive(harness: FleetHarness) -> dict[str, int | None]:

@@ -115,6 +115,8 @@ def run_router(args: argparse.Namespace) -> int:
     stop = shutdown_event()
     if args.audit:
         zenoh.init_log_from_env_or(f"{ACL_LOG}=trace,error")
+    elif os.environ.get("RUST_LOG"):
+        zenoh.init_log_from_env_or("error")
     listen, connect = args.listen or inventory.endpoints, args.connect or []
     busy = [e for e in listen if not _port_free(e)]
     if busy:

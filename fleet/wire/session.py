@@ -71,6 +71,16 @@ Zenoh's default 4 lost in a row closes a link: at 30 % loss per network link (51
 client-router path) that is 7 % per lease on the datagram link, which carries nothing but stops,
 acks and heartbeats; 10 make it 0.1 %, for 3 idle keep-alives a second."""
 
+DATAGRAM_LEASE_S = 30.0
+"""The lease a datagram session gives the router. A Zenoh router's UDP listener is one loop
+that hands each datagram to its link through a one-slot mailbox; when the router expires a
+UDP session whose peer is still sending, the loop can wait for ever to hand a datagram to
+the closed link, and no UDP session at that router hears anything again (measured in the
+lab at 30 % loss: the router's UDP socket queue full for the rest of the run). A router
+expires a session after the session's own lease without a message from it; the datagram
+sessions send beats ten times a second, so only a router that processes nothing for this
+long expires one. The session's own view of the router keeps the router's 3 s lease."""
+
 ROUTER_BLOCK_WAIT_S = 0.5
 """How long a router waits for a session that stops reading before it closes it."""
 RECONNECT_RETRY = {"period_init_ms": 250, "period_max_ms": 1000, "period_increase_factor": 2}
@@ -128,6 +138,7 @@ def zenoh_config(
     connect_timeout_s: float = 10.0,
     credentials: Credentials | None = None,
     datagram: Datagram | None = None,
+    lease_s: float = LEASE_S,
 ) -> zenoh.Config:
     """A Zenoh config with multicast scouting off and only the given endpoints (a router with
     ``datagram`` also listens on their datagram twins)."""
@@ -139,7 +150,7 @@ def zenoh_config(
     config.insert_json5("connect/retry", json.dumps(RECONNECT_RETRY))
     twins = datagram_twins(listen, datagram) if mode == "router" else []
     config.insert_json5("listen/endpoints", json.dumps([*listen, *twins]))
-    config.insert_json5("transport/link/tx/lease", json.dumps(int(LEASE_S * 1000)))
+    config.insert_json5("transport/link/tx/lease", json.dumps(int(lease_s * 1000)))
     config.insert_json5("transport/link/tx/keep_alive", str(KEEP_ALIVES_PER_LEASE))
     if mode == "router":
         # A session that stops reading (a frozen viewer) fills the router's queue towards it;
@@ -195,7 +206,11 @@ def open_datagram(
     if not twins:
         return None
     config = zenoh_config(
-        "client", connect=twins, connect_timeout_s=connect_timeout_s, credentials=credentials
+        "client",
+        connect=twins,
+        connect_timeout_s=connect_timeout_s,
+        credentials=credentials,
+        lease_s=DATAGRAM_LEASE_S,
     )
     try:
         return zenoh.open(config)

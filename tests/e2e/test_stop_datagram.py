@@ -6,6 +6,8 @@ genuine stop. (A forged stop still only stops: anyone may stop, on either path.)
 from __future__ import annotations
 
 import logging
+import os
+import signal
 import threading
 import time
 
@@ -15,7 +17,7 @@ import zenoh
 from fleet.client import FleetClient
 from fleet.wire import keys, stoppath
 from fleet.wire import messages as m
-from fleet.wire.session import Datagram, open_datagram, zenoh_config
+from fleet.wire.session import LEASE_S, Datagram, close_bounded, open_datagram, zenoh_config
 from fleet.wire.stoppath import DATAGRAM_QOS, JSON
 from testkit.harness import FleetHarness, free_port, wait_until
 from testkit.hostile import decode, latest
@@ -239,3 +241,64 @@ def test_a_deaf_datagram_session_is_replaced_and_hears_again(
         session.close()
         sender.close()  # type: ignore[no-untyped-call]
         router.close()  # type: ignore[no-untyped-call]
+
+
+def test_a_router_frozen_past_the_lease_still_hears_datagram_sessions_after(
+    fleet_harness: FleetHarness,
+) -> None:
+    """A router that processes nothing for longer than Zenoh's 3 s lease (frozen here; in the
+    lab at 30 % loss, its routing held up by sessions closing) expired every UDP session whose
+    peer kept sending, and its UDP listener then waited for ever to hand a datagram to a
+    closed link: no datagram session at that router, old or new, heard anything again
+    (measured: the router's UDP socket queue full for the rest of the run, every agent's
+    watchdog stopping its arm at 10 % loss afterwards). The datagram sessions give the router
+    a lease of ``DATAGRAM_LEASE_S``, so it does not expire them: after the freeze new datagram
+    sessions open and hear each other. Fails with the 3 s lease."""
+    h = fleet_harness
+    router = h.start_router()
+    endpoints = h.inventory.endpoints
+    # Each sending session is one more chance for the race (the router expiring it while its
+    # copies arrive): with four and two freezes the 3 s lease wedged the router in 5 of 5 runs.
+    senders = [open_datagram(endpoints, h.inventory.datagram, 5.0) for _ in range(4)]
+    assert all(senders), "the router does not listen on the datagram twin"
+    done = threading.Event()
+
+    def pump(sender: zenoh.Session) -> None:  # keeps sending, as every agent's session does
+        for _ in range(6000):  # bounded: at most 30 s
+            if done.wait(0.005):
+                return
+            sender.put("fleet/test/dg/probe", b"copy", **DATAGRAM_QOS)  # type: ignore[arg-type]
+
+    pumps = [threading.Thread(target=pump, args=(s,), name="pump", daemon=True) for s in senders]
+    for thread in pumps:
+        thread.start()
+    fresh: list[zenoh.Session] = []
+    try:
+        for _freeze in range(2):
+            time.sleep(0.5)  # copies flowing before the freeze
+            os.kill(router.pid, signal.SIGSTOP)
+            try:
+                time.sleep(LEASE_S + 1.0)  # past Zenoh's lease: the freeze itself
+            finally:
+                os.kill(router.pid, signal.SIGCONT)
+        time.sleep(1.0)  # the queued copies reach the router while it looks at its leases
+        done.set()
+        for thread in pumps:
+            thread.join(timeout=2.0)
+        receiver = open_datagram(endpoints, h.inventory.datagram, 5.0)
+        speaker = open_datagram(endpoints, h.inventory.datagram, 5.0)
+        assert receiver is not None and speaker is not None, "no datagram session opens"
+        fresh += [receiver, speaker]
+        heard: list[int] = []
+        receiver.declare_subscriber("fleet/test/dg/after", lambda _s: heard.append(1))
+
+        def heard_after() -> bool:
+            speaker.put("fleet/test/dg/after", b"after", **DATAGRAM_QOS)  # type: ignore[arg-type]
+            return bool(heard)
+
+        wait_until(heard_after, 10.0, interval_s=0.1)
+    finally:
+        done.set()
+        for session in (*senders, *fresh):
+            if session is not None:
+                close_bounded(session, "datagram session")
