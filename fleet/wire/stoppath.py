@@ -35,7 +35,7 @@ from collections.abc import Callable
 import zenoh
 
 from fleet.wire import keys
-from fleet.wire.session import close_bounded
+from fleet.wire.session import DATAGRAM_LEASE_S, close_bounded
 
 log = logging.getLogger("fleet.stoppath")
 
@@ -225,17 +225,25 @@ class DatagramSession:
 
     def _refresh_once(self, seen: set[str] | None, redeclare: bool) -> set[str] | None:
         """Replace the session if its link to the router was made anew since the last look
-        (``seen``: its links' local ends) or it is ``deaf``, else with ``redeclare`` declare
-        its subscriptions again; the links now."""
+        (``seen``: its links' local ends), is lost (the router, which holds a datagram
+        session for ``DATAGRAM_LEASE_S``, refuses the same session's reconnection meanwhile) or
+        it is ``deaf``, else with ``redeclare`` declare its subscriptions again; the links now."""
         with self._lock:
             session, entries = self._session, list(self._subscriptions)
         if session is None or session.is_closed():
             return seen
         links = {str(link.src) for link in session.info.links()}
         remade = seen is not None and bool(links) and not links & seen
-        if remade or self.deaf(time.monotonic()):
+        lost = seen is not None and not links
+        if remade or lost or self.deaf(time.monotonic()):
             if remade:
                 log.warning("datagram session: its link to the router was re-made")
+            elif lost:
+                log.warning(
+                    "datagram session: no link to the router; a new session replaces it (the "
+                    "router refuses this one's reconnection for up to %.0f s, its lease)",
+                    DATAGRAM_LEASE_S,
+                )
             else:
                 self._heard_at = time.monotonic()  # a failed replacement is tried again later
                 log.warning(
@@ -248,7 +256,7 @@ class DatagramSession:
         if redeclare:
             for entry in entries:
                 entry.declare(session)
-        return links or seen  # no link now: reconnecting, judged once one is up
+        return links or seen  # no link, and no new session yet: tried again next time
 
     def _replace(self, old: zenoh.Session) -> zenoh.Session | None:
         """A new session in place of ``old``, whose link was re-made or which went deaf: a

@@ -302,3 +302,45 @@ def test_a_router_frozen_past_the_lease_still_hears_datagram_sessions_after(
         for session in (*senders, *fresh):
             if session is not None:
                 close_bounded(session, "datagram session")
+
+
+def test_a_datagram_session_that_lost_its_router_is_replaced_at_once(
+    fleet_harness: FleetHarness, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A router frozen past 3 s: the datagram sessions give it up (its lease to them is 3 s)
+    while it keeps theirs (``DATAGRAM_LEASE_S``, 30 s), and it refuses their reconnection
+    until that ends (measured in the lab: a coordinator's beats left the datagram path for
+    30 s, and at 10 % loss every arm's watchdog tripped). A session with no link is replaced
+    by a new one at the next look, so copies flow again within seconds, not 30 s."""
+    monkeypatch.setattr(stoppath, "LINK_CHECK_S", 0.2)
+    h = fleet_harness
+    router = h.start_router()
+
+    def opener() -> zenoh.Session | None:
+        return open_datagram(h.inventory.endpoints, h.inventory.datagram, 5.0)
+
+    receiver = stoppath.DatagramSession(opener, "udp/")
+    sender = stoppath.DatagramSession(opener, "udp/")
+    heard: list[float] = []
+    receiver.subscribe("fleet/test/beat", lambda _s: heard.append(time.monotonic()))
+    try:
+        assert receiver.open() is not None and sender.open() is not None
+
+        def beat() -> bool:
+            session = sender.session
+            if session is not None:
+                session.put(keys.datagram_key("fleet/test/beat"), b"beat", **DATAGRAM_QOS)  # type: ignore[arg-type]
+            return bool(heard) and heard[-1] > time.monotonic() - 0.5
+
+        wait_until(beat, 10.0, interval_s=0.05)
+        os.kill(router.pid, signal.SIGSTOP)
+        try:
+            time.sleep(LEASE_S + 1.0)  # past the router's lease to the sessions
+        finally:
+            os.kill(router.pid, signal.SIGCONT)
+        thawed = time.monotonic()
+        wait_until(lambda: beat() and heard[-1] > thawed, 10.0, interval_s=0.05)
+        assert receiver.replaced >= 1 and sender.replaced >= 1, (receiver.replaced, sender.replaced)
+    finally:
+        receiver.close()
+        sender.close()

@@ -54,9 +54,9 @@ IMPAIRED_BEFORE_S = 1.0
 not what this row measures); the loss then runs this long before the stop, so the sessions
 carry it (TCP backing off, keep-alives lost) when the stop is put."""
 AT_30_PCT = (
-    "at 30 % loss the goals held in some runs and not in others: in the failing runs single "
-    "agents got no datagram copy for seconds and some acks never reached the client (the "
-    "datagram sessions' declarations ride lossy UDP: docs/design/stop-path.md, 30 % loss)"
+    "at 30 % loss the goals held in some runs and not in others: the router, closing and "
+    "reopening the TCP sessions that loss expires, routes nothing for 1-10 s at a time, and "
+    "the copies of every datagram session wait behind it (docs/design/stop-path.md, 30 % loss)"
 )
 
 
