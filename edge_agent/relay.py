@@ -65,7 +65,7 @@ class ZenohRelay:
         self.session = open_session(inventory)
         # The stops' datagram path: stops and heartbeats also arrive over UDP, acks
         # also leave that way; opened here, before anything is announced.
-        self.datagram = datagram_session(inventory)
+        self.datagram = datagram_session(inventory, beside=self.session)
         safety, commands = inboxes
         wrap = guard.wrap
 

@@ -104,7 +104,7 @@ class FleetClient:
         self.session = session
         self._own_datagram = datagram is None
         if datagram is None:  # the stops' datagram path (issue 24), opened beside
-            datagram = datagram_session(inventory)
+            datagram = datagram_session(inventory, beside=session)
             datagram.start()
         self.datagram = datagram
 

@@ -80,7 +80,7 @@ class Coordinator:
         self._pending_actions = 0  # guarded by lock
         self._next_diag = 0.0  # heartbeat thread only
         self.session = open_session(inventory)
-        self.datagram = datagram_session(inventory)
+        self.datagram = datagram_session(inventory, beside=self.session)
         self.datagram.open()  # the stops' datagram path (issue 24), before the first beat
         self.client = FleetClient(inventory, self.session, datagram=self.datagram)
         self._declared: list[zenoh.Subscriber[None] | zenoh.Queryable[None]] = []

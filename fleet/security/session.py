@@ -111,10 +111,13 @@ def open_datagram_session(
     )
 
 
-def datagram_session(inventory: Inventory) -> DatagramSession:
-    """The datagram session of ``inventory``'s principal, to be opened (``DatagramSession``)."""
+def datagram_session(inventory: Inventory, beside: zenoh.Session | None = None) -> DatagramSession:
+    """The datagram session of ``inventory``'s principal, to be opened (``DatagramSession``),
+    beside the reliable session ``beside``."""
     twins = datagram_twins(inventory.endpoints, inventory.datagram)
-    return DatagramSession(lambda: open_datagram_session(inventory), ", ".join(twins) or None)
+    return DatagramSession(
+        lambda: open_datagram_session(inventory), ", ".join(twins) or None, beside
+    )
 
 
 def router_config(

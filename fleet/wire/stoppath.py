@@ -110,9 +110,15 @@ class DatagramSession:
     reliable path does not wait for it); ``open`` opens it here. ``close`` is idempotent."""
 
     def __init__(
-        self, opener: Callable[[], zenoh.Session | None] | None, endpoints: str | None = None
+        self,
+        opener: Callable[[], zenoh.Session | None] | None,
+        endpoints: str | None = None,
+        beside: zenoh.Session | None = None,
     ) -> None:
         self._opener = opener
+        self._beside = beside
+        """The process's reliable session: while it has its router, a datagram session without
+        one is refused by that router, not waiting for it (``_refresh_once``)."""
         self._retry: threading.Thread | None = None
         self._closing = threading.Event()
         self._endpoints = endpoints
@@ -225,8 +231,9 @@ class DatagramSession:
 
     def _refresh_once(self, seen: set[str] | None, redeclare: bool) -> set[str] | None:
         """Replace the session if its link to the router was made anew since the last look
-        (``seen``: its links' local ends), is lost (the router, which holds a datagram
-        session for ``DATAGRAM_LEASE_S``, refuses the same session's reconnection meanwhile) or
+        (``seen``: its links' local ends), is lost while the reliable session beside it has
+        its router (that router holds a datagram session for ``DATAGRAM_LEASE_S`` and refuses
+        the same session's reconnection meanwhile; a router gone altogether is waited for) or
         it is ``deaf``, else with ``redeclare`` declare its subscriptions again; the links now."""
         with self._lock:
             session, entries = self._session, list(self._subscriptions)
@@ -234,14 +241,15 @@ class DatagramSession:
             return seen
         links = {str(link.src) for link in session.info.links()}
         remade = seen is not None and bool(links) and not links & seen
-        lost = seen is not None and not links
+        lost = seen is not None and not links and self._router_up()
         if remade or lost or self.deaf(time.monotonic()):
             if remade:
                 log.warning("datagram session: its link to the router was re-made")
             elif lost:
                 log.warning(
-                    "datagram session: no link to the router; a new session replaces it (the "
-                    "router refuses this one's reconnection for up to %.0f s, its lease)",
+                    "datagram session: no link to the router, which the reliable session has; a "
+                    "new session replaces it (the router refuses this one's reconnection for up "
+                    "to %.0f s, its lease)",
                     DATAGRAM_LEASE_S,
                 )
             else:
@@ -257,6 +265,18 @@ class DatagramSession:
             for entry in entries:
                 entry.declare(session)
         return links or seen  # no link, and no new session yet: tried again next time
+
+    def _router_up(self) -> bool:
+        """The reliable session beside this one has its router now."""
+        beside = self._beside
+        try:
+            return (
+                beside is not None
+                and not beside.is_closed()
+                and bool(list(beside.info.routers_zid()))
+            )
+        except zenoh.ZError:
+            return False
 
     def _replace(self, old: zenoh.Session) -> zenoh.Session | None:
         """A new session in place of ``old``, whose link was re-made or which went deaf: a

@@ -310,17 +310,24 @@ def test_a_datagram_session_that_lost_its_router_is_replaced_at_once(
     """A router frozen past 3 s: the datagram sessions give it up (its lease to them is 3 s)
     while it keeps theirs (``DATAGRAM_LEASE_S``, 30 s), and it refuses their reconnection
     until that ends (measured in the lab: a coordinator's beats left the datagram path for
-    30 s, and at 10 % loss every arm's watchdog tripped). A session with no link is replaced
-    by a new one at the next look, so copies flow again within seconds, not 30 s."""
+    30 s, and at 10 % loss every arm's watchdog tripped). A session with no link, beside a
+    reliable session that has its router again, is replaced by a new one at the next look,
+    so copies flow again within seconds, not 30 s. A router gone altogether is waited for:
+    no replacement without it (a process whose router stopped must not open session after
+    session)."""
     monkeypatch.setattr(stoppath, "LINK_CHECK_S", 0.2)
     h = fleet_harness
     router = h.start_router()
+    reliable = zenoh.open(zenoh_config("client", connect=h.inventory.endpoints))
+
+    tries: list[float] = []
 
     def opener() -> zenoh.Session | None:
+        tries.append(time.monotonic())
         return open_datagram(h.inventory.endpoints, h.inventory.datagram, 5.0)
 
-    receiver = stoppath.DatagramSession(opener, "udp/")
-    sender = stoppath.DatagramSession(opener, "udp/")
+    receiver = stoppath.DatagramSession(opener, "udp/", reliable)
+    sender = stoppath.DatagramSession(opener, "udp/", reliable)
     heard: list[float] = []
     receiver.subscribe("fleet/test/beat", lambda _s: heard.append(time.monotonic()))
     try:
@@ -341,6 +348,13 @@ def test_a_datagram_session_that_lost_its_router_is_replaced_at_once(
         thawed = time.monotonic()
         wait_until(lambda: beat() and heard[-1] > thawed, 10.0, interval_s=0.05)
         assert receiver.replaced >= 1 and sender.replaced >= 1, (receiver.replaced, sender.replaced)
+
+        h.stop("router")
+        wait_until(lambda: not list(reliable.info.routers_zid()), 10.0)
+        gone = len(tries)
+        time.sleep(LEASE_S + 1.0)  # the datagram sessions lose their links too, and look often
+        assert len(tries) == gone, "a new datagram session tried while the router was gone"
     finally:
         receiver.close()
         sender.close()
+        close_bounded(reliable, "reliable session")
