@@ -19,6 +19,7 @@ import zenoh
 from viser import _messages
 from websockets.sync.client import ClientConnection
 
+from fleet.client import FleetClient
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
 from fleet.wire.session import open_client
@@ -69,6 +70,14 @@ def changed_canvas(
     return (now,) if diffs[-1] > 200 else None
 
 
+def _reached(client: FleetClient, arm: str, target: list[float], tol_deg: float = 2.0) -> bool:
+    """The arm's newest joints are within ``tol_deg`` of ``target``."""
+    _status, joints = client.snapshot([arm], wait_s=1.0)[arm]
+    return joints is not None and all(
+        abs(a - t) <= tol_deg for a, t in zip(joints.angles_deg, target, strict=False)
+    )
+
+
 def test_canvas_draws_the_fleet_moving_and_stop_all_reaches_the_key_space(
     fleet3_harness: FleetHarness, browser: Browser
 ) -> None:
@@ -97,6 +106,10 @@ def test_canvas_draws_the_fleet_moving_and_stop_all_reaches_the_key_space(
         for step, target in enumerate(([60.0, 40.0, -60.0, 30.0, 45.0, 20.0, 50.0], [0.0] * 7)):
             reply = client.command("a1", m.MoveJoints(angles_deg=target, mode=1))
             assert reply.ok, reply.error
+            # The move's end, then its picture: a picture taken as the first move had barely
+            # begun, compared with the arm back at zero, differed by too few pixels (two
+            # fresh-clone runs).
+            wait_until(lambda t=target: _reached(client, "a1", t), 15.0)
             shot = wait_until(lambda s=shot, k=step: changed_canvas(browser, s, k, diffs), 15.0)[0]
         rate = (browser.frames - frames_before) / (time.monotonic() - t0)
         browser.save_page("03-page-a1-moved")
