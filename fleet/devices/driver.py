@@ -32,13 +32,15 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 from fleet.devices.base import DeviceReply
-from fleet.origin.directory import WriterDirectory
 from fleet.origin.trust import OriginFilter
 from fleet.wire import messages as m
 from fleet.wire.payloads import PayloadKind
+
+if TYPE_CHECKING:  # a type only: the CLI and the coordinator never load DDS through it
+    from fleet.origin.directory import WriterDirectory
 
 Put = Callable[[str, bytes, bool], None]
 """(device channel, JSON payload, reliable: BLOCK and REAL_TIME, else DROP)."""
