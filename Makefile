@@ -45,11 +45,11 @@ lint: $(STAMP)
 	$(BIN)/mypy fleet/wire fleet/d1
 
 # Everything: lint, then unit, e2e, browser and netlab tests on two workers (the browser tests
-# share one, the netlab tests another, --dist loadgroup), about 11 minutes on 2 cores; the
+# share one, the netlab tests another, --dist loadgroup), about 13 minutes on 2 cores; the
 # tests that measure time run at a higher priority than the rest (testkit/priority.py). Every
 # test's time is kept in artifacts/test-results.xml (JUnit XML).
-# TEST_WORKERS=3 takes about 9 but loads the host to 5-14, where a test in every run measured
-# the scheduler (six fresh-clone runs, none green).
+# TEST_WORKERS=3 is not faster on 2 cores: 668-683 s against 744-771, the host saturates and
+# timing tests fail (docs/design/testing.md).
 TEST_WORKERS ?= 2
 test: $(STAMP) lint
 	sh scripts/ensure-chromium
