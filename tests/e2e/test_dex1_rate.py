@@ -13,6 +13,7 @@ from fleet.dex1.messages import GripperState
 from fleet.wire import keys
 from testkit.collect import Collector
 from testkit.harness import FleetHarness, wait_until
+from testkit.load import xfail_if_overloaded
 
 RELAY_HZ = 50.0
 
@@ -43,7 +44,6 @@ def test_500_hz_state_relayed_at_the_configured_rate_without_queueing(tmp_path) 
             first_ages = [s.stamp_ns for _t, s in window[:50]]
             print(f"zenoh rate {rate:.1f} Hz, dds rate {dds_rate:.1f} Hz")
             assert 0.9 * RELAY_HZ <= rate <= 1.04 * RELAY_HZ, rate
-            assert dds_rate >= 0.95 * 500.0, dds_rate
             assert last.bad_samples == 0
             # No queue: consecutive relayed states are one relay period apart in their own
             # stamps at the end as at the start (a queue would bunch them and age them).
@@ -58,6 +58,13 @@ def test_500_hz_state_relayed_at_the_configured_rate_without_queueing(tmp_path) 
             # The state's DDS sample count advances at the DDS rate between puts: the relay
             # always carries the newest sample, never an old one from a backlog.
             steps = [b.dds_samples - a.dds_samples for (_t, a), (_u, b) in zip(window, window[1:])]
-            assert sum(steps) / len(steps) >= 0.95 * 500 / RELAY_HZ
+            per_put = sum(steps) / len(steps)
+            # Both depend on the simulator writing 500 a second: a starved one wrote 472 at
+            # load 8 (three workers), which measures the scheduler, not the agent's intake.
+            missed = [f"DDS rate {dds_rate:.0f} Hz"] if dds_rate < 0.95 * 500.0 else []
+            missed += [f"{per_put:.1f} samples per put"] if per_put < 0.95 * 500 / RELAY_HZ else []
+            xfail_if_overloaded(missed)
+            assert dds_rate >= 0.95 * 500.0, dds_rate
+            assert per_put >= 0.95 * 500 / RELAY_HZ, per_put
         finally:
             states.close()
