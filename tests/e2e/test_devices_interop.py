@@ -103,6 +103,12 @@ def _closing(repeaters: list[_Repeater]) -> Iterator[None]:
             repeater.close()
 
 
+def _received(subscription: Any) -> bool:
+    """Whether the library's subscription (not spinning) has taken a sample by now."""
+    subscription.take_one()
+    return subscription.msg is not None
+
+
 @pytest.fixture
 def fleet(tmp_path) -> Iterator[FleetHarness]:  # type: ignore[no-untyped-def]
     with FleetHarness(tmp_path, arms=1, extra=INVENTORY) as harness:
@@ -132,8 +138,10 @@ def test_wrapper_publishers_are_relayed_and_commands_decode(fleet: FleetHarness)
             hg_pub = Publisher(hg.HandState_, "rt/dex1/right/state_w")
             g1_pub = Publisher(hg.SportModeState_, "rt/sportmodestate")
             arm_pub = Publisher(dds.ArmString_, "rt/arm_Feedback_1")
-            go_cmd = Subscription(go.MotorCmds_, "rt/dex1/left/cmd_w")
-            hg_cmd = Subscription(hg.HandCmd_, "rt/dex1/right/cmd_w")
+            # Read by the test, not by the library's own thread: that thread waits forever
+            # and raised at teardown when the participant under it was deleted.
+            go_cmd = Subscription(go.MotorCmds_, "rt/dex1/left/cmd_w", autospin=False)
+            hg_cmd = Subscription(hg.HandCmd_, "rt/dex1/right/cmd_w", autospin=False)
             repeaters += [
                 _Repeater(
                     go_pub,
@@ -184,14 +192,14 @@ def test_wrapper_publishers_are_relayed_and_commands_decode(fleet: FleetHarness)
             # Commands on Zenoh arrive decoded by the library's classes, with their values.
             reply = client.device_command("wgo", GripperMove(open_pct=25.0, tau=0.4, kp=3.0))
             assert reply.ok, reply
-            wait_until(lambda: go_cmd.msg is not None, 5.0)
+            wait_until(lambda: _received(go_cmd), 5.0)
             cmd = go_cmd.msg.cmds[0]
             assert (cmd.mode, cmd.q, cmd.tau, cmd.kp) == pytest.approx(
                 (0, 3.14159265 / 2, 0.4, 3.0)
             )
             reply = client.device_command("whg", GripperMove(q_rad=2.0, kd=0.5))
             assert reply.ok, reply
-            wait_until(lambda: hg_cmd.msg is not None, 5.0)
+            wait_until(lambda: _received(hg_cmd), 5.0)
             hcmd = hg_cmd.msg.motor_cmd[0]
             assert (hcmd.mode, hcmd.q, hcmd.kd) == pytest.approx((0, 2.0, 0.5))
             # No effort given: 0, as in seed 003's example (``tau=0.0``) and Unitree's
