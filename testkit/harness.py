@@ -245,12 +245,20 @@ class FleetHarness:
         self.processes[name] = process
         return process
 
-    def start_router(self, *options: str) -> subprocess.Popen[bytes]:
-        """``fleet router [options]``; returns once the port accepts connections."""
+    def start_router(self, *options: str, wait: bool = True) -> subprocess.Popen[bytes]:
+        """``fleet router [options]``; returns once the port accepts connections (with
+        ``wait`` False at once: ``wait_router`` later)."""
         process = self.start("router", ["-m", "fleet.cli.main", "router", *options])
+        if wait:
+            self.wait_router()
+        return process
+
+    def wait_router(self) -> None:
+        """Return once the router's port accepts connections; AssertionError with its log if
+        it exited first."""
+        process = self.processes["router"]
         wait_until(lambda: self._port_open() or process.poll() is not None, 15.0)
         assert process.poll() is None, self.log("router")
-        return process
 
     def start_sim(self, *arms: str, name: str = "sim") -> subprocess.Popen[bytes]:
         """``fleet sim`` for the given arms (all simulated arms if none)."""
@@ -272,10 +280,14 @@ class FleetHarness:
 
     def start_fleet(self) -> FleetClient:
         """Router, all simulated arms, one agent for all arms; returns a connected client once
-        every arm's link is ok."""
-        self.start_router()
+        every arm's link is ok. The three start side by side: the agent's Zenoh session keeps
+        trying a router not yet listening (``RECONNECT_RETRY``). Measured over the e2e tests:
+        0.67 s per fleet against 0.75 with the router waited for first (little: the starts
+        share the two cores)."""
+        self.start_router(wait=False)
         self.start_sim()
         self.start_agent()
+        self.wait_router()
         client = self.client()
         try:
             wait_until(lambda: self.all_links_ok(client), 30.0)

@@ -32,9 +32,10 @@ DEVICES = (
 def devices_fleet(tmp_path: Path) -> Iterator[FleetHarness]:
     """Router, ``fleet sim`` (a1 and the ``DEVICES``: gl, h1) and one agent serving them all."""
     with FleetHarness(tmp_path, arms=1, extra=DEVICES) as harness:
-        harness.start_router()
+        harness.start_router(wait=False)  # side by side (FleetHarness.start_fleet)
         harness.start_sim()
         harness.start("agent", ["-m", "edge_agent", "--interface", "lo"])
+        harness.wait_router()
         yield harness
 
 
