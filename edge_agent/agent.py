@@ -62,6 +62,10 @@ STATUS_PERIOD_S = 0.25
 """Status is re-published 4 times a second: late joiners learn it, and it is the agent's
 heartbeat (the coordinator calls an agent offline after 1 s of silence)."""
 DIAG_PERIOD_S = 1.0
+DIAG_SOON_S = 0.2
+"""Bad input (an undecodable payload or stop, a busy refusal) is in the next diag within this
+long, not at the next whole second: an operator who sends a bad command sees it counted at
+once. It also bounds the diags a flood of bad input makes, to 5 a second."""
 
 
 class EdgeAgent:
@@ -101,6 +105,7 @@ class EdgeAgent:
         )
         # DDS first: if the interface is wrong we fail before announcing anything on Zenoh.
         self._next_status = self._next_diag = 0.0
+        self._diag_counts = self._bad_input_counts()
         self.link = DdsLink(network, self._tick, TICK_PERIOD_S, self.guard)
         try:
             self.relay = ZenohRelay(
@@ -230,13 +235,21 @@ class EdgeAgent:
         periodic = now >= self._next_status
         if periodic:
             self._next_status = now + STATUS_PERIOD_S
-        diag = now >= self._next_diag
+        counts = self._bad_input_counts()
+        diag = now >= self._next_diag or (
+            counts != self._diag_counts and now >= self._next_diag - DIAG_PERIOD_S + DIAG_SOON_S
+        )
         if diag:
             self._next_diag = now + DIAG_PERIOD_S
+            self._diag_counts = counts
         out = Outbox()
         for server in self._kind_servers:
             server.tick(now, stamp_ns, periodic, diag, out)
         self.flush(out)
+
+    def _bad_input_counts(self) -> tuple[int, int, int]:
+        counters = self.counters
+        return counters.bad_payloads, counters.undecodable_stops, counters.busy
 
     def _own_counts(self, diag: m.Diag) -> m.Diag:
         """A unit's diag with the agent's own counters (the same in every unit's diag)."""

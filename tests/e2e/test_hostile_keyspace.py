@@ -338,6 +338,46 @@ def test_every_agent_and_the_coordinator_survive_and_diag_counts(
 
 
 @pytest.mark.timing
+def test_bad_input_is_in_the_next_diag_at_once_and_a_flood_makes_few(
+    fleet: tuple[FleetHarness, FleetClient],
+) -> None:
+    """A diag comes every second, and one more, within 0.2 s, when bad input was counted;
+    a flood of bad input makes no more than 5 a second."""
+    _harness, client = fleet
+    arrived: list[tuple[float, m.Diag]] = []
+    lock = threading.Lock()
+
+    def on_diag(sample: zenoh.Sample) -> None:
+        diag = decode(m.Diag, sample.payload.to_bytes())
+        with lock:
+            arrived.append((time.monotonic(), diag))  # type: ignore[arg-type]
+
+    subscriber = client.session.declare_subscriber(client.keys.arm("a1", keys.DIAG), on_diag)
+    try:
+        wait_until(lambda: len(arrived) >= 2, 5.0)  # the periodic ones: the next is 1 s away
+        with lock:
+            last_s, last = arrived[-1]
+        put(client, client.unit_key("a1", keys.RESET), POISONS["not-json"])
+        counted = wait_until(
+            lambda: next((a for a in list(arrived) if a[1].bad_payloads > last.bad_payloads), None),
+            5.0,
+        )
+        # The periodic diag would come 1.0 s after the last; this one 0.2-0.3 s after it.
+        assert counted[0] - last_s < 0.8, (counted[0] - last_s, len(arrived))
+        flood_started = time.monotonic()
+        for _ in range(100):  # 2 s of bad input, 50 a second
+            put(client, client.unit_key("a1", keys.RESET), POISONS["not-json"])
+            time.sleep(0.02)
+        flood_s = time.monotonic() - flood_started
+        with lock:
+            during = [t for t, _d in arrived if flood_started <= t <= flood_started + flood_s]
+        assert len(during) <= flood_s / 0.2 + 2, (len(during), flood_s)
+        assert len(during) >= 3, (len(during), flood_s)  # it did publish early, not 1 a second
+    finally:
+        subscriber.undeclare()
+
+
+@pytest.mark.timing
 def test_long_multi_arm_requests_never_queue_without_bound(
     fleet: tuple[FleetHarness, FleetClient],
 ) -> None:
