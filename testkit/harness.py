@@ -147,15 +147,22 @@ HUNG_AT_SHUTDOWN = re.compile(r"^Timeout \(\d+:\d\d:\d\d(\.\d+)?\)!$", re.MULTIL
 threads' stacks follow)."""
 
 
-def wait_until(predicate: Callable[[], T], timeout_s: float, interval_s: float = 0.05) -> T:
-    """Poll ``predicate`` until it returns something truthy; AssertionError after ``timeout_s``."""
+def wait_until(
+    predicate: Callable[[], T],
+    timeout_s: float,
+    interval_s: float = 0.05,
+    explain: Callable[[], str] | None = None,
+) -> T:
+    """Poll ``predicate`` until it returns something truthy; AssertionError after ``timeout_s``,
+    with what ``explain()`` then says (the state a failure is diagnosed from)."""
     deadline = time.monotonic() + timeout_s
     while True:
         value = predicate()
         if value:
             return value
         if time.monotonic() >= deadline:
-            raise AssertionError(f"condition not met within {timeout_s} s: {predicate}")
+            why = f"\n{explain()}" if explain is not None else ""
+            raise AssertionError(f"condition not met within {timeout_s} s: {predicate}{why}")
         time.sleep(interval_s)
 
 

@@ -49,6 +49,17 @@ def viewer_of(harness: FleetHarness, principal: str) -> Iterator[Viewer]:
         yield viewer
 
 
+def _explain(fleet: FleetHarness, viewer: Viewer, gripper: LatchWatch, start: float) -> str:
+    """What a gripper that did not follow its slider is diagnosed from."""
+    slider = viewer.panels.device_panels["gl"].sliders[0][1]
+    events = [f"{e.kind} {e.arm}: {e.text}" for e in viewer.state.events.newest()]
+    return (
+        f"start {start}, gripper now {gripper.latest()}, slider {slider.value} "
+        f"(disabled {slider.disabled})\nviewer events: {events}\n"
+        f"agent: ...{fleet.log('agent')[-1500:]}\nsim: ...{fleet.log('sim')[-800:]}"
+    )
+
+
 def device_info(browser: Browser, device: str, field: str) -> str:
     node = browser.page.locator(f"#device-{device}-info [data-field='{field}']")
     return node.inner_text() if node.count() else ""
@@ -78,7 +89,9 @@ def test_the_gripper_and_the_g1_from_the_page_under_the_viewers_lease(
         other = client.device_command("gl", GripperMove(open_pct=50.0, owner="script"))
         assert not other.ok and other.error is not None
         assert other.error.code == m.ErrorCode.LEASE_EXISTS and "viewer@" in other.error.message
-        wait_until(lambda: abs(gripper.latest().opening_pct - start) > 80.0, 15.0)
+        # (A fresh-clone run once saw no stroke here within 15 s, and kept nothing to say why.)
+        explain = lambda: _explain(fleet, viewer, gripper, start)  # noqa: E731
+        wait_until(lambda: abs(gripper.latest().opening_pct - start) > 80.0, 15.0, explain=explain)
         slider.press(near)  # and back, from the page
         # (a fully open target arrives as float32 6.2831855 > 2*pi: the simulator ignored it)
         wait_until(lambda: abs(gripper.latest().opening_pct - start) < 10.0, 15.0)
