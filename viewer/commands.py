@@ -109,6 +109,7 @@ class Commander:
         # (arm, joint) -> its jog target; (device, DEVICE) -> the device's newest command
         self._pending: dict[tuple[str, int], m.MoveJoint | m.DeviceCommand] = {}
         self._last_jog_s: dict[str, float] = {}
+        self._answered: set[str] = set()
         # The viewer moves arms as an owner like any other: its jogs take the arm's lease, so a
         # script cannot move the arm under the operator's hand (nor the viewer under a script's).
         self.owner = f"viewer@{socket.gethostname()}:{os.getpid()}"
@@ -239,13 +240,16 @@ class Commander:
                     self._send_jog(unit, command)
                 else:
                     self._send_device(unit, command)
+                with self._lock:
+                    self._answered.add(unit)
             if self._pending:
                 time.sleep(JOG_INTERVAL_S / 5)
 
-    def sent_to(self, unit: str) -> bool:
-        """True once a jog or device command left for ``unit`` (arm or device)."""
+    def answered(self, unit: str) -> bool:
+        """True once ``unit`` (arm or device) answered a jog or device command of this viewer:
+        its agent has taken or refused it (and so its lease) by then."""
         with self._lock:
-            return unit in self._last_jog_s
+            return unit in self._answered
 
     def _jog_due(self, arm: str, now: float) -> bool:
         return now - self._last_jog_s.get(arm, -JOG_INTERVAL_S) >= JOG_INTERVAL_S

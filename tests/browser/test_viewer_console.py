@@ -128,7 +128,7 @@ def test_arrow_keys_on_a_focused_jog_slider_jog_and_leave_the_camera_alone(
         animation_frames(browser, 40)  # viser would turn the camera on each of them
         browser.page.keyboard.up("ArrowLeft")
         assert viewer.commander is not None
-        wait_until(lambda: viewer.commander.sent_to("a1"), 10.0)  # type: ignore[union-attr]
+        wait_until(lambda: viewer.commander.answered("a1"), 10.0)  # type: ignore[union-attr]
 
         # The control: off the slider, a held key moves the camera (E: up; no turn).
         browser.page.evaluate("document.activeElement && document.activeElement.blur()")

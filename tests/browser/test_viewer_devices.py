@@ -84,7 +84,7 @@ def test_the_gripper_and_the_g1_from_the_page_under_the_viewers_lease(
         slider.focus()
         slider.press(far)
         assert viewer.commander is not None
-        wait_until(lambda: viewer.commander.sent_to("gl"), 10.0)  # type: ignore[union-attr]
+        wait_until(lambda: viewer.commander.answered("gl"), 10.0)  # type: ignore[union-attr]
         # The viewer holds the gripper now (for its lease_s): a script is refused, told who.
         other = client.device_command("gl", GripperMove(open_pct=50.0, owner="script"))
         assert not other.ok and other.error is not None
@@ -115,7 +115,7 @@ def test_the_gripper_and_the_g1_from_the_page_under_the_viewers_lease(
         assert commander is not None
         click_until(
             page.get_by_role("button", name="Stop move").click,
-            lambda: commander.sent_to("h1"),
+            lambda: commander.answered("h1"),
             15.0,
         )
         damp = page.get_by_role("button", name="Damp").click
