@@ -21,9 +21,14 @@ from fleet.wire import messages as m
 from testkit.collect import Collector
 from testkit.harness import FleetHarness
 
+G1_LOWSTATE_SLOW = "sim_lowstate_hz = 20.0\n"
+"""A simulated G1's lowstate at 20 Hz, not its 100 Hz (~1 ms of Python a sample in the
+simulator, ~0.5 ms in the agent), for a test that reads no lowstate rate: the agent needs one
+within its 0.5 s ``link_stale_s``."""
+
 DEVICES = (
     '[grippers.gl]\nfamily = "go"\nmount = "a1"\nsim_rate_hz = 100.0\n\n'
-    '[g1.h1]\nstop_action = "stop_move"\nsim_settle_s = 0.1\nsim_lowstate_hz = 20.0\n'
+    f'[g1.h1]\nstop_action = "stop_move"\nsim_settle_s = 0.1\n{G1_LOWSTATE_SLOW}'
 )
 """The inventory lines of the devices beside arm a1 (the harness writes the arm). The
 simulators run slower than the robots (a gripper's 500 Hz state at 100 Hz, a G1's 100 Hz

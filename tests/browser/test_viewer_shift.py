@@ -24,6 +24,7 @@ from fleet.wire import keys
 from fleet.wire import messages as m
 from testkit.browser import Browser
 from testkit.harness import FleetHarness, free_port, wait_until
+from testkit.kinds import DEVICES
 from viewer.app import Viewer
 from viewer.camera import UP, camera_axes, usable_right_edge
 
@@ -421,7 +422,7 @@ def test_the_viewer_shows_a_mounted_gripper_opening_and_the_g1s_fsm(
     from fleet.dex1.messages import GripperMove
     from testkit.collect import agent_token
 
-    extra = '[grippers.gl]\nfamily = "go"\nmount = "a1"\n\n[g1.h1]\nstop_action = "stop_move"\n'
+    extra = DEVICES  # (testkit/kinds.py: simulated at the lab's rates)
     with FleetHarness(tmp_path, arms=1, extra=extra) as harness:
         harness.start_router()
         harness.start_sim()

@@ -26,6 +26,7 @@ from fleet.wire import keys
 from fleet.wire.messages import ErrorCode
 from testkit.collect import Collector, agent_token
 from testkit.harness import FleetHarness, wait_until
+from testkit.kinds import G1_LOWSTATE_SLOW
 
 STATE = KIND.payloads[keys.STATE]
 
@@ -42,7 +43,7 @@ def g1_fleet(tmp_path, extra: str) -> Iterator[FleetHarness]:  # type: ignore[no
 
 @pytest.fixture(params=["stop_move", "damp"])
 def fleet(request: pytest.FixtureRequest, tmp_path) -> Iterator[FleetHarness]:  # type: ignore[no-untyped-def]
-    extra = f'[g1.h1]\nstop_action = "{request.param}"\nmax_duration_s = 5.0\n'
+    extra = f'[g1.h1]\nstop_action = "{request.param}"\nmax_duration_s = 5.0\n{G1_LOWSTATE_SLOW}'
     with g1_fleet(tmp_path, extra) as harness:
         yield harness
 
@@ -119,7 +120,7 @@ def test_g1_state_rpc_refusals_and_stop(fleet: FleetHarness) -> None:
 
 def test_g1_service_auto_finds_loco_and_status_and_doctor_show_it(tmp_path) -> None:  # type: ignore[no-untyped-def]
     """ai_sport < 8.2 serves ``loco``: ``service = "auto"`` asks both names and uses it."""
-    extra = '[g1.h1]\nservice = "auto"\nsim_service = "loco"\n'
+    extra = f'[g1.h1]\nservice = "auto"\nsim_service = "loco"\n{G1_LOWSTATE_SLOW}'
     with g1_fleet(tmp_path, extra) as harness:
         client = harness.client()
         key = keys.KeySpace(harness.inventory.fleet).device("g1", "h1", keys.STATE)

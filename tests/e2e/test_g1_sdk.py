@@ -55,6 +55,7 @@ from fleet.wire import keys
 from fleet.wire.messages import ErrorCode
 from testkit.collect import Collector, agent_token
 from testkit.harness import FleetHarness, wait_until
+from testkit.kinds import G1_LOWSTATE_SLOW
 
 STATE = KIND.payloads[keys.STATE]
 CONFIRM_GOAL_S = 1.0
@@ -74,7 +75,7 @@ def _calls(harness: FleetHarness, name: str) -> list[dict]:
 
 @pytest.mark.parametrize("service", ["sport", "loco"])
 def test_unitree_loco_client_drives_our_simulator(tmp_path, service: str) -> None:  # type: ignore[no-untyped-def]
-    extra = f'[g1.h1]\nsim_service = "{service}"\nsim_settle_s = 0.3\n'
+    extra = f'[g1.h1]\nsim_service = "{service}"\nsim_settle_s = 0.3\n{G1_LOWSTATE_SLOW}'
     with FleetHarness(tmp_path, arms=1, extra=extra) as harness:
         harness.start_router()
         harness.start_sim()
