@@ -51,7 +51,7 @@ lint: $(STAMP)
 	$(BIN)/mypy fleet/wire fleet/d1
 
 # Everything: lint, then unit, e2e, browser and netlab tests on two workers (the browser tests
-# share one, the netlab tests another, --dist loadgroup), about 12 minutes on 2 cores; the
+# share one, the netlab tests another, --dist loadgroup), about 11 minutes on 2 cores; the
 # tests that measure time run at a higher priority than the rest (testkit/priority.py). Every
 # test's time is kept in artifacts/test-results.xml (JUnit XML).
 # TEST_WORKERS=3 is not faster on 2 cores: 668-683 s against 744-771, the host saturates and
