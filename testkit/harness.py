@@ -27,8 +27,11 @@ from fleet.d1.dds import MAX_PARTICIPANTS_PER_HOST
 from fleet.inventory import Inventory, load_inventory
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
+from testkit.forkserver import ForkedProcess, fork_server
 
 T = TypeVar("T")
+Process = subprocess.Popen[bytes] | ForkedProcess
+"""A process the harness started: Popen's, or the fork server's (``testkit.forkserver``)."""
 
 # Domains 1..99 keep CycloneDDS's ports (7400 + 250 * domain ...) below the ephemeral range that
 # free Zenoh ports come from. The run's PID spreads parallel runs; the counter separates tests.
@@ -220,7 +223,7 @@ class FleetHarness:
             make_certs(self.inventory, self.inventory.security.certs, days=2)
         self.killed: list[str] = []
         """Processes that had to be killed: they did not stop on their signal."""
-        self.processes: dict[str, subprocess.Popen[bytes]] = {}
+        self.processes: dict[str, Process] = {}
         self._logs: dict[str, Path] = {}
         self._clients: list[FleetClient] = []
 
@@ -228,31 +231,39 @@ class FleetHarness:
 
     def start(
         self, name: str, argv: list[str], prefix: tuple[str, ...] = (), inventory: bool = True
-    ) -> subprocess.Popen[bytes]:
+    ) -> Process:
         """Start ``[prefix] python argv...`` with the inventory option appended (unless
         ``inventory`` is False); output to a log file. ``prefix`` runs it through another
-        command, e.g. ``ip netns exec <ns>``."""
+        command, e.g. ``ip netns exec <ns>``. A ``-m module`` without a prefix is forked by the
+        worker's fork server, with the fleet already imported."""
         log_path = self.tmp_path / f"{name}.log"
         if log_path.exists():  # a restart: the previous run's output is kept beside it
             log_path.replace(log_path.with_suffix(".log.1"))
         self._logs[name] = log_path
-        extra = ["--inventory", str(self.inventory_path)] if inventory else []
-        with open(log_path, "wb") as log:
-            process = subprocess.Popen(
-                [*prefix, sys.executable, *argv, *extra],
-                stdout=log,
-                stderr=subprocess.STDOUT,
-                # Latched stops persist per test, never in the user's state directory.
-                env={
-                    **os.environ,
-                    "PYTHONUNBUFFERED": "1",
-                    "D1_FLEET_STATE_DIR": str(self.tmp_path / "state"),
-                },
-            )
+        argv = [*argv, *(["--inventory", str(self.inventory_path)] if inventory else [])]
+        # Latched stops persist per test, never in the user's state directory.
+        env = {
+            **os.environ,
+            "PYTHONUNBUFFERED": "1",
+            "D1_FLEET_STATE_DIR": str(self.tmp_path / "state"),
+        }
+        server = fork_server() if not prefix and argv[0] == "-m" else None
+        process: Process
+        if server is not None:
+            log_path.write_bytes(b"")
+            process = server.start(argv, str(log_path), env)
+        else:
+            with open(log_path, "wb") as log:
+                process = subprocess.Popen(
+                    [*prefix, sys.executable, *argv],
+                    stdout=log,
+                    stderr=subprocess.STDOUT,
+                    env=env,
+                )
         self.processes[name] = process
         return process
 
-    def start_router(self, *options: str, wait: bool = True) -> subprocess.Popen[bytes]:
+    def start_router(self, *options: str, wait: bool = True) -> Process:
         """``fleet router [options]``; returns once the port accepts connections (with
         ``wait`` False at once: ``wait_router`` later)."""
         process = self.start("router", ["-m", "fleet.cli.main", "router", *options])
@@ -267,21 +278,21 @@ class FleetHarness:
         wait_until(lambda: self._port_open() or process.poll() is not None, 15.0)
         assert process.poll() is None, self.log("router")
 
-    def start_sim(self, *arms: str, name: str = "sim") -> subprocess.Popen[bytes]:
+    def start_sim(self, *arms: str, name: str = "sim") -> Process:
         """``fleet sim`` for the given arms (all simulated arms if none)."""
         argv = ["-m", "fleet.cli.main", "sim"]
         for arm in arms:
             argv += ["--arm", arm]
         return self.start(name, argv)
 
-    def start_agent(self, *arms: str, name: str = "agent") -> subprocess.Popen[bytes]:
+    def start_agent(self, *arms: str, name: str = "agent") -> Process:
         """``edge-agent --arm ...``."""
         argv = ["-m", "edge_agent"]
         for arm in arms or tuple(self.inventory.arms):
             argv += ["--arm", arm]
         return self.start(name, argv)
 
-    def start_coordinator(self) -> subprocess.Popen[bytes]:
+    def start_coordinator(self) -> Process:
         """``fleet coordinator``."""
         return self.start("coordinator", ["-m", "fleet.cli.main", "coordinator"])
 
@@ -329,7 +340,7 @@ class FleetHarness:
             process.send_signal(sig)
         return self._reap(process, timeout_s)
 
-    def _reap(self, process: subprocess.Popen[bytes], timeout_s: float) -> int:
+    def _reap(self, process: Process, timeout_s: float) -> int:
         """Wait for a signalled process; SIGKILL if it does not exit (kept in ``killed`` and
         warned about: every process must stop on SIGTERM). Returns its code."""
         if process.poll() is None:

@@ -89,7 +89,6 @@ CONFIRM_SAMPLES = 3
 MAX_PENDING = 16
 TICK_MAX_S = 0.05
 """Ticks at least this often: the stop action's repeat and the link's staleness."""
-_ids = itertools.count(time.time_ns())
 
 
 @dataclass
@@ -144,6 +143,9 @@ class G1Driver(DriverBase):
         self._next_arm_s = 0.0
         self._arm_messages = 0
         self._probe_ids: dict[int, str] = {}
+        # Request ids this driver's answers are matched by: from the clock at creation, so
+        # two processes (an agent and a Unitree SDK client) asking the same robot differ.
+        self._ids = itertools.count(time.time_ns())
         self._stop_detail: str | None = None
         self._latest: tuple[idl.SportModeState_, float] | None = None
         self._changed = False
@@ -459,7 +461,7 @@ class G1Driver(DriverBase):
 
     def _send(self, call: loco.Call, pending: _Pending | None, service: str) -> int:
         """Write one request to ``service`` (the core holds the device's write lock); its id."""
-        request_id = next(_ids)
+        request_id = next(self._ids)
         if pending is not None:
             with self._lock:
                 if len(self._pending) >= MAX_PENDING:
