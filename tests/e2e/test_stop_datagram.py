@@ -231,8 +231,11 @@ def test_a_deaf_datagram_session_is_replaced_and_hears_again(
         caplog.set_level(logging.WARNING, logger="fleet.stoppath")
         subscription._subscriber.undeclare()  # type: ignore[union-attr,no-untyped-call]
         wait_until(lambda: session.session is not first, 10.0)
-        why = [r.getMessage() for r in caplog.records if "datagram session" in r.getMessage()]
-        assert why and "deaf" in why[0], why
+        # The reason given for the replacement (a slow close of a stale session, under load,
+        # may be logged before it: "closing the datagram session took over 1 s").
+        said = [r.getMessage() for r in caplog.records]
+        why = [m for m in said if m.startswith("datagram session") and "re-opened" not in m]
+        assert why and "deaf" in why[0], said
         count = len(heard)
         wait_until(lambda: len(heard) > count + 5, 10.0)
     finally:
