@@ -32,7 +32,7 @@ from typing import Any
 import pytest
 
 from testkit.harness import wait_until
-from testkit.load import xfail_if_overloaded
+from testkit.load import xfail_if_overloaded, xfail_if_shared
 from tests.netlab.checks import percentile, restore
 from tests.netlab.fleetlab import LabFleet, RemoteClient
 from tests.netlab.labkinds import LAB_KIND_IDS, LAB_KINDS, LabKind
@@ -51,6 +51,15 @@ LOAD = {"rate_hz": 250.0, "size": 8000}
 STOPS = 2
 RELAY_P99_SLACK_MS = 20.0
 """The relay's p99 with the consumers may exceed the baseline's by this much (2-core host)."""
+SHARED_SPIKES = (
+    "in make test every kind's relay showed spikes of 60-370 ms at the same moments, in 6 of 6 "
+    "fresh-clone runs (2026-11-27), once in the baseline without the frozen consumer too (p99 "
+    "103 ms) and once at load 2.8 (no load XFAIL); the row alone, after the whole lab, and "
+    "beside busy loops at nice 0 or 5 showed none (worst 8-19 ms, p99 2-9 ms, 8 runs): the "
+    "relay p99 is asserted in a lab run alone"
+)
+"""Why the relay's p99 is not asserted while other workers' tests share the host (a stall,
+no sample for ``STALL_S``, is asserted everywhere)."""
 STOP_SLACK_MS = 100.0
 RSS_GROWTH_MB = {"router": 64.0, "agent-a1": 10.0}
 """The router allocates its transmission queues for the two consumers' sessions at once
@@ -270,13 +279,15 @@ def test_a_frozen_consumer_does_not_delay_the_relay(
         f"{_relay_text(frozen)} with; worst relay per 2 s (ms): {timeline}; "
         f"{'a stall' if stalled else 'no stall'}",
         f"no relay stall ({STALL_S:g} s without a sample); relay p99 within "
-        f"{RELAY_P99_SLACK_MS:g} ms of the baseline",
+        f"{RELAY_P99_SLACK_MS:g} ms of the baseline (in a lab run alone; beside other test "
+        "workers a miss is an XFAIL naming them)",
         {"p99_ms": [percentile(base, 99), percentile(frozen, 99)], "stall": stalled},
     )
     assert base and frozen, f"no {kind.name} samples: {len(base)} without, {len(frozen)} with"
     assert not stalled, f"the {kind.name} relay stalled: {stall}"
     slow = percentile(frozen, 99) > percentile(base, 99) + RELAY_P99_SLACK_MS
     xfail_if_overloaded(["relay p99"] if slow else [])
+    xfail_if_shared(["relay p99"] if slow else [], SHARED_SPIKES)
     assert not slow, (
         f"{kind.name} relay p99 {percentile(frozen, 99):.0f} ms with the frozen consumer, "
         f"{percentile(base, 99):.0f} ms without; worst per 2 s: {timeline}"
