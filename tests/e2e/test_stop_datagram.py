@@ -10,6 +10,7 @@ import os
 import signal
 import threading
 import time
+from pathlib import Path
 
 import pytest
 import zenoh
@@ -22,6 +23,7 @@ from fleet.wire.session import LEASE_S, Datagram, close_bounded, open_datagram, 
 from fleet.wire.stoppath import DATAGRAM_QOS, JSON
 from testkit.harness import FleetHarness, free_port, wait_until
 from testkit.hostile import decode, latest
+from testkit.kinds import KIND_IDS, KINDS, Kind, LatchWatch, devices_fleet
 
 FLOOD_S = 3.0
 
@@ -364,35 +366,38 @@ def test_a_datagram_session_that_lost_its_router_is_replaced_at_once(
         close_bounded(reliable, "reliable session")
 
 
+@pytest.mark.parametrize("kind", KINDS, ids=KIND_IDS)
 def test_a_confirmation_is_repeated_on_the_datagram_path_without_the_senders_repeats(
-    fleet_harness: FleetHarness,
+    tmp_path: Path, kind: Kind
 ) -> None:
-    """A stop put once (each path once, no repeat): the agent sends the arm's confirmation
-    ("still") again on the datagram path every 50 ms for 1 s on its own (``CONFIRM_REPEAT_S``),
-    so under loss a confirmation no longer needs a repeat to reach the agent first; then the
-    copies end. Before, it came once."""
-    h = fleet_harness
-    client = h.start_fleet()
-    receiver = open_datagram(h.inventory.endpoints, h.inventory.datagram)
-    assert receiver is not None
-    copies: list[tuple[float, m.StopAck]] = []
-    ack_key = keys.datagram_subscription(client.keys.arm("a1", keys.ESTOP_ACK))
+    """A stop put once (each path once, no repeat): the agent sends the unit's confirmation
+    (an arm still, a gripper holding, a G1 static) again on the datagram path every 50 ms for
+    1 s on its own (``CONFIRM_REPEAT_S``), so under loss a confirmation no longer needs a
+    repeat to reach the agent first; then the copies end. Before, it came once. Every kind."""
+    with devices_fleet(tmp_path) as h:
+        client = h.client()
+        watch = LatchWatch(client, kind)
+        wait_until(watch.link_ok, 30.0)
+        receiver = open_datagram(h.inventory.endpoints, h.inventory.datagram)
+        assert receiver is not None
+        copies: list[tuple[float, m.StopAck]] = []
+        ack_key = keys.datagram_subscription(client.unit_key(kind.unit, keys.ESTOP_ACK))
 
-    def on_copy(sample: zenoh.Sample) -> None:
-        copies.append((time.monotonic(), payloads.STOP_ACK.decode(sample.payload.to_bytes())))
+        def on_copy(sample: zenoh.Sample) -> None:
+            ack = payloads.STOP_ACK.decode(sample.payload.to_bytes())
+            copies.append((time.monotonic(), ack))
 
-    subscriber = receiver.declare_subscriber(ack_key, on_copy)
-    request = client.stop_request(reason="once", source="test")
-    try:
-        client.put_stop(request)
-        done = lambda: [t for t, ack in copies if ack.stop_id == request.stop_id and ack.done]  # noqa: E731
-        wait_until(lambda: len(done()) >= 10, 10.0, explain=lambda: f"{len(done())} confirmed")
-        wait_until(lambda: time.monotonic() - copies[-1][0] > 0.5, 10.0)  # the copies ended
-        span = done()[-1] - done()[0]
-        most = 1 + stops_loop.CONFIRM_REPEAT_S / stops_loop.CONFIRM_REPEAT_EVERY_S + 2
-        assert len(done()) <= most, len(done())
-        assert span <= stops_loop.CONFIRM_REPEAT_S + 0.3, span
-    finally:
-        subscriber.undeclare()  # type: ignore[no-untyped-call]
-        close_bounded(receiver, "receiver")
-        client.reset(source="test")
+        subscriber = receiver.declare_subscriber(ack_key, on_copy)
+        request = client.stop_request(reason="once", source="test")
+        try:
+            client.put_stop(request)
+            done = lambda: [t for t, a in copies if a.stop_id == request.stop_id and a.done]  # noqa: E731
+            wait_until(lambda: len(done()) >= 10, 10.0, explain=lambda: f"{len(done())} confirmed")
+            wait_until(lambda: time.monotonic() - copies[-1][0] > 0.5, 10.0)  # the copies ended
+            span = done()[-1] - done()[0]
+            most = 1 + stops_loop.CONFIRM_REPEAT_S / stops_loop.CONFIRM_REPEAT_EVERY_S + 2
+            assert len(done()) <= most, len(done())
+            assert span <= stops_loop.CONFIRM_REPEAT_S + 0.3, span
+        finally:
+            subscriber.undeclare()  # type: ignore[no-untyped-call]
+            close_bounded(receiver, "receiver")
