@@ -199,14 +199,17 @@ class ForkServer:
             "nice": os.getpriority(os.PRIO_PROCESS, 0),
         }
         assert self._process.stdin is not None
-        with self._lock, self._changed:
+        with self._lock:
+            # Written outside the condition: the reader thread must never wait on it for a
+            # write that waits on the server.
             self._process.stdin.write(json.dumps(request).encode() + b"\n")
             self._process.stdin.flush()
-            if not self._changed.wait_for(lambda: self._started or not self.alive(), 30.0):
-                raise RuntimeError("the fork server did not answer within 30 s")
-            if not self._started:
-                raise RuntimeError(f"the fork server exited ({self._process.poll()})")
-            pid = self._started.pop(0)
+            with self._changed:
+                if not self._changed.wait_for(lambda: self._started or not self.alive(), 30.0):
+                    raise RuntimeError("the fork server did not answer within 30 s")
+                if not self._started:
+                    raise RuntimeError(f"the fork server exited ({self._process.poll()})")
+                pid = self._started.pop(0)
         return ForkedProcess(self, pid, [sys.executable, *argv])
 
     def exit_code(self, pid: int, timeout: float | None) -> int | None:
