@@ -15,6 +15,10 @@ Protocol, JSON lines: requests on the server's stdin (``argv``, ``log``, ``env``
 ``nice``: the calling thread's nice value, which a Popen child would inherit);
 answers on its stdout: ``{"started": pid}`` once per request in order, and ``{"exited": pid,
 "code": n}`` (``code`` as ``Popen.returncode``: negative for a signal) when a child ends.
+
+A child that ended stays a zombie until the client has its code and sends ``{"release": pid}``:
+as with Popen, whose parent reaps only in ``poll``/``wait``, a PID the client may still signal
+is never free for the kernel to give to another process (and a signal to it is never ESRCH).
 """
 
 from __future__ import annotations
@@ -62,6 +66,7 @@ def _serve() -> dict[str, Any] | None:
     selector.register(0, selectors.EVENT_READ)
     selector.register(wake_read, selectors.EVENT_READ)
     pending = b""
+    running: set[int] = set()
     while True:
         for key, _ in selector.select(timeout=1.0):
             if key.fd == wake_read:
@@ -74,25 +79,34 @@ def _serve() -> dict[str, Any] | None:
             while b"\n" in pending:
                 line, pending = pending.split(b"\n", 1)
                 request = json.loads(line)
+                if "release" in request:
+                    _release(request["release"])
+                    continue
                 pid = os.fork()
                 if pid == 0:
                     selector.close()
                     for fd in (answers, wake_read, wake_write):
                         os.close(fd)
                     return request  # type: ignore[no-any-return]
+                running.add(pid)
                 _answer(answers, {"started": pid})
-        _reap(answers)
+        _report_exits(answers, running)
 
 
-def _reap(answers: int) -> None:
-    while True:
-        try:
-            pid, status = os.waitpid(-1, os.WNOHANG)
-        except ChildProcessError:
-            return
-        if pid == 0:
-            return
-        _answer(answers, {"exited": pid, "code": os.waitstatus_to_exitcode(status)})
+def _report_exits(answers: int, running: set[int]) -> None:
+    """Answer for each child that ended, leaving it a zombie (WNOWAIT) until released."""
+    for pid in list(running):
+        ended = os.waitid(os.P_PID, pid, os.WEXITED | os.WNOHANG | os.WNOWAIT)
+        if ended is None or ended.si_pid == 0:
+            continue
+        running.discard(pid)
+        killed = ended.si_code in (os.CLD_KILLED, os.CLD_DUMPED)
+        _answer(answers, {"exited": pid, "code": -ended.si_status if killed else ended.si_status})
+
+
+def _release(pid: int) -> None:
+    with contextlib.suppress(ChildProcessError):
+        os.waitpid(pid, 0)  # a zombie: returns at once
 
 
 def _answer(fd: int, message: dict[str, int]) -> None:
@@ -150,20 +164,27 @@ class ForkedProcess:
         self.returncode: int | None = None
 
     def poll(self) -> int | None:
-        if self.returncode is None:
-            self.returncode = self._server.exit_code(self.pid, 0.0)
-        return self.returncode
+        return self._collect(0.0)
 
     def wait(self, timeout: float | None = None) -> int:
+        code = self._collect(timeout)
+        if code is None:
+            raise subprocess.TimeoutExpired(self.args, timeout or 0.0)
+        return code
+
+    def _collect(self, timeout: float | None) -> int | None:
+        """The exit code once known; the server then reaps the child (Popen reaps in poll)."""
         if self.returncode is None:
             self.returncode = self._server.exit_code(self.pid, timeout)
-        if self.returncode is None:
-            raise subprocess.TimeoutExpired(self.args, timeout or 0.0)
+            if self.returncode is not None:
+                self._server.release(self.pid)
         return self.returncode
 
     def send_signal(self, sig: int) -> None:
-        if self.poll() is None:  # as Popen: never signal a PID that may have been reused
-            os.kill(self.pid, sig)
+        # Until released, an ended child is an unreaped zombie: its PID is still ours.
+        if self.poll() is None:
+            with contextlib.suppress(ProcessLookupError):  # the server died and init reaped it
+                os.kill(self.pid, sig)
 
     def terminate(self) -> None:
         self.send_signal(signal.SIGTERM)
@@ -216,6 +237,15 @@ class ForkServer:
         with self._changed:
             self._changed.wait_for(lambda: pid in self._codes or not self.alive(), timeout)
             return self._codes.get(pid)
+
+    def release(self, pid: int) -> None:
+        """Let the server reap ``pid``, whose code the client now has."""
+        assert self._process.stdin is not None
+        with self._lock, contextlib.suppress(BrokenPipeError, ValueError):
+            self._process.stdin.write(json.dumps({"release": pid}).encode() + b"\n")
+            self._process.stdin.flush()
+        with self._changed:
+            self._codes.pop(pid, None)
 
     def alive(self) -> bool:
         return self._process.poll() is None

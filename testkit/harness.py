@@ -369,14 +369,16 @@ class FleetHarness:
             client.close()
         # Every process signalled first, then each waited for: they shut down side by side
         # (one after another cost 0.6-1.1 s per test).
-        running = [p for p in reversed(list(self.processes.values())) if p.poll() is None]
-        for process in running:
-            process.send_signal(signal.SIGTERM)
-            process.send_signal(signal.SIGCONT)  # one a test left frozen acts on it too
-        for process in running:
-            self._reap(process, 10.0)
-        self._domain_lock.close()
-        release_port(self.port)
+        try:
+            running = [p for p in reversed(list(self.processes.values())) if p.poll() is None]
+            for process in running:
+                process.send_signal(signal.SIGTERM)
+                process.send_signal(signal.SIGCONT)  # one a test left frozen acts on it too
+            for process in running:
+                self._reap(process, 10.0)
+        finally:  # the run's other tests need the domain and port back whatever happened
+            self._domain_lock.close()
+            release_port(self.port)
         hung = [name for name in self.processes if HUNG_AT_SHUTDOWN.search(self.log(name))]
         if self.killed or hung:
             # After every process is reaped: the suite's filterwarnings turn this into an error.

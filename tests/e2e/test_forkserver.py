@@ -85,3 +85,27 @@ def test_a_signal_and_a_kill_are_seen_as_popen_reports_them(
     assert handled.wait(timeout=30.0) == 7
     assert killed.wait(timeout=30.0) == -signal.SIGKILL
     killed.kill()  # a process that ended is never signalled again
+
+
+def _state(pid: int) -> str | None:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (FileNotFoundError, ProcessLookupError):
+        return None
+
+
+def test_an_ended_childs_pid_stays_held_until_its_code_is_collected(
+    server: ForkServer, tmp_path: Path
+) -> None:
+    """A harness's SIGTERM-then-SIGCONT raced a child's exit: the server had reaped it before
+    the client heard of it, so the SIGCONT found no process (and a reused PID could have been
+    another one). As with Popen, the PID is freed only when the client has the code."""
+    log = tmp_path / "c.log"
+    log.write_bytes(b"")
+    process = server.start(["-m", "tests.e2e.forkserver_child", "exit", "0"], str(log), {})
+    assert wait_until(lambda: server.exit_code(process.pid, 0.0) is not None, 30.0)
+    assert _state(process.pid) == "Z"  # reported, not reaped
+    os.kill(process.pid, signal.SIGCONT)  # what send_signal does when its poll lost the race
+    assert process.poll() == 0
+    assert wait_until(lambda: _state(process.pid) is None, 30.0)
+    process.send_signal(signal.SIGCONT)  # collected: never signalled again
