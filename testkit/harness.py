@@ -7,6 +7,7 @@ processes, and stops every process it started by PID. Waits are bounded: ``wait_
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import itertools
 import os
@@ -18,7 +19,7 @@ import sys
 import tempfile
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import IO, TypeVar
 
@@ -83,10 +84,17 @@ def claim_domain() -> tuple[int, IO[bytes]]:
     raise RuntimeError("every DDS domain 1..99 is in use on this host")
 
 
-def unique_domain() -> int:
-    """A DDS domain id for one test, different from the other tests of this run (not reserved
-    against other processes: FleetHarness uses claim_domain)."""
-    return 1 + next(_domains) % 99
+@contextlib.contextmanager
+def reserved_domain() -> Iterator[int]:
+    """``claim_domain`` for a block: a test that starts its own DDS processes (a demo) holds
+    its domain against every other test process of the host until the block ends. (A domain
+    only counted, never reserved, was once taken by a harness of another pytest worker at the
+    same time: two fleets' arms on one domain.)"""
+    domain, lock = claim_domain()
+    try:
+        yield domain
+    finally:
+        lock.close()
 
 
 _PORT_LOCKS = Path(tempfile.gettempdir()) / "d1-fleet-test-ports"

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from testkit.browser import Browser, open_browser
-from testkit.harness import FleetHarness
+from testkit.harness import FleetHarness, reserved_domain
 from testkit.priority import can_reprioritize, nice_for, set_worker_nice
 
 
@@ -23,6 +23,14 @@ def fleet_harness(tmp_path: Path) -> Iterator[FleetHarness]:
     """A harness with one simulated arm (a1); start what the test needs."""
     with FleetHarness(tmp_path, arms=1) as harness:
         yield harness
+
+
+@pytest.fixture
+def dds_domain() -> Iterator[int]:
+    """A DDS domain for a test that starts DDS processes of its own (a demo), reserved
+    against every other test process of the host while the test runs."""
+    with reserved_domain() as domain:
+        yield domain
 
 
 @pytest.fixture

@@ -150,6 +150,10 @@ def test_mirror_follows_a_dragged_leader(fleet3_harness: FleetHarness) -> None:
     stop.set()
     thread.join(timeout=10.0)
     result = results[0]
+    reason = str(getattr(result, "reason", ""))
+    # A follower's feedback 0.35 s late makes its link stale and the mirror stop, as it must;
+    # on an overloaded host that measures the scheduler (the simulator starved).
+    xfail_if_overloaded([f"the mirror stopped: {reason}"] if "link stale" in reason else [])
     assert result.ok and result.latencies_ms, result  # type: ignore[attr-defined]
     print(result.summary())  # type: ignore[attr-defined]
     median_ms = sorted(result.latencies_ms)[len(result.latencies_ms) // 2]  # type: ignore[attr-defined]

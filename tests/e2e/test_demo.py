@@ -22,7 +22,7 @@ from fleet.wire import keys, payloads
 from fleet.wire import messages as m
 from fleet.wire.payloads import G1_LOWSTATE
 from testkit.collect import Collector
-from testkit.harness import free_port, unique_domain, wait_until
+from testkit.harness import free_port, wait_until
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -61,8 +61,8 @@ def _alive(pid: int) -> bool:
 
 
 @pytest.fixture
-def demo(tmp_path: Path) -> Iterator[tuple[subprocess.Popen[bytes], FleetClient]]:
-    port, domain = free_port(), unique_domain()
+def demo(tmp_path: Path, dds_domain: int) -> Iterator[tuple[subprocess.Popen[bytes], FleetClient]]:
+    port, domain = free_port(), dds_domain
     log = open(tmp_path / "demo.log", "wb")  # noqa: SIM115 - closed below
     endpoint = f"tcp/127.0.0.1:{port}"
     inventory_path = REPO / "inventory.toml"
@@ -184,12 +184,14 @@ def test_a_crashed_agent_is_restarted_and_the_demo_says_which(
     assert f"agent of a2 (PID {agent}) killed by SIGKILL; restarting it" in log, log[-2000:]
 
 
-def test_the_demo_with_ros2_starts_fleet_ros2_and_says_where(tmp_path: Path) -> None:
+def test_the_demo_with_ros2_starts_fleet_ros2_and_says_where(
+    tmp_path: Path, dds_domain: int
+) -> None:
     """``fleet demo --ros2``: the intro names the ROS domain and the stop service, a
     ``fleet ros2`` child runs, and the arms' joint_states reach a ROS subscriber's key."""
     from fleet.wire.session import open_client
 
-    port, domain = free_port(), unique_domain()
+    port, domain = free_port(), dds_domain
     endpoint = f"tcp/127.0.0.1:{port}"
     log_path = tmp_path / "demo.log"
     with open(log_path, "wb") as log:

@@ -27,7 +27,7 @@ import pytest
 
 from fleet.client import FleetClient
 from fleet.inventory import load_inventory
-from testkit.harness import free_port, unique_domain, wait_until
+from testkit.harness import free_port, wait_until
 from tests.e2e.test_demo import REPO, _alive, _children_of, _cmdline, stop_demo
 
 ANSI = re.compile(r"\x1b\[[0-9;?]*[A-Za-z]")
@@ -83,9 +83,11 @@ class Terminal:
 
 
 @pytest.fixture(params=[(80, 24), (160, 40)], ids=["80x24", "160x40"])
-def terminal(request: pytest.FixtureRequest) -> Iterator[tuple[Terminal, FleetClient]]:
+def terminal(
+    request: pytest.FixtureRequest, dds_domain: int
+) -> Iterator[tuple[Terminal, FleetClient]]:
     cols, rows = request.param
-    port, domain = free_port(), unique_domain()
+    port, domain = free_port(), dds_domain
     endpoint = f"tcp/127.0.0.1:{port}"
     inventory_path = REPO / "inventory.toml"
     argv = [sys.executable, "-m", "fleet.cli.main", "demo", "--no-viewer", "--for-s", "120"]

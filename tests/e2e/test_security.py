@@ -27,7 +27,7 @@ from fleet.wire import keys
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode
 from fleet.wire.session import Credentials, RouterUnreachable, open_client
-from testkit.harness import FleetHarness, free_port, unique_domain, wait_until
+from testkit.harness import FleetHarness, free_port, wait_until
 from tests.e2e.test_demo import stop_demo
 
 
@@ -252,12 +252,12 @@ def test_password_mode_authenticates_users(tmp_path: Path) -> None:
 
 
 def test_the_secure_demo_runs_end_to_end_and_its_printed_cli_command_works(
-    tmp_path: Path,
+    tmp_path: Path, dds_domain: int
 ) -> None:
     """The secure demo prints its temporary inventory and a CLI command with it, and that
     command connects (it failed with "no Zenoh router answered": no certificate); the arms'
     calibration files are found from the temporary copy (``calib NONE`` before)."""
-    port, domain = free_port(), unique_domain()
+    port, domain = free_port(), dds_domain
     inventory = tmp_path / "inventory.toml"
     inventory.write_text(
         (Path(__file__).resolve().parents[2] / "inventory.toml").read_text(encoding="utf-8")
