@@ -82,9 +82,10 @@ class DeviceServer:
         config = inventory.device(device)
         safety = ArmSafety(config.lease_s, config.watchdog_s)
 
-        def latch() -> tuple[bool, str | None]:
+        def latch() -> tuple[bool, str | None, str | None]:
             stop = safety.stop  # one reference read: no lock needed for a state payload
-            return stop is not None, safety.last_reason if stop is not None else None
+            why = safety.last_reason if stop is not None else None
+            return stop is not None, why, safety.watched_by
 
         kind = kind_of(config)
         put = self._relay.device_put(device)

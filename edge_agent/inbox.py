@@ -130,10 +130,11 @@ class SafetyInbox:
 
     def on_heartbeat(
         self, principal: str | None, data: bytes | zenoh.ZBytes, datagram: bool = False
-    ) -> None:
-        """A sample on ``heartbeat/<principal>`` (Zenoh thread): keep the newest per source.
-        The source is ``<principal>/<coordinator>``: the principal comes from the key (the
-        router lets only it publish there), the payload only names one of its commanders.
+    ) -> m.Heartbeat | None:
+        """A sample on ``heartbeat/<principal>`` (Zenoh thread): keep the newest per source, and
+        return it (None: refused). The source is ``<principal>/<coordinator>``: the principal
+        comes from the key (the router lets only it publish there), the payload only names one
+        of its commanders.
         Bounded before it is copied or parsed (``fleet.beat_limits``): its size, then a rate
         per principal; what does not pass is counted in ``dropped_events``."""
         arrived = time.monotonic()
@@ -143,15 +144,15 @@ class SafetyInbox:
             if refused:
                 self.counters.dropped_events += 1
         if refused:
-            return
+            return None
         try:
             beat = payloads.HEARTBEAT.decode(data if isinstance(data, bytes) else data.to_bytes())
         except payloads.PayloadError:
             with self._lock:
                 self.counters.bad_payloads += 1
-            return
+            return None
         if principal is None:
-            return  # not a heartbeat key (cannot happen on heartbeat/*)
+            return None  # not a heartbeat key (cannot happen on heartbeat/*)
         with self._lock:
             source = owner_of(principal, beat.coordinator)
             if (
@@ -160,8 +161,9 @@ class SafetyInbox:
                 and source not in self._keep
             ):
                 self.counters.dropped_events += 1
-                return
+                return None
             self._beats[source] = (source, beat, arrived)
+        return beat
 
     def keep_sources(self, sources: frozenset[str]) -> None:
         """Sources whose heartbeats are never dropped (they watch an arm)."""

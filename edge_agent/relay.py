@@ -108,8 +108,9 @@ class ZenohRelay:
         datagram, on_reliable_beat = self.datagram, on_heartbeat(False)
 
         def on_reliable_heartbeat(sample: zenoh.Sample) -> None:
-            datagram.heard_reliably()
-            on_reliable_beat(sample)
+            beat = on_reliable_beat(sample)
+            if beat is not None and beat.datagram_copies:
+                datagram.heard_reliably()  # its copies are due on the datagram path too
 
         self._subscribers.append(sub(self.keys.heartbeat, on_reliable_heartbeat))
         # Resets never take the datagram path: a reset must not overtake the stop before it.

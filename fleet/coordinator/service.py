@@ -30,6 +30,7 @@ from fleet.coordinator.intake import Control, CoordinatorIntake
 from fleet.coordinator.state import FleetStateTracker
 from fleet.coordinator.stops import FLEET, StopBook
 from fleet.devices import kind_of
+from fleet.devices.unit import owner_of
 from fleet.guard import ThreadGuard
 from fleet.heartbeat import beat_until
 from fleet.inventory import Inventory, InventoryError
@@ -49,6 +50,10 @@ MAX_PENDING_ACTIONS = 64
 """Contact-policy actions waiting for a worker; more are dropped (counted): a flood of forged
 contact events must not queue commands without bound."""
 DIAG_PERIOD_S = 1.0
+WATCHED_GRACE_S = 5.0
+"""The beats keep their datagram copies this long after the last sign that a unit's watchdog
+may watch this coordinator: a command it sent, or a unit's status or state naming it
+(``watched_by``, reported 4-10 times a second over TCP, so late under loss)."""
 
 
 class Coordinator:
@@ -79,6 +84,9 @@ class Coordinator:
         self.desk = RequestDesk(self.keys, self._serve, self.guard)
         self._pending_actions = 0  # guarded by lock
         self._next_diag = 0.0  # heartbeat thread only
+        self._watch_source = owner_of(inventory.principal, self.id)
+        """What an agent's watchdog names this coordinator (``watched_by``)."""
+        self._watched_until = 0.0  # monotonic; a float written whole: no lock
         self.session = open_session(inventory)
         self.datagram = datagram_session(inventory, beside=self.session)
         self.datagram.open()  # the stops' datagram path (issue 24), before the first beat
@@ -136,8 +144,24 @@ class Coordinator:
 
     def _beat(self) -> None:
         beat_until(
-            self.stopping, self._heartbeat_pub, self.id, self.period_s, self._latched, self._after
+            self.stopping,
+            self._heartbeat_pub,
+            self.id,
+            self.period_s,
+            self._latched,
+            self._after,
+            self._watched,
         )
+
+    def _may_be_watched(self) -> None:
+        """A sign that some unit's watchdog may watch this coordinator now."""
+        self._watched_until = max(self._watched_until, time.monotonic() + WATCHED_GRACE_S)
+
+    def _watched(self) -> bool:
+        """Whether the beats' datagram copies go (``beat_until``): while a multi-arm request is
+        served and ``WATCHED_GRACE_S`` after the last sign of a watch. An idle fleet's agents
+        then get each beat once, over TCP (their stops keep both paths)."""
+        return time.monotonic() < self._watched_until or self.desk.counters()[1] > 0
 
     def _latched(self) -> dict[str, m.StopRequest]:
         with self.lock:
@@ -184,7 +208,11 @@ class Coordinator:
                     self._apply_control(event, now)
                 for arm, status in statuses.items():
                     self.state.on_status(arm, status, now)
+                    if status.watched_by == self._watch_source:
+                        self._may_be_watched()
                 for device, (kind, state) in self.intake.take_device_states().items():
+                    if getattr(state, "watched_by", None) == self._watch_source:
+                        self._may_be_watched()
                     self.state.on_device_state(
                         device, state.link, state.estopped, kind.summary(state), now
                     )
@@ -204,9 +232,11 @@ class Coordinator:
                 self._pool.submit(self.guard.wrap(self._perform, "contact-action"), action)
 
     def _perform(self, action: Action) -> None:
+        self._may_be_watched()
         try:
             perform(self.client, self.id, action)
         finally:
+            self._may_be_watched()
             with self.lock:
                 self._pending_actions -= 1
 
@@ -273,7 +303,9 @@ class Coordinator:
             )
             changes["start_at_ns"] = start_at_ns(lead)
         command = msgspec.structs.replace(request.command, **changes)
+        self._may_be_watched()  # before the first agent starts watching: copies from now
         replies = dict(zip(arms, self._pool.map(lambda a: self.client.command(a, command), arms)))
+        self._may_be_watched()
         written = [r.written_ns for r in replies.values() if r.ok and r.written_ns is not None]
         skew = round((max(written) - min(written)) / 1e6, 3) if len(written) > 1 else None
         return m.MultiArmReply(all(r.ok for r in replies.values()), replies, skew)

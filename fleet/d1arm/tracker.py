@@ -207,6 +207,7 @@ class ArmTracker:
             owned_s=None if lease is None else round(now - lease.since_s, 1),
             lease_left_s=None if lease is None else round(lease.expires_s - now, 1),
             contact_model=self.contact_model,
+            watched_by=self.safety.watched_by,
         )
 
     def diag(self, now: float, stamp_ns: int) -> Diag:

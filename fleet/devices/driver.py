@@ -44,8 +44,9 @@ if TYPE_CHECKING:  # a type only: the CLI and the coordinator never load DDS thr
 
 Put = Callable[[str, bytes, bool], None]
 """(device channel, JSON payload, reliable: BLOCK and REAL_TIME, else DROP)."""
-LatchView = Callable[[], "tuple[bool, str | None]"]
-"""(latched, why) of the device's stop latch, as the core holds it (for the state payload)."""
+LatchView = Callable[[], "tuple[bool, str | None, str | None]"]
+"""(latched, why, watched_by) of the device's stop latch and watchdog, as the core holds them
+(for the state payload)."""
 Done = Callable[[DeviceReply], None]
 """Answers a command the driver completes later (an RPC answered on the relay thread)."""
 

@@ -44,6 +44,8 @@ class GripperState(Struct, frozen=True):
     dds_rate_hz: float
     family: Literal["hg", "go"]
     mount: Name | Literal[""]
+    watched_by: Text | None = None
+    """The commander whose heartbeat the gripper's watchdog watches now (None: none)."""
 
 
 class _GripperCommand(DeviceCommand, kw_only=True):

@@ -248,7 +248,7 @@ class GripperDriver(DriverBase):
             return None
         reading, at_s = self._latest
         stale = now_s - at_s > self.config.link_stale_s
-        latched, reason = self._latch()
+        latched, reason, watched_by = self._latch()
         return GripperState(
             stamp_ns=time.time_ns(),
             q_rad=round(reading.q_rad, 5),
@@ -269,6 +269,7 @@ class GripperDriver(DriverBase):
             dds_rate_hz=round(self._rate_hz, 1),
             family=self.config.family,
             mount=self.config.mount,
+            watched_by=watched_by,
         )
 
     def stop_confirmed(self, now_s: float) -> bool:

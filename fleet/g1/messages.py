@@ -47,6 +47,8 @@ class G1State(Struct, frozen=True):
     """The weight of the newest rt/arm_sdk message (0: the robot's own controller has the arms)."""
     arm_released: Text | None = None
     """Why the arms were last released (a stop, the lease, an FSM that forbids it)."""
+    watched_by: Text | None = None
+    """The commander whose heartbeat the G1's watchdog watches now (None: none)."""
 
 
 class G1LowState(Struct, frozen=True):

@@ -291,7 +291,7 @@ class G1Driver(DriverBase):
             return None
         sample, at_s = self._latest
         mode = {0: "static", 1: "dynamic"}.get(sample.fsm_mode, "unknown")
-        latched, reason = self._latch()
+        latched, reason, watched_by = self._latch()
         return G1State(
             stamp_ns=time.time_ns(),
             fsm_id=sample.fsm_id,
@@ -314,6 +314,7 @@ class G1Driver(DriverBase):
             arm_phase=self._arms.phase,
             arm_weight=round(self._arms.weight, 3),
             arm_released=self._arms.why_released,
+            watched_by=watched_by,
         )
 
     # ------------------------------------------------------------------ the waist and arms

@@ -43,6 +43,8 @@ Angles = Annotated[list[float], Meta(max_length=7)]
 Flags = Annotated[list[bool], Meta(max_length=7)]
 MAX_STOPS_REPEATED = 4096
 """A heartbeat repeats at most this many latched stops (one per arm, plus the fleet's)."""
+MAX_BEAT_COPIES = 16
+"""A heartbeat announces at most this many datagram copies of itself."""
 MAX_ARMS_REPORTED = 4096
 """The fleet state and a multi-arm reply name at most this many arms."""
 
@@ -125,6 +127,9 @@ class ArmStatus(Struct, frozen=True):
     """The contact detector's model of this arm: ``uncalibrated`` (run ``fleet calibrate``),
     ``calibrated``, or ``untrusted`` (calibrated, but found off in free motion: see diag);
     None with contact detection disabled."""
+    watched_by: Text | None = None
+    """The commander whose heartbeat the arm's watchdog watches now (``<principal>/<name>``;
+    None: none). Its coordinator sends its beats' datagram copies while some unit watches it."""
 
 
 class Diag(Struct, frozen=True):
@@ -371,6 +376,10 @@ class Heartbeat(Struct, frozen=True):
     seq: Count
     period_s: Period
     stops: Annotated[dict[Name, StopRequest], Meta(max_length=MAX_STOPS_REPEATED)] = {}
+    datagram_copies: Annotated[int, Meta(ge=0, le=MAX_BEAT_COPIES)] = 2
+    """How many copies of this beat follow on the datagram path: 0 while no unit's watchdog
+    watches this commander, no stop is latched and it has no datagram session (an agent's deaf
+    check then expects none). A beat without it (an older sender) had two."""
 
 
 # ----------------------------------------------------------------------------- contact

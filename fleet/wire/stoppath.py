@@ -133,23 +133,30 @@ class DatagramSession:
         """When a watched subscription last heard a copy on the current session (None: not
         yet, so a sender without a datagram path never makes a session look deaf)."""
         self._reliable_at = float("-inf")
+        self._reliable_since = float("-inf")
+        """When the reliable path's current spell of delivery began: copies that only now
+        became due (a sender that sends them only while watched) get ``DEAF_S`` from there."""
         self.replaced = 0
         """Times the session was replaced (its link re-made, or deaf)."""
 
     def heard_reliably(self) -> None:
-        """The watched traffic arrived over the reliable path (the deaf check's reference)."""
-        self._reliable_at = time.monotonic()
+        """The watched traffic, with copies due on this path, arrived over the reliable path
+        (the deaf check's reference)."""
+        now = time.monotonic()
+        if now - self._reliable_at >= RELIABLE_FRESH_S:
+            self._reliable_since = now
+        self._reliable_at = now
 
     def _heard(self) -> None:
         self._heard_at = time.monotonic()
 
     def deaf(self, now: float) -> bool:
         """Whether the session heard watched copies before and none for ``DEAF_S`` while the
-        reliable path delivered."""
+        reliable path delivered (all that time) traffic whose copies were due."""
         heard = self._heard_at
         return (
             heard is not None
-            and now - heard > DEAF_S
+            and now - max(heard, self._reliable_since) > DEAF_S
             and now - self._reliable_at < RELIABLE_FRESH_S
         )
 
@@ -439,6 +446,10 @@ class TwoPathPublisher:
         """Both paths."""
         self.put_datagram(payload)
         self.reliable.put(payload)
+
+    def has_datagram(self) -> bool:
+        """Whether a datagram session is open now (its copies may go)."""
+        return self._datagram.session is not None
 
     def put_datagram(self, payload: bytes | str) -> None:
         """The datagram path only (the fast repeats of a stop's first 250 ms); nothing without

@@ -10,6 +10,7 @@ import pytest
 
 from fleet.inventory import InventoryError, parse_inventory
 from fleet.security.session import datagram_session, router_config
+from fleet.wire import stoppath
 from fleet.wire.keys import KeySpace, datagram_key, is_datagram_key, reliable_key
 from fleet.wire.session import Datagram, datagram_twin, datagram_twins
 from fleet.wire.stoppath import stop_qos_overwrite
@@ -77,3 +78,37 @@ def test_a_datagram_copy_has_a_key_of_its_own_that_parses_as_the_key_it_copies()
         assert space.parse_key(twin) == space.parse_key(key)
     assert datagram_key("fleet/lab/**/estop") == "fleet/lab/dg/**/estop"
     assert not is_datagram_key("fleet/dg") and not is_datagram_key("other/lab/dg/estop")
+
+
+class _Clock:
+    def __init__(self) -> None:
+        self.now = 1000.0
+
+    def monotonic(self) -> float:
+        return self.now
+
+
+def test_copies_that_only_now_became_due_get_the_deaf_wait_from_then(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A session that heard copies long ago (the last watch), then hears a beat over TCP
+    that announces copies again (a new watch): deaf only if none comes within ``DEAF_S`` of
+    that beat, never at once (the copies come 25 ms after their TCP beat); and deaf, as
+    before, when they stop while the reliable path keeps announcing them."""
+    clock = _Clock()
+    monkeypatch.setattr(stoppath, "time", clock)
+    session = stoppath.DatagramSession(None)
+    session._heard()  # copies heard during the last watch
+    clock.now += 60.0  # an idle minute: beats without copies, none heard_reliably
+    assert not session.deaf(clock.now)
+    session.heard_reliably()  # the first beat announcing copies again
+    assert not session.deaf(clock.now)
+    for _ in range(int(stoppath.DEAF_S / 0.1) - 1):
+        clock.now += 0.1
+        session.heard_reliably()
+        assert not session.deaf(clock.now)
+    clock.now += 0.2
+    session.heard_reliably()
+    assert session.deaf(clock.now)  # DEAF_S of announced copies, none heard
+    session._heard()
+    assert not session.deaf(clock.now)
