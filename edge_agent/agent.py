@@ -103,6 +103,12 @@ class EdgeAgent:
         self.command_inbox = CommandInbox(
             self.counters, lambda item: self.commands.busy(item), principal_of
         )
+        # Before the relay declares the queryables: a flood of commands that fills the inbox
+        # while the agent starts is answered from the first query (it once met no
+        # CommandService yet, and the failed callback took the agent down). The servers join
+        # ``self.servers`` as the kinds are built.
+        self.servers: dict[str, UnitServer] = {}
+        self.commands = CommandService(self.servers, self.command_inbox, self.stopping)
         # DDS first: if the interface is wrong we fail before announcing anything on Zenoh.
         self._next_status = self._next_diag = 0.0
         self._diag_counts = self._bad_input_counts()
@@ -145,7 +151,6 @@ class EdgeAgent:
             request = self.latches.load(unit)
             if request is not None:
                 self.safety_loop.restore(unit, request)
-        self.commands = CommandService(self.servers, self.command_inbox, self.stopping)
         self._threads = [
             self.safety_loop.thread,
             self.guard.thread(self.commands.run, "commands"),
@@ -197,7 +202,6 @@ class EdgeAgent:
         served = [(side.server, side.units) for side in self.sides.values()]
         self._kind_servers: list[UnitServer] = [*(s for s, _ in served), self.devices]
         self.units: dict[str, Unit] = {}
-        self.servers: dict[str, UnitServer] = {}
         for server, units in [*served, (self.devices, self.devices.slots)]:
             self.units |= units
             self.servers |= dict.fromkeys(units, server)

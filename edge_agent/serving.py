@@ -43,6 +43,12 @@ class CommandService:
         self._servers[item.arm].serve(item, time.monotonic())
 
     def busy(self, item: IncomingQuery) -> None:
-        """Answer a query the inbox could not queue (called on the Zenoh thread)."""
+        """Answer a query the inbox could not queue (called on the Zenoh thread). While the
+        agent starts, its queryables are declared before its servers exist: such a query is
+        dropped unanswered (the caller sees no agent answer, as before the agent came)."""
+        server = self._servers.get(item.arm)
+        if server is None:
+            item.query.drop()
+            return
         why = f"{item.arm!r}: the agent is busy (its command queue is full); retry later"
-        self._servers[item.arm].busy(item, why)
+        server.busy(item, why)

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -208,3 +209,58 @@ def test_nothing_is_written_after_a_stop_under_a_burst_of_power_on(tmp_path: Pat
                 assert True not in after_stop, f"round {round_}: power on after the stop: {powers}"
         finally:
             channel.close()
+
+
+def test_a_command_flood_while_the_agent_starts_never_takes_it_down(
+    fleet_harness: FleetHarness,
+) -> None:
+    """Queries arrive from the moment the agent declares its command queryables, before its
+    units are served: a flood that filled the command inbox then met no command service yet,
+    and the failing callback took the agent down (seen when a test's flood backlog reached a
+    restarted agent). Now the overflow is dropped unanswered until the units are served, then
+    answered 4003 busy, and the agent comes up and serves."""
+    h = fleet_harness
+    h.start_router()
+    h.start_sim()
+    flooder = h.client()
+    key = flooder.command_key("a1")
+    flooding = threading.Event()
+    flooding.set()
+    sent = [0]
+
+    def flood() -> None:
+        deadline = time.monotonic() + 60.0  # bounded
+        while flooding.is_set() and time.monotonic() < deadline:
+            flooder.session.get(key, payload=b'{"op": "nope"}', timeout=0.5)
+            sent[0] += 1
+            if sent[0] % 50 == 0:
+                time.sleep(0.001)  # the flood's own thread must not starve the test's
+
+    thread = threading.Thread(target=flood, name="flood", daemon=True)
+    thread.start()
+    try:
+        wait_until(lambda: sent[0] > 1000, 10.0)
+        agent = h.start_agent()
+        client = h.client()
+        wait_until(
+            lambda: (
+                (s := statuses(client, ["a1"]).get("a1")) is not None
+                and s.link == "ok"
+                or agent.poll() is not None
+            ),
+            30.0,
+        )
+        assert agent.poll() is None, h.log("agent")[-3000:]
+    finally:
+        flooding.clear()
+        thread.join(timeout=10.0)
+        flooder.close()
+    assert agent.poll() is None, h.log("agent")[-3000:]
+    assert "failed" not in h.log("agent"), h.log("agent")[-3000:]
+
+    def served() -> m.CommandReply | None:  # once the flood's backlog is drained
+        reply = client.command("a1", m.MoveJoint(joint=0, angle_deg=5.0))
+        return None if reply.error is not None and reply.error.code == ErrorCode.BUSY else reply
+
+    reply = wait_until(served, 30.0, interval_s=0.2)
+    assert reply.ok, reply
