@@ -141,6 +141,11 @@ class Worker:
         self._log.close()
 
 
+DATAGRAM_ENV = "BENCH_DATAGRAM"
+"""``BENCH_DATAGRAM=0``: every bench fleet without the stops' datagram path (``[zenoh] datagram
+= false``), to measure what the path costs the relay and the commands."""
+
+
 class BenchFleet:
     """A router on a free port, a DDS domain of our own and an inventory of ``arms`` simulated
     arms (a1.., suffixes _1..; ``extra``: more inventory text, e.g. devices), plus every
@@ -155,6 +160,8 @@ class BenchFleet:
         self.inventory = self.dir / "inventory.toml"
         # An inventory needs one arm at least, even for the raw measurements that use none.
         text = inventory_text(FLEET, self.port, self.domain, max(1, arms), extra)
+        if os.environ.get(DATAGRAM_ENV) == "0":  # the stops' datagram path off, to compare
+            text = text.replace("[zenoh]\n", "[zenoh]\ndatagram = false\n", 1)
         self.inventory.write_text(text, encoding="utf-8")
         self.endpoint = f"tcp/127.0.0.1:{self.port}"
         self.workers: list[Worker] = []
