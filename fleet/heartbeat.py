@@ -24,6 +24,8 @@ log = logging.getLogger("fleet.heartbeat")
 
 HEARTBEAT_PERIOD_S = 0.1
 """A commander's beat (10 Hz): well inside the agents' default ``watchdog_s`` of 0.5 s."""
+COPY_OFFSETS = (0.25, 0.75)
+"""When a beat's datagram copies go, in periods after its TCP copy (``beat_until``)."""
 
 
 def _no_stops() -> dict[str, m.StopRequest]:
@@ -49,7 +51,7 @@ def beat_until(
     (``watchdog_s`` 0.5 s) about once a minute (five copies lost while the TCP copies waited
     for a retransmission); two make five periods lost 0.34^10 = 2e-5.
 
-    The copies cost every agent two more samples a period (measured: +0.4-0.5 % of a core per
+    The copies cost every agent two more samples a period (measured: +0.7-0.9 % of a core per
     idle agent), and they only matter to a unit whose watchdog watches ``sender``. ``watched``
     (None: always) says whether one may: while it says no, a beat goes on TCP only and says
     so (``Heartbeat.datagram_copies`` 0), and no agent takes the missing copies for a deaf
@@ -64,7 +66,12 @@ def beat_until(
             and (watched is None or bool(latched) or watched())
         )
         beat = m.Heartbeat(
-            time.time_ns(), sender, seq, period_s, latched, datagram_copies=2 if copies else 0
+            time.time_ns(),
+            sender,
+            seq,
+            period_s,
+            latched,
+            datagram_copies=len(COPY_OFFSETS) if copies else 0,
         )
         if stopping.is_set():
             return  # stopped (a thread failed) while composing: not one more beat
@@ -77,7 +84,7 @@ def beat_until(
             after(seq, beat.stamp_ns)
         seq += 1
         if isinstance(publisher, TwoPathPublisher) and copies:
-            for offset in (0.25, 0.75):
+            for offset in COPY_OFFSETS:
                 if stopping.wait(max(0.0, next_beat + period_s * offset - time.monotonic())):
                     return
                 publisher.put_datagram(data)
