@@ -251,9 +251,9 @@ class EdgeAgent:
             server.tick(now, stamp_ns, periodic, diag, out)
         self.flush(out)
 
-    def _bad_input_counts(self) -> tuple[int, int, int]:
+    def _bad_input_counts(self) -> tuple[int, int, int, int]:
         counters = self.counters
-        return counters.bad_payloads, counters.undecodable_stops, counters.busy
+        return counters.bad_payloads, counters.undecodable_stops, counters.busy, counters.bad_stamps
 
     def _own_counts(self, diag: m.Diag) -> m.Diag:
         """A unit's diag with the agent's own counters (the same in every unit's diag)."""
@@ -263,6 +263,7 @@ class EdgeAgent:
             bad_payloads=counters.bad_payloads,
             undecodable_stops=counters.undecodable_stops,
             busy=counters.busy,
+            bad_stamps=counters.bad_stamps,
             dropped_events=counters.dropped_events,
             write_failures=self.link.write_failures,
             stop_copies_reliable=counters.stop_copies[False],

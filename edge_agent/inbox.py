@@ -68,6 +68,8 @@ class InboxCounters:
     undecodable_stops: int = 0
     dropped_events: int = 0
     busy: int = 0
+    bad_stamps: int = 0
+    """Stops and resets stamped far ahead of this host's clock (``STAMP_AHEAD_LIMIT_S``)."""
     stop_copies: dict[bool, int] = field(default_factory=lambda: {False: 0, True: 0})
     """Stop copies received, per path (True: the datagram path)."""
     beat_copies: dict[bool, int] = field(default_factory=lambda: {False: 0, True: 0})
@@ -164,6 +166,11 @@ class SafetyInbox:
                 return None
             self._beats[source] = (source, beat, arrived)
         return beat
+
+    def count_bad_stamp(self) -> None:
+        """A stop or reset stamped far ahead of this host's clock (the safety thread's)."""
+        with self._lock:
+            self.counters.bad_stamps += 1
 
     def keep_sources(self, sources: frozenset[str]) -> None:
         """Sources whose heartbeats are never dropped (they watch an arm)."""

@@ -8,6 +8,8 @@ Publisher QoS, and why:
 - ``estop/ack``: REAL_TIME, on both paths (``fleet/wire/stoppath.py``), DROP: an
   ack goes with every repeat of its stop (the sender repeats until confirmed), and a put that
   waited for room in a TCP link backed off by loss held the safety thread (measured: seconds).
+- ``reset/ack``: DATA_HIGH, DROP: one per unit and reset, rare; a lost one tells the resetting
+  operator "no answer", never holds the safety thread.
 - command replies go back on the query itself.
 Callbacks run under the agent's guard: they only decode and hand off to the bounded inboxes
 (``inbox.py``); they never block. The per-unit stop and reset callbacks run directly on
@@ -137,12 +139,15 @@ class ZenohRelay:
         self.datagram.open()
         self.stop_acks: dict[str, TwoPathPublisher] = {}
         """Every served unit's ``estop/ack`` (the safety thread's)."""
+        self.reset_acks: dict[str, zenoh.Publisher] = {}
+        """Every served unit's ``reset/ack`` (the safety thread's)."""
         self._tokens: list[zenoh.LivelinessToken] = []
         self._queryables: list[zenoh.Queryable[None]] = []
         self._kinds_closing: list[Callable[[], None]] = []
         for arm in arm_ids:
             ack_key = self.keys.arm(arm, keys.ESTOP_ACK)
             self.stop_acks[arm] = TwoPathPublisher(self.session, self.datagram, ack_key)
+            self.reset_acks[arm] = self._reset_ack_publisher(self.keys.arm(arm, keys.RESET_ACK))
             self._queryables.append(
                 self.session.declare_queryable(self.keys.commands(arm), on_query(arm))
             )
@@ -151,6 +156,8 @@ class ZenohRelay:
             self.device_publishers[device] = self._declare_device_publishers(kind, device)
             ack_key = self.keys.device(kind, device, keys.ESTOP_ACK)
             self.stop_acks[device] = TwoPathPublisher(self.session, self.datagram, ack_key)
+            reset_ack_key = self.keys.device(kind, device, keys.RESET_ACK)
+            self.reset_acks[device] = self._reset_ack_publisher(reset_ack_key)
             commands_key = f"{self.keys.device(kind, device, keys.CMD)}/*"
             self._queryables.append(self.session.declare_queryable(commands_key, on_query(device)))
         self._token_keys = [self.keys.arm(arm, keys.AGENT) for arm in arm_ids]
@@ -184,6 +191,18 @@ class ZenohRelay:
             )
         }
 
+    def _reset_ack_publisher(self, key: str) -> zenoh.Publisher:
+        return self.session.declare_publisher(
+            key,
+            encoding=JSON,
+            congestion_control=zenoh.CongestionControl.DROP,
+            priority=zenoh.Priority.DATA_HIGH,
+        )
+
+    def reset_ack(self, unit: str) -> zenoh.Publisher:
+        """The ``reset/ack`` publisher of arm or device ``unit``."""
+        return self.reset_acks[unit]
+
     def stop_ack(self, unit: str) -> TwoPathPublisher:
         """The ``estop/ack`` publisher of arm or device ``unit``."""
         return self.stop_acks[unit]
@@ -214,6 +233,9 @@ class ZenohRelay:
         for ack in self.stop_acks.values():
             ack.undeclare()
         self.stop_acks.clear()
+        for reset_ack in self.reset_acks.values():
+            reset_ack.undeclare()
+        self.reset_acks.clear()
         for device_pubs in self.device_publishers.values():
             for publisher in device_pubs.values():
                 publisher.undeclare()

@@ -31,6 +31,7 @@ from itertools import count
 from edge_agent.inbox import ResetEvent, SafetyInbox, StopEvent
 from edge_agent.latches import LatchStore
 from edge_agent.relay import ZenohRelay
+from fleet.devices.safety import ResetOutcome, seconds_ahead
 from fleet.devices.unit import Later, Outbox, Unit, UnitServer
 from fleet.guard import ThreadGuard
 from fleet.wire import messages as m
@@ -132,8 +133,25 @@ class SafetyLoop:
         self._reack(latched)
 
     def _on_reset(self, event: ResetEvent) -> None:
-        for arm in self._targets(event.arm):
-            self.reset(arm, event.request.source, event.request.stamp_ns)
+        request = event.request
+        targets = self._targets(event.arm)
+        ahead_s = seconds_ahead(request.stamp_ns, time.time_ns())
+        if ahead_s is not None and targets:
+            self._inbox.count_bad_stamp()  # once per reset; each unit's refusal is logged
+        acks: list[tuple[str, bytes]] = []
+        for unit in targets:
+            outcome, received_ns = self.reset(unit, request.source, request.stamp_ns)
+            if request.reset_id is not None:
+                ack = m.ResetAck(
+                    unit=unit,
+                    reset_id=request.reset_id,
+                    outcome=outcome.outcome,  # type: ignore[arg-type]
+                    detail=outcome.detail[:1000],
+                    received_ns=received_ns,
+                )
+                acks.append((unit, encode(ack)))
+        for unit, data in acks:
+            self._relay.reset_ack(unit).put(data)
 
     def _on_heartbeat(self, source: str, beat: m.Heartbeat, arrived_s: float) -> None:
         with self._lock:
@@ -151,8 +169,11 @@ class SafetyLoop:
         """Latch every arm of ``arms`` and write all their stop commands to DDS first, then
         publish acks, status and replies: the last arm's DDS write does not wait for the
         first arm's Zenoh traffic (1 ms per arm when done arm by arm). A repeat of the latched
-        stop is acknowledged again (``reack``); a repeat of a reset stop is ignored."""
+        stop is acknowledged again (``reack``); a repeat of a reset stop is ignored. No stamp
+        makes a stop ignored: one far ahead of this host's clock is counted and latches."""
         now, now_ns = time.monotonic(), time.time_ns()
+        if reack and arms and seconds_ahead(request.stamp_ns, now_ns) is not None:
+            self._inbox.count_bad_stamp()  # a heartbeat's repeats are counted once, put direct
         out = Outbox()
         latched: list[str] = []
         repeats: list[str] = []
@@ -173,7 +194,7 @@ class SafetyLoop:
                     # do physically; remembered so that the reset releases it too (a flood of
                     # such repeats must cost a list entry, not a stop write each).
                     safety.note_also_stopped_by(
-                        request.stop_id, request.source, request.reason, request.stamp_ns
+                        request.stop_id, request.source, request.reason, request.stamp_ns, now_ns
                     )
                     continue
                 action = slot.stop_action
@@ -249,20 +270,24 @@ class SafetyLoop:
             detail=stop.detail,
         )
 
-    def reset(self, arm: str, source: str, stamp_ns: int | None = None) -> None:
-        """Release the latch (unless the stop was put after the reset, ``stamp_ns``: see
-        ``ArmSafety.reset``); nothing moves (``UnitServer.released``: an arm holds its fresh
-        measured pose, a device stays as the stop left it)."""
+    def reset(self, arm: str, source: str, stamp_ns: int | None = None) -> tuple[ResetOutcome, int]:
+        """Release the latch (unless a stop ordered after the reset is latched, or the reset's
+        stamp is far ahead: ``ArmSafety.answer_reset``); nothing moves
+        (``UnitServer.released``: an arm holds its fresh measured pose, a device stays as the
+        stop left it). Returns what it did and when (wall clock, ns)."""
         now, now_ns = time.monotonic(), time.time_ns()
         with self._lock:
             slot = self._slots[arm]
-            released = slot.safety.reset(stamp_ns)
-            if released is None:
-                return
+            outcome = slot.safety.answer_reset(stamp_ns, now_ns)
+            if outcome.released is None:
+                if outcome.outcome != "not_stopped":
+                    log.warning("%s: reset by %s not done: %s", arm, source, outcome.detail)
+                return outcome, now_ns
             slot.safety.last_reason = f"reset by {source[:128]}"
         self._latches.forget(arm)
         self._servers[arm].released(arm, now, now_ns)
         log.warning("%s reset by %s", arm, source)
+        return outcome, now_ns
 
     # ------------------------------------------------------------------ periodic
 

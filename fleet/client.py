@@ -237,17 +237,7 @@ class FleetClient:
         ``copies``: filled with each unit's count of ack copies received, ``[reliable,
         datagram]`` (which path confirmed it, or that neither did).
         """
-        if arm is not None and arm in self.inventory.devices:
-            arms: list[str] = []
-            devices = {f"{kind_of(self.inventory.device(arm)).key}/{arm}": arm}
-        else:
-            arms = [self.inventory.arm(arm).id] if arm is not None else list(self.inventory.arms)
-            mounted = {
-                label: d
-                for label, d in self.device_labels().items()
-                if getattr(self.inventory.device(d), "mount", "") == arm
-            }
-            devices = mounted if arm is not None else self.device_labels()
+        arms, devices = self._reached_by(arm)
         if request is None:
             request = self.stop_request(reason, source)
         acks: dict[str, m.StopAck | None] = dict.fromkeys([*arms, *devices])
@@ -296,6 +286,26 @@ class FleetClient:
         with lock:
             return dict(acks)
 
+    def _reached_by(self, arm: str | None) -> tuple[list[str], dict[str, str]]:
+        """The units a stop or reset of ``arm`` (None: the fleet's) reaches: arm ids, and
+        devices by label (``<kind>/<id>`` -> id); an arm's reaches the devices mounted on it."""
+        if arm is not None and arm in self.inventory.devices:
+            return [], {f"{kind_of(self.inventory.device(arm)).key}/{arm}": arm}
+        if arm is None:
+            return list(self.inventory.arms), self.device_labels()
+        mounted = {
+            label: d
+            for label, d in self.device_labels().items()
+            if getattr(self.inventory.device(d), "mount", "") == arm
+        }
+        return [self.inventory.arm(arm).id], mounted
+
+    def _unit_label(self, key: str, channel: str) -> str:
+        """An arm's id or a device's ``<kind>/<id>``, from a per-unit key of ``channel``."""
+        label = key[len(self.keys.prefix) + 1 :].removesuffix(f"/{channel}")
+        kind, _, unit = label.partition("/")
+        return unit if kind == keys.ARM else label
+
     def watch_stop_acks(self) -> None:
         """Subscribe to every stop acknowledgment once, on both paths, for the life of the
         client (idempotent; ``estop`` calls it). A subscription declared with each stop would
@@ -314,10 +324,7 @@ class FleetClient:
         ``estop`` waiting for its stop (the label from the key, not the payload)."""
         received_on = str(sample.key_expr)
         key = keys.reliable_key(received_on)
-        label = key[len(self.keys.prefix) + 1 :].removesuffix(f"/{keys.ESTOP_ACK}")
-        kind, _, unit = label.partition("/")
-        if kind == keys.ARM:
-            label = unit
+        label = self._unit_label(key, keys.ESTOP_ACK)
         try:
             ack = payloads.STOP_ACK.decode(sample.payload.to_bytes())
         except payloads.PayloadError:
@@ -401,12 +408,52 @@ class FleetClient:
         else:
             publisher.put(data)
 
-    def reset(self, arm: str | None = None, source: str | None = None) -> None:
+    def reset(
+        self, arm: str | None = None, source: str | None = None, reset_id: str | None = None
+    ) -> None:
         """Release the stop latch of one arm or device (or of every one; an arm's reset
-        releases the devices mounted on it too). Never moves anything."""
+        releases the devices mounted on it too). Never moves anything. With ``reset_id``
+        each unit reached answers on its ``reset/ack`` (``reset_and_report``)."""
         key = self.keys.reset if arm is None else self.unit_key(arm, keys.RESET)
-        request = m.ResetRequest(stamp_ns=time.time_ns(), source=source or default_source())
+        request = m.ResetRequest(
+            stamp_ns=time.time_ns(), source=source or default_source(), reset_id=reset_id
+        )
         self.session.put(key, encode(request), encoding=JSON, **STOP_QOS)
+
+    def reset_and_report(
+        self, arm: str | None = None, source: str | None = None, timeout_s: float = 3.0
+    ) -> dict[str, m.ResetAck | None]:
+        """``reset``, then what it did to each unit it reaches (arms by id, devices as
+        ``<kind>/<id>``; None: no answer within ``timeout_s``: is its agent running?)."""
+        arms, devices = self._reached_by(arm)
+        answers: dict[str, m.ResetAck | None] = dict.fromkeys([*arms, *devices])
+        reset_id = uuid.uuid4().hex
+        done = threading.Event()
+        lock = threading.Lock()
+
+        def on_ack(sample: zenoh.Sample) -> None:
+            label = self._unit_label(str(sample.key_expr), keys.RESET_ACK)
+            try:
+                ack = payloads.RESET_ACK.decode(sample.payload.to_bytes())
+            except payloads.PayloadError:
+                return
+            with lock:
+                if ack.reset_id != reset_id or label not in answers:
+                    return
+                answers[label] = ack
+                if all(a is not None for a in answers.values()):
+                    done.set()
+
+        subscriber = self.session.declare_subscriber(
+            f"{self.keys.prefix}/**/{keys.RESET_ACK}", on_ack
+        )
+        try:
+            self.reset(arm, source, reset_id)
+            done.wait(timeout_s)
+        finally:
+            subscriber.undeclare()
+        with lock:
+            return dict(answers)
 
     # ------------------------------------------------------------------ state
 

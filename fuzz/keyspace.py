@@ -70,6 +70,7 @@ def seeds() -> list[bytes]:
         stop,
         m.ResetRequest(stamp_ns=1, source="viewer"),
         m.StopAck("a1", "s1", "hold", 1, 2, 3, None),
+        m.ResetAck("a1", "r1", "released", "released the stop by op", 1),
         m.Heartbeat(stamp_ns=1, coordinator="c", seq=1, period_s=0.1, stops={"*": stop}),
         m.FleetState(1, "c", {"a1": m.ArmSummary(True, "ok", contact=False)}),
         m.MultiArmRequest(target="all", command=commands[1], lead_s=0.3, phase="lift"),

@@ -19,7 +19,7 @@ from fleet.g1.messages import SetVelocity
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
 from testkit.collect import Collector
-from testkit.harness import FleetHarness
+from testkit.harness import FleetHarness, wait_until
 
 G1_LOWSTATE_SLOW = "sim_lowstate_hz = 20.0\n"
 """A simulated G1's lowstate at 20 Hz, not its 100 Hz (~1 ms of Python a sample in the
@@ -48,6 +48,18 @@ def devices_fleet(tmp_path: Path) -> Iterator[FleetHarness]:
         yield harness
 
 
+def wait_kinds_online(harness: FleetHarness, timeout_s: float = 30.0) -> None:
+    """Wait until every kind's unit reports a fresh link (else fail with the harness's
+    diagnosis)."""
+    client = harness.client()
+    for kind in KINDS:
+        watch = LatchWatch(client, kind)
+        try:
+            wait_until(watch.link_ok, timeout_s)
+        except AssertionError:
+            raise AssertionError(harness.diagnose(client)) from None
+
+
 @dataclass(frozen=True)
 class Kind:
     """One kind as the tests drive it: its unit id and a command that moves it."""
@@ -59,6 +71,13 @@ class Kind:
     @property
     def is_arm(self) -> bool:
         return self.name == "arm"
+
+    def label(self, client: FleetClient) -> str:
+        """How ``FleetClient.estop`` and ``reset_and_report`` name the unit in their results:
+        an arm by its id, a device as ``<kind>/<id>``."""
+        if self.is_arm:
+            return self.unit
+        return next(label for label, d in client.device_labels().items() if d == self.unit)
 
 
 KINDS = (

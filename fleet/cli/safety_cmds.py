@@ -33,6 +33,9 @@ def register(
     )
     add_common(reset)
     reset.add_argument("arm", nargs="?", default=None)
+    reset.add_argument(
+        "--timeout", type=float, default=3.0, help="seconds to wait for every unit's answer"
+    )
     reset.set_defaults(run=run_reset)
 
 
@@ -90,12 +93,24 @@ def run_estop(args: argparse.Namespace) -> int:
 
 
 def run_reset(args: argparse.Namespace) -> int:
-    """Put a reset; the agents make each arm's measured pose its target."""
+    """Put a reset; print what it did to each unit it reached. Exit 0 when every one was
+    released or not stopped, 1 when one is still stopped, 3 when one did not answer."""
     inventory = inventory_from_args(args)
     target = args.arm
     if target is not None:
         target = device_id(inventory, target) or inventory.arm(target).id
     with FleetClient(inventory, connect_timeout_s=args.connect_timeout) as client:
-        client.reset(target)
-    print(f"reset sent to {target or 'every arm and device'} (nothing moves: each stays put)")
-    return 0
+        answers = client.reset_and_report(target, timeout_s=args.timeout)
+    for unit, ack in answers.items():
+        if ack is None:
+            print(f"{unit}: NO ANSWER: is its edge-agent running? (not known to be released)")
+        elif ack.outcome == "released":
+            print(f"{unit}: released ({ack.detail}; nothing moves: it stays put)")
+        elif ack.outcome == "not_stopped":
+            print(f"{unit}: was not stopped")
+        else:
+            print(f"{unit}: STILL STOPPED: reset {ack.outcome}: {ack.detail}")
+    if any(ack is None for ack in answers.values()):
+        return 3
+    stopped = [a for a in answers.values() if a is not None and a.outcome in ("kept", "refused")]
+    return 1 if stopped else 0

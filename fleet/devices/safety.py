@@ -30,6 +30,40 @@ STOP_REASON_CHARS = 1000
 STOP_REPEAT_S = 0.2
 """Until the arm is seen still, the stop command is re-sent every 0.2 s (two control cycles):
 a stop is not trusted to one DDS sample or to an ack the arm may not send."""
+STAMP_AHEAD_LIMIT_S = 2.0
+"""A sender's stamp further ahead of the receiver's clock than this is a wrong clock (or a
+forgery): a reset so stamped is refused, a stop so stamped latches all the same, and both are
+counted. Hosts keep NTP time (milliseconds apart)."""
+STAMP_WINDOW_S = 3.0
+"""How far before its arrival a sender's stamp may place a stop or a reset. A stop's datagram
+copy overtakes a reset still on its way over TCP by less than this; an older stamp (a slow
+clock, a stamp of 0) is read as this long before the arrival."""
+
+
+def stamp_order(stamp_ns: int, arrival_ns: int) -> int:
+    """Where a stop or reset stands in a unit's order: its sender's stamp, bounded by the
+    receiver's clock: never after its arrival (a clock ahead, ``2**63-1``), never more than
+    ``STAMP_WINDOW_S`` before it (a clock behind, ``0``). So no sender's clock can order a
+    message beyond the few seconds in which two paths may swap it with another."""
+    return min(arrival_ns, max(stamp_ns, arrival_ns - int(STAMP_WINDOW_S * 1e9)))
+
+
+def seconds_ahead(stamp_ns: int, arrival_ns: int) -> float | None:
+    """How far ``stamp_ns`` is ahead of the receiver's clock, when more than
+    ``STAMP_AHEAD_LIMIT_S`` (else None)."""
+    ahead_s = (stamp_ns - arrival_ns) / 1e9
+    return ahead_s if ahead_s > STAMP_AHEAD_LIMIT_S else None
+
+
+@dataclass(frozen=True)
+class ResetOutcome:
+    """What a reset did to one unit: ``released`` its stop, found it ``not_stopped``, ``kept``
+    the stop (one put after the reset is latched) or ``refused`` the reset (its stamp is far
+    ahead of the unit's clock); ``detail`` says why, for the operator."""
+
+    outcome: str
+    released: ActiveStop | None = None
+    detail: str = ""
 
 
 @dataclass
@@ -51,8 +85,7 @@ class ActiveStop:
     detail: str | None = None
     """Why the stop's command was not written (a hold with no fresh pose), for its ack."""
     stamp_ns: int | None = None
-    """When its sender put it (its ``stamp_ns``; None for the agent's own stops): a reset put
-    before it does not release it (``reset``)."""
+    """When its sender put it (its ``stamp_ns``; None for the agent's own stops)."""
 
     @property
     def done(self) -> bool:
@@ -98,9 +131,8 @@ class ArmSafety:
     watched_since_s: float = 0.0
     last_reason: str | None = None
     newest_stamp_ns: int | None = None
-    """The newest sender's stamp of the stops acted on since the last reset (see ``reset``)."""
-    reset_stamp_ns: int | None = None
-    """The newest sender's stamp of a reset acted on: a stop put before it is stale."""
+    """The newest order (``stamp_order``) of the stops acted on since the last reset: a reset
+    ordered before it releases nothing (see ``answer_reset``)."""
     causes: dict[tuple[str, str], None] = field(default_factory=dict)
     """(source, reason) of every stop active since the latch, in arrival order (at most
     STOP_CAUSES_KEPT); ``more_causes`` counts the others."""
@@ -127,17 +159,16 @@ class ArmSafety:
         action: str = "hold",
         stamp_ns: int | None = None,
     ) -> bool:
-        """Latch a stop; False if this stop is already latched or was reset (a repeat).
-        ``stamp_ns``: when its sender put it."""
+        """Latch a stop; False if this stop is already latched or was reset (a repeat, known by
+        its id). ``stamp_ns``: when its sender put it. A stop is never refused for its stamp:
+        a late copy of a stop whose id was forgotten latches again (safe: reset again)."""
         if (
             stop_id in self.reset_stop_ids
             or stop_id in self.superseded_ids  # a repeat of a stop acted on while latched
             or (self.stop is not None and self.stop.stop_id == stop_id)
         ):
             return False
-        if self._stale(stamp_ns):
-            return False  # put before a reset that was acted on: that reset released it
-        self._saw_stamp(stamp_ns)
+        self._saw_stamp(stamp_ns, now_ns)
         if self.stop is None:
             self.standstill.clear()
             self.causes.clear()
@@ -151,33 +182,30 @@ class ArmSafety:
         self.lease = None  # a stop ends every ownership: whoever resets decides who goes next
         return True
 
-    def _stale(self, stamp_ns: int | None) -> bool:
-        """A stop put before the newest reset acted on: late (a copy on the other path, or
-        held up) and released by that reset already. Bounded where the id tables are not: a
-        flood of stop ids cannot push an old stop's id out and let its late copy latch."""
-        reset = self.reset_stamp_ns
-        return stamp_ns is not None and reset is not None and stamp_ns <= reset
-
-    def _saw_stamp(self, stamp_ns: int | None) -> None:
-        """The newest sender's stamp of any stop acted on since the last reset (latched,
-        superseded or noted): a reset older than it releases nothing. Copies of one stop on two
-        paths arrive in either order, so the latched stop is not always the newest one."""
-        if stamp_ns is not None and (
-            self.newest_stamp_ns is None or stamp_ns > self.newest_stamp_ns
-        ):
-            self.newest_stamp_ns = stamp_ns
+    def _saw_stamp(self, stamp_ns: int | None, now_ns: int) -> None:
+        """The newest order of any stop acted on since the last reset (latched, superseded or
+        noted): a reset ordered before it releases nothing. Copies of one stop on two paths
+        arrive in either order, so the latched stop is not always the newest one."""
+        if stamp_ns is None:
+            return
+        order = stamp_order(stamp_ns, now_ns)
+        if self.newest_stamp_ns is None or order > self.newest_stamp_ns:
+            self.newest_stamp_ns = order
 
     def note_also_stopped_by(
-        self, stop_id: str, source: str = "", reason: str = "", stamp_ns: int | None = None
+        self,
+        stop_id: str,
+        source: str = "",
+        reason: str = "",
+        stamp_ns: int | None = None,
+        now_ns: int = 0,
     ) -> None:
         """While latched, ``stop_id`` (repeated by a heartbeat) also asks for this stop: the
         reset releases it with the latched one, so its repeats do not latch again; its
         ``source`` and ``reason`` join the stop's causes."""
         if stop_id in self.reset_stop_ids or stop_id in self.superseded_ids:
             return
-        if self._stale(stamp_ns):
-            return
-        self._saw_stamp(stamp_ns)
+        self._saw_stamp(stamp_ns, now_ns)
         self.superseded_ids.append(stop_id)
         del self.superseded_ids[:-SUPERSEDED_IDS_KEPT]
         if source and self.stop is not None:
@@ -249,37 +277,57 @@ class ArmSafety:
         stop.confirmed_ns = now_ns
         return True
 
-    def reset(self, stamp_ns: int | None = None) -> ActiveStop | None:
-        """Release the latch (operator action); returns the stop that was released.
+    def reset(self, stamp_ns: int | None = None, now_ns: int = 0) -> ActiveStop | None:
+        """``answer_reset``; the stop it released, if any."""
+        return self.answer_reset(stamp_ns, now_ns).released
 
-        A reset stamped (``stamp_ns``, its sender's clock) before any stop acted on since the
-        last reset was put (the latched one, or one it superseded or noted) releases nothing: a
-        stop's datagram copy can overtake a reset still on its way over TCP, and the copies of
-        two stops can arrive in either order, so the latched stop is not always the newest; such
-        a reset must not release the newer stop (nor, by remembering its id, make the stop's own
-        reliable copy a "repeat"). Hosts keep NTP time (as for command
-        lifetimes); a stop host's clock running ahead fails safe: the reset has to be sent
-        again."""
+    def answer_reset(self, stamp_ns: int | None, now_ns: int) -> ResetOutcome:
+        """Release the latch (operator action) unless a stop ordered after the reset is latched.
+
+        Stops and resets are ordered by the receiver's clock (``stamp_order``): the sender's
+        stamp counts only within the few seconds before the arrival, so a stop's datagram copy
+        that overtook a reset still on its way over TCP is not released by it (nor, by
+        remembering its id, is the stop's own reliable copy made a "repeat"), while no clock
+        ahead, behind or forged can make a stop ignored or a reset outlast its arrival. A reset
+        stamped further ahead than ``STAMP_AHEAD_LIMIT_S`` is refused (a wrong clock)."""
+        if stamp_ns is not None:
+            ahead_s = seconds_ahead(stamp_ns, now_ns)
+            if ahead_s is not None:
+                return ResetOutcome(
+                    "refused",
+                    detail=f"the reset's stamp is {ahead_s:.1f} s ahead of this agent's clock "
+                    f"(at most {STAMP_AHEAD_LIMIT_S:g} s): fix the sender's clock (NTP) "
+                    "and reset again",
+                )
+        stop = self.stop
+        if stop is None:
+            return ResetOutcome("not_stopped", detail="it was not stopped")
         if (
             stamp_ns is not None
-            and self.stop is not None
             and self.newest_stamp_ns is not None
-            and self.newest_stamp_ns > stamp_ns
+            and self.newest_stamp_ns > stamp_order(stamp_ns, now_ns)
         ):
-            return None
-        stop, self.stop = self.stop, None
+            behind_s = (now_ns - stamp_ns) / 1e9
+            clock = (
+                f" (the reset's stamp is {behind_s:.1f} s behind this agent's clock)"
+                if behind_s > 1.0
+                else ""
+            )
+            return ResetOutcome(
+                "kept",
+                detail=f"a stop put after this reset is latched (by {stop.source}){clock}: "
+                "reset again",
+            )
+        self.stop = None
         self.newest_stamp_ns = None
-        if stamp_ns is not None and (self.reset_stamp_ns is None or stamp_ns > self.reset_stamp_ns):
-            self.reset_stamp_ns = stamp_ns
-        if stop is not None:
-            for stop_id in (*self.superseded_ids, stop.stop_id):
-                self.reset_stop_ids[stop_id] = None
-            self.superseded_ids.clear()
-            self.causes.clear()
-            self.more_causes = 0
-            while len(self.reset_stop_ids) > RESET_IDS_KEPT:
-                del self.reset_stop_ids[next(iter(self.reset_stop_ids))]
-        return stop
+        for stop_id in (*self.superseded_ids, stop.stop_id):
+            self.reset_stop_ids[stop_id] = None
+        self.superseded_ids.clear()
+        self.causes.clear()
+        self.more_causes = 0
+        while len(self.reset_stop_ids) > RESET_IDS_KEPT:
+            del self.reset_stop_ids[next(iter(self.reset_stop_ids))]
+        return ResetOutcome("released", stop, detail=f"released the stop by {stop.source}")
 
     # ------------------------------------------------------------------ lease
 

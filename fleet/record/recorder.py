@@ -49,11 +49,11 @@ from fleet.wire.payloads import PayloadKind
 log = logging.getLogger("fleet.record")
 
 RECORDED_CHANNELS: tuple[str, ...] = (keys.JOINTS, keys.STATUS, keys.CONTACT, keys.RAW_COMMAND)
-RECORDED_CHANNELS += (keys.ESTOP, keys.RESET, keys.ESTOP_ACK, keys.DIAG)
+RECORDED_CHANNELS += (keys.ESTOP, keys.RESET, keys.ESTOP_ACK, keys.RESET_ACK, keys.DIAG)
 DEVICE_CHANNELS: tuple[str, ...] = (keys.STATE, keys.CONTACT, keys.LOWSTATE, keys.ESTOP)
-DEVICE_CHANNELS += (keys.RESET, keys.ESTOP_ACK, keys.DIAG)
+DEVICE_CHANNELS += (keys.RESET, keys.ESTOP_ACK, keys.RESET_ACK, keys.DIAG)
 """A device's keys recorded: its state (at its relay rate), grip events, a G1's lowstate (its
-joints: what the replay viewer and Foxglove pose it with), stops, resets, acks."""
+joints: what the replay viewer and Foxglove pose it with), stops, resets, their acks."""
 CONTROL_CHANNELS = frozenset({keys.ESTOP, keys.RESET})
 """Stops and resets (the fleet's, each arm's, each device's) are recorded in arrival order
 through the shared intake's ``direct`` callbacks (fleet/control.py: on the Zenoh thread that

@@ -66,6 +66,7 @@ BRIDGED = frozenset(
         keys.ESTOP,
         keys.ESTOP_ACK,
         keys.RESET,
+        keys.RESET_ACK,
         keys.STOP_REPORT,
         keys.STATE,
         keys.COORDINATOR_DIAG,
@@ -81,6 +82,7 @@ BRIDGED = frozenset(
                 keys.DIAG,
                 keys.ESTOP,
                 keys.ESTOP_ACK,
+                keys.RESET_ACK,
             )
             if f"{kind}/{channel}" in payloads.CHANNELS
         ),

@@ -32,7 +32,16 @@ from fleet.wire import keys
 from fleet.wire.payloads import KIB
 
 PUT = ["put", "delete"]
-ARM_STATE = ("joints", "status", "diag", "raw/feedback", "raw/command", "estop/ack", "contact")
+ARM_STATE = (
+    "joints",
+    "status",
+    "diag",
+    "raw/feedback",
+    "raw/command",
+    "estop/ack",
+    "reset/ack",
+    "contact",
+)
 SMALL_PAYLOAD_BYTES = 4 * KIB
 
 
@@ -100,7 +109,7 @@ class _Grants:
         return out
 
 
-DEVICE_STATE = ("state", "contact", "diag", "estop/ack")
+DEVICE_STATE = ("state", "contact", "diag", "estop/ack", "reset/ack")
 """What a device agent publishes for its own devices."""
 
 

@@ -26,6 +26,7 @@ DIAG = "diag"
 ESTOP = "estop"
 ESTOP_ACK = "estop/ack"
 RESET = "reset"
+RESET_ACK = "reset/ack"
 HEARTBEAT = "heartbeat"
 CONTACT = "contact"
 SIM_FAULT = "sim/fault"
@@ -49,6 +50,7 @@ ARM_CHANNELS = (
     ESTOP,
     ESTOP_ACK,
     RESET,
+    RESET_ACK,
     CONTACT,
     SIM_FAULT,
 )
@@ -108,7 +110,18 @@ _NAMED_CHANNELS = ((HEARTBEAT, 1), (COORDINATOR_CMD, 1), (INFO, 2))
 """Fleet-level channels followed by names: ``heartbeat/<principal>``,
 ``coordinator/cmd/<principal>``, ``info/<role>/<instance>``."""
 
-DEVICE_CHANNELS = (STATE, CMD, CONTACT, LOWSTATE, AGENT, DIAG, ESTOP, ESTOP_ACK, RESET)
+DEVICE_CHANNELS = (
+    STATE,
+    CMD,
+    CONTACT,
+    LOWSTATE,
+    AGENT,
+    DIAG,
+    ESTOP,
+    ESTOP_ACK,
+    RESET,
+    RESET_ACK,
+)
 """Channels under ``fleet/<fleet>/<kind>/<device>/`` for the device kinds beside the D1 arm
 (``fleet/devices``: ``gripper``, ``g1``): the same words as the arm's, one meaning each."""
 

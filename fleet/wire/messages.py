@@ -156,6 +156,9 @@ class Diag(Struct, frozen=True):
     """Commands answered 3205 "busy" at once because the agent's command queue was full."""
     dropped_events: Count = 0
     """Resets and heartbeat sources dropped at a full queue (a flood); stops are never dropped."""
+    bad_stamps: Count = 0
+    """Stops and resets stamped more than 2 s ahead of the agent's clock (a wrong clock, or a
+    forgery): such a stop latched all the same, such a reset was refused."""
     write_failures: Count = 0
     """DDS writes that failed (maybe sent)."""
     stop_copies_reliable: Count = 0
@@ -336,6 +339,26 @@ class ResetRequest(Struct, frozen=True):
 
     stamp_ns: StampNs
     source: Name
+    reset_id: Name | None = None
+    """Names this reset in the ``reset/ack`` of each unit it reached (None: the sender waits
+    for no answer)."""
+
+
+ResetOutcome = Literal["released", "not_stopped", "kept", "refused"]
+
+
+class ResetAck(Struct, frozen=True):
+    """``arm/<arm>/reset/ack`` (``<kind>/<id>/reset/ack``): what a reset did to one unit.
+
+    ``released``: its stop is released; ``not_stopped``: nothing was latched; ``kept``: a stop
+    put after the reset is latched (reset again); ``refused``: the reset's stamp is far ahead
+    of the agent's clock. ``detail`` says it in words, for the operator."""
+
+    unit: Name
+    reset_id: Name
+    outcome: ResetOutcome
+    detail: Text = ""
+    received_ns: StampNs = 0
 
 
 class StopAck(Struct, frozen=True):

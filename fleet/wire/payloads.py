@@ -103,6 +103,7 @@ REPLY: PayloadKind[m.CommandReply] = payload_kind("command reply", m.CommandRepl
 STOP: PayloadKind[m.StopRequest] = payload_kind("stop", m.StopRequest, 4 * KIB)
 RESET: PayloadKind[m.ResetRequest] = payload_kind("reset", m.ResetRequest, 1 * KIB)
 STOP_ACK: PayloadKind[m.StopAck] = payload_kind("stop ack", m.StopAck, 4 * KIB)
+RESET_ACK: PayloadKind[m.ResetAck] = payload_kind("reset ack", m.ResetAck, 4 * KIB)
 HEARTBEAT: PayloadKind[m.Heartbeat] = payload_kind("heartbeat", m.Heartbeat, 4 * MIB)
 STATE: PayloadKind[m.FleetState] = payload_kind("fleet state", m.FleetState, 4 * MIB)
 MULTI_REQUEST: PayloadKind[m.MultiArmRequest] = payload_kind(
@@ -170,6 +171,7 @@ def _device_rows(kind: str, own: dict[str, PayloadKind[Any]]) -> list[Channel]:
         keys.ESTOP: STOP,
         keys.RESET: RESET,
         keys.ESTOP_ACK: STOP_ACK,
+        keys.RESET_ACK: RESET_ACK,
         keys.DIAG: DIAG,
     }
     spelled = {keys.CMD: f"{kind}/<id>/cmd/<principal> (request)"}
@@ -214,6 +216,7 @@ CHANNELS: dict[str, Channel] = {
             keys.RESET, "reset, arm/<arm>/reset", RESET, ((_FLEET, keys.RESET), (_ARM, keys.RESET))
         ),
         Channel(keys.ESTOP_ACK, "arm/<arm>/estop/ack", STOP_ACK, ((_ARM, keys.ESTOP_ACK),)),
+        Channel(keys.RESET_ACK, "arm/<arm>/reset/ack", RESET_ACK, ((_ARM, keys.RESET_ACK),)),
         Channel(keys.HEARTBEAT, "heartbeat/<principal>", HEARTBEAT, ((_FLEET, keys.HEARTBEAT),)),
         Channel(keys.STATE, "state", STATE, ((_FLEET, keys.STATE),)),
         Channel(

@@ -28,7 +28,17 @@ from fleet.wire.stoppath import RELIABLE_QOS
 from testkit.collect import Collector
 from testkit.harness import FleetHarness, free_port, wait_until
 from testkit.hostile import POISONS, ROUTER_DROPS
-from testkit.kinds import DEVICES, KIND_IDS, KINDS, Kind, LatchWatch, release, send, with_envelope
+from testkit.kinds import (
+    DEVICES,
+    KIND_IDS,
+    KINDS,
+    Kind,
+    LatchWatch,
+    release,
+    send,
+    wait_kinds_online,
+    with_envelope,
+)
 from tests.e2e.test_hostile_keyspace import FLOOD_BOUND_MS
 
 pytestmark = pytest.mark.xdist_group("kinds")
@@ -48,13 +58,7 @@ def fleet(tmp_path_factory: pytest.TempPathFactory) -> Iterator[FleetHarness]:
         harness.start_sim()
         harness.metrics_port = free_port()  # type: ignore[attr-defined]
         _start_agent(harness)
-        client = harness.client()
-        for kind in KINDS:
-            watch = LatchWatch(client, kind)
-            try:
-                wait_until(watch.link_ok, 30.0)
-            except AssertionError:
-                raise AssertionError(harness.diagnose(client)) from None
+        wait_kinds_online(harness)
         yield harness
 
 

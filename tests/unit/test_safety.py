@@ -63,15 +63,24 @@ def test_a_reset_releases_the_stop_and_its_repeats_never_latch_again() -> None:
     assert safety.reset() is not None and safety.reset() is None
 
 
+T0 = 1_800_000_000 * 10**9
+"""A receiver's wall clock (ns) in the tests below."""
+MS = 10**6
+
+
+def _stop_at(safety: ArmSafety, stop_id: str, stamp_ns: int, arrival_ns: int) -> bool:
+    return safety.latch(stop_id, "op", "", arrival_ns / 1e9, arrival_ns, stamp_ns=stamp_ns)
+
+
 def test_a_late_datagram_copy_of_a_reset_stop_never_latches_again() -> None:
     """A stop's copies come on two paths and a burst; any copy arriving after the
     reset (the UDP copy behind, or a replay of it) is a repeat of a reset stop."""
     safety = _safety()
-    assert safety.latch("s1", "op", "", 0.0, 0, stamp_ns=1_000)
-    assert not safety.latch("s1", "op", "", 0.01, 10, stamp_ns=1_000), "a duplicate acted on"
-    assert safety.reset(stamp_ns=2_000) is not None
+    assert _stop_at(safety, "s1", T0, T0 + 1 * MS)
+    assert not _stop_at(safety, "s1", T0, T0 + 2 * MS), "a duplicate acted on"
+    assert safety.reset(stamp_ns=T0 + 5 * MS, now_ns=T0 + 6 * MS) is not None
     for k in range(30):  # the rest of the burst, the reliable copy, a replay minutes later
-        assert not safety.latch("s1", "op", "", 0.1 + k, 0, stamp_ns=1_000)
+        assert not _stop_at(safety, "s1", T0, T0 + (10 + k * 1000) * MS)
     assert not safety.latched
 
 
@@ -79,13 +88,15 @@ def test_a_reset_put_before_a_stop_does_not_release_it() -> None:
     """A stop's datagram copy can overtake a reset still on its way over TCP; that
     older reset must neither release the newer stop nor make its own reliable copy a repeat."""
     safety = _safety()
-    assert safety.latch("s2", "op", "", 0.0, 0, stamp_ns=2_000)
-    assert safety.reset(stamp_ns=1_000) is None, "a reset older than the stop released it"
+    assert _stop_at(safety, "s2", T0 + 20 * MS, T0 + 21 * MS)
+    outcome = safety.answer_reset(T0 + 10 * MS, T0 + 300 * MS)  # put first, arrived later
+    assert outcome.outcome == "kept" and outcome.released is None, outcome
+    assert "reset again" in outcome.detail
     assert safety.latched and safety.is_current("s2")
-    assert not safety.latch("s2", "op", "", 0.1, 0, stamp_ns=2_000)  # its copy: a repeat
-    assert safety.reset(stamp_ns=3_000) is not None  # a reset put after it releases it
+    assert not _stop_at(safety, "s2", T0 + 20 * MS, T0 + 400 * MS)  # its copy: a repeat
+    assert safety.answer_reset(T0 + 500 * MS, T0 + 501 * MS).outcome == "released"
     assert not safety.latched
-    assert safety.reset(stamp_ns=None) is None  # nothing latched: nothing released
+    assert safety.answer_reset(T0 + 600 * MS, T0 + 601 * MS).outcome == "not_stopped"
 
 
 def test_an_older_stop_arriving_after_a_newer_one_does_not_let_a_reset_release_the_newer() -> None:
@@ -93,32 +104,67 @@ def test_an_older_stop_arriving_after_a_newer_one_does_not_let_a_reset_release_t
     latched one), then a reset put between them: the reset is older than s3, so nothing is
     released, and s3's own later copy finds it still latched."""
     safety = _safety()
-    assert safety.latch("s3", "op", "", 0.0, 0, stamp_ns=3_000)
-    assert safety.latch("s1", "op", "", 0.1, 0, stamp_ns=1_000)  # supersedes on arrival
-    assert safety.reset(stamp_ns=2_000) is None, "released a stop put after the reset"
+    assert _stop_at(safety, "s3", T0 + 30 * MS, T0 + 31 * MS)
+    assert _stop_at(safety, "s1", T0 + 10 * MS, T0 + 40 * MS)  # supersedes on arrival
+    assert safety.reset(stamp_ns=T0 + 20 * MS, now_ns=T0 + 50 * MS) is None
     assert safety.latched
-    assert safety.reset(stamp_ns=4_000) is not None
+    assert safety.reset(stamp_ns=T0 + 60 * MS, now_ns=T0 + 61 * MS) is not None
     assert not safety.latched
 
 
-def test_a_stop_put_before_the_newest_reset_is_stale_however_many_ids_came_since() -> None:
-    """The id tables are bounded; the stamps are not fooled by a flood of ids: a late copy of a
-    stop put before a reset that was acted on never latches, even once its id is forgotten."""
+@pytest.mark.parametrize(
+    "stamp_ns",
+    [0, T0 - 5 * 10**9, T0 - 3600 * 10**9, T0 + 30 * 10**9, 2**63 - 1],
+    ids=["zero", "5s-behind", "1h-behind", "30s-ahead", "max"],
+)
+def test_no_stamp_makes_a_stop_ignored_and_every_stop_can_be_reset(stamp_ns: int) -> None:
+    """A stop latches whatever its stamp, after resets of any stamp; a reset with a sane
+    stamp put after it releases it (a stop from a clock far ahead included)."""
     safety = _safety()
-    assert safety.latch("old", "op", "", 0.0, 0, stamp_ns=1_000)
-    assert safety.reset(stamp_ns=2_000) is not None
-    for k in range(1000):  # stops and resets enough to push "old" out of every id table
-        assert safety.latch(f"s{k}", "op", "", 0.0, 0, stamp_ns=3_000 + 2 * k)
-        assert safety.reset(stamp_ns=3_001 + 2 * k) is not None
-    assert "old" not in safety.reset_stop_ids
-    assert not safety.latch("old", "op", "", 1.0, 0, stamp_ns=1_000), "a stale copy latched"
-    assert safety.latch("new", "op", "", 1.0, 0, stamp_ns=10_000)
+    assert _stop_at(safety, "first", T0, T0 + 1 * MS)
+    assert safety.answer_reset(T0 + 1_500 * MS, T0 + 2_000 * MS).outcome == "released"
+    assert _stop_at(safety, "odd", stamp_ns, T0 + 3_000 * MS), "a stop dropped for its stamp"
+    assert safety.latched
+    assert safety.answer_reset(T0 + 4_000 * MS, T0 + 4_001 * MS).outcome == "released"
+
+
+@pytest.mark.parametrize("ahead_s", [2.5, 30.0, (2**63 - 1 - T0) / 1e9], ids=["2.5s", "30s", "max"])
+def test_a_reset_stamped_far_ahead_is_refused_and_later_stops_still_latch(ahead_s: float) -> None:
+    safety = _safety()
+    assert _stop_at(safety, "s1", T0, T0 + 1 * MS)
+    bad = min(2**63 - 1, T0 + int(ahead_s * 1e9))
+    outcome = safety.answer_reset(bad, T0 + 2 * MS)
+    assert outcome.outcome == "refused" and "ahead of this agent's clock" in outcome.detail
+    assert safety.latched
+    assert safety.answer_reset(T0 + 3 * MS, T0 + 4 * MS).outcome == "released"
+    for k in range(3):  # the CLI's, the heartbeat's, the watchdog's (no stamp)
+        assert _stop_at(safety, f"later{k}", T0 + (10 + k) * MS, T0 + (11 + k) * MS)
+        assert safety.answer_reset(T0 + (20 + k) * MS, T0 + (21 + k) * MS).released
+    assert safety.latch("watchdog-1", "watchdog", "", 1.0, T0 + 30 * MS)
+
+
+def test_a_reset_from_a_clock_slightly_ahead_does_not_outlast_its_arrival() -> None:
+    """A reset 1.5 s ahead (accepted) is ordered at its arrival: a stop put 10 ms later
+    latches and a reset after that releases it."""
+    safety = _safety()
+    assert _stop_at(safety, "s1", T0, T0 + 1 * MS)
+    assert safety.answer_reset(T0 + 1_500 * MS, T0 + 2 * MS).outcome == "released"
+    assert _stop_at(safety, "s2", T0 + 12 * MS, T0 + 13 * MS)
+    assert safety.answer_reset(T0 + 20 * MS, T0 + 21 * MS).outcome == "released"
+
+
+def test_a_reset_from_a_clock_behind_says_so_when_it_keeps_a_stop() -> None:
+    safety = _safety()
+    assert _stop_at(safety, "s1", T0, T0 + 1 * MS)
+    outcome = safety.answer_reset(T0 + 1_000 * MS - 2 * 10**9, T0 + 1_000 * MS)
+    assert outcome.outcome == "kept" and "behind this agent's clock" in outcome.detail
+    assert safety.answer_reset(T0 + 4_000 * MS - 2 * 10**9, T0 + 4_000 * MS).released
 
 
 def test_the_agents_own_stops_are_released_by_any_reset() -> None:
     safety = _safety()
-    assert safety.latch("watchdog-1", "watchdog", "", 0.0, 0)  # no sender stamp
-    assert safety.reset(stamp_ns=1) is not None
+    assert safety.latch("watchdog-1", "watchdog", "", 0.0, T0)  # no sender stamp
+    assert safety.reset(stamp_ns=1, now_ns=T0) is not None
 
 
 def test_a_newer_stop_supersedes_and_one_reset_releases_both() -> None:
