@@ -10,7 +10,7 @@ import time
 from fleet.devices.base import DeviceCommand
 from fleet.devices.driver import Refusal
 from fleet.devices.ordering import CommandOrder
-from fleet.devices.safety import ArmSafety, LeaseRefused
+from fleet.devices.safety import STAMP_AHEAD_LIMIT_S, ArmSafety, LeaseRefused, seconds_ahead
 from fleet.devices.unit import IncomingQuery
 from fleet.inventory import Inventory
 from fleet.security_config import COMMANDERS
@@ -71,7 +71,17 @@ def release(label: str, safety: ArmSafety, owner: str | None, now_s: float) -> N
 def check_order(
     label: str, order: CommandOrder, principal: str, owner: str | None, command: Envelope
 ) -> None:
-    """Duplicates, out-of-order commands and commands past their lifetime: Refusal."""
+    """Duplicates, out-of-order commands, commands past their lifetime and commands stamped
+    far ahead of this host's clock: Refusal. A future stamp would never expire, and as the
+    owner's newest it would refuse every later command of the owner as "out of order"."""
+    if command.stamp_ns is not None:
+        ahead_s = seconds_ahead(command.stamp_ns, time.time_ns())
+        if ahead_s is not None:
+            raise Refusal(
+                ErrorCode.PARAMETER,
+                f"target for {label} is stamped {ahead_s:.1f} s ahead of this agent's clock "
+                f"(at most {STAMP_AHEAD_LIMIT_S:g} s): fix the sender's clock (NTP); not executed",
+            )
     refusal = order.refusal(principal, owner, command.stamp_ns)
     if refusal is not None:
         raise Refusal(ErrorCode.OUT_OF_ORDER, f"{label}: {refusal}")

@@ -19,12 +19,22 @@ import pytest
 from fleet.client import FleetClient
 from fleet.wire import keys
 from fleet.wire import messages as m
-from fleet.wire.messages import encode
+from fleet.wire.messages import ErrorCode, encode
 from fleet.wire.payloads import DIAG, RESET_ACK
 from fleet.wire.stoppath import RELIABLE_QOS
 from testkit.collect import Collector
 from testkit.harness import FleetHarness, wait_until
-from testkit.kinds import KIND_IDS, KINDS, Kind, LatchWatch, devices_fleet, wait_kinds_online
+from testkit.kinds import (
+    KIND_IDS,
+    KINDS,
+    Kind,
+    LatchWatch,
+    devices_fleet,
+    release,
+    send,
+    wait_kinds_online,
+    with_envelope,
+)
 
 NS = 10**9
 FAR_AHEAD = {"30s-ahead": 30 * NS, "max": None}
@@ -173,3 +183,22 @@ def test_fleet_reset_from_a_host_30s_ahead_says_each_unit_is_still_stopped(
     for kind in KINDS:
         line = next(x for x in sane.stdout.splitlines() if x.startswith(kind.label(client)))
         assert ": released" in line, sane.stdout
+
+
+@pytest.mark.parametrize("kind", KINDS, ids=KIND_IDS)
+def test_a_command_stamped_far_ahead_is_refused_and_the_owners_next_one_runs(
+    fleet: FleetHarness, client: FleetClient, kind: Kind
+) -> None:
+    """Before: a command from a host 30 s ahead never expired, and as its owner's newest it
+    made every later command of the owner "out of order" for 30 s. The owner's next command
+    comes from another client (a host with a sane clock)."""
+    _released(client, kind)
+    owner = f"clock-{uuid.uuid4().hex[:8]}"
+    ahead = with_envelope(kind.moves(), owner=owner, stamp_ns=_stamp(30 * NS), lifetime_s=1.0)
+    refused = send(client, kind, ahead)
+    assert not refused.ok and refused.code == ErrorCode.PARAMETER, refused
+    assert "ahead of this agent's clock" in refused.message, refused
+    sane = fleet.client()
+    served = send(sane, kind, with_envelope(kind.moves(), owner=owner))
+    assert served.ok, served
+    send(sane, kind, release(kind, owner))
