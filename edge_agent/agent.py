@@ -41,7 +41,7 @@ from edge_agent.device_server import DeviceServer
 from edge_agent.inbox import CommandInbox, InboxCounters, SafetyInbox
 from edge_agent.latches import LatchStore, default_state_dir
 from edge_agent.link import DdsLink
-from edge_agent.relay import JSON, ZenohRelay, principal_of
+from edge_agent.relay import ZenohRelay, principal_of
 from edge_agent.scheduler import SchedulerFull, StartScheduler
 from edge_agent.serving import CommandService
 from edge_agent.stops import SafetyLoop
@@ -54,8 +54,10 @@ from fleet.devices.served import CoreServices, KindSide
 from fleet.devices.unit import Outbox, Unit, UnitServer
 from fleet.guard import ThreadGuard
 from fleet.inventory import Inventory
+from fleet.wire import keys
 from fleet.wire import messages as m
 from fleet.wire.messages import encode
+from fleet.wire.replies import answer
 
 TICK_PERIOD_S = 0.05
 STATUS_PERIOD_S = 0.25
@@ -63,9 +65,10 @@ STATUS_PERIOD_S = 0.25
 heartbeat (the coordinator calls an agent offline after 1 s of silence)."""
 DIAG_PERIOD_S = 1.0
 DIAG_SOON_S = 0.2
-"""Bad input (an undecodable payload or stop, a busy refusal) is in the next diag within this
-long, not at the next whole second: an operator who sends a bad command sees it counted at
-once. It also bounds the diags a flood of bad input makes, to 5 a second."""
+"""Bad input (an undecodable payload or stop, a busy refusal, a key naming no principal) is in
+the next diag within this long, not at the next whole second: an operator who sends a bad
+command sees it counted at once. It also bounds the diags a flood of bad input makes, to 5 a
+second."""
 
 
 class EdgeAgent:
@@ -251,9 +254,15 @@ class EdgeAgent:
             server.tick(now, stamp_ns, periodic, diag, out)
         self.flush(out)
 
-    def _bad_input_counts(self) -> tuple[int, int, int, int]:
+    def _bad_input_counts(self) -> tuple[int, ...]:
         counters = self.counters
-        return counters.bad_payloads, counters.undecodable_stops, counters.busy, counters.bad_stamps
+        return (
+            counters.bad_payloads,
+            counters.undecodable_stops,
+            counters.busy,
+            counters.bad_stamps,
+            counters.bad_keys,
+        )
 
     def _own_counts(self, diag: m.Diag) -> m.Diag:
         """A unit's diag with the agent's own counters (the same in every unit's diag)."""
@@ -264,6 +273,7 @@ class EdgeAgent:
             undecodable_stops=counters.undecodable_stops,
             busy=counters.busy,
             bad_stamps=counters.bad_stamps,
+            bad_keys=counters.bad_keys,
             dropped_events=counters.dropped_events,
             write_failures=self.link.write_failures,
             stop_copies_reliable=counters.stop_copies[False],
@@ -281,10 +291,7 @@ class EdgeAgent:
             self.reply_latencies_s.append(reply.latency_ms / 1000.0)
             # On the arm's own key, not the query's: a wildcard query (arm/*/cmd/<principal>)
             # gets one reply per arm, which consolidation would merge on one wildcard key.
-            principal = principal_of(query.key_expr) or "unknown"
-            key = self.relay.keys.command(reply.arm, principal)
-            query.reply(key, encode(reply), encoding=JSON)
-            query.drop()
+            answer(query, self.relay.keys.arm(reply.arm, keys.CMD), encode(reply))
 
     # ------------------------------------------------------------------ shutdown
 

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import zenoh
 
 from edge_agent.link import DdsLink
-from edge_agent.relay import JSON, ZenohRelay
+from edge_agent.relay import ZenohRelay
 from edge_agent.writelocks import WriteLocks
 from fleet.devices import kind_of
 from fleet.devices.base import DeviceReply, Release
@@ -33,6 +33,7 @@ from fleet.inventory import Inventory
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, encode
+from fleet.wire.replies import answer
 
 
 @dataclass
@@ -219,13 +220,10 @@ class DeviceServer:
         """Answer a device command on the device's own key (any thread, no lock held)."""
         self._latencies.append(time.monotonic() - started)
         slot = self.slots[item.arm]
-        principal = item.principal or "unknown"
-        key = f"{self._relay.keys.device(slot.kind, item.arm, keys.CMD)}/{principal}"
         if reply.error is not None:
             with self._lock:
                 slot.last_error = reply.error.message
-        item.query.reply(key, encode(reply), encoding=JSON)
-        item.query.drop()
+        answer(item.query, self._relay.keys.device(slot.kind, item.arm, keys.CMD), encode(reply))
 
     # ------------------------------------------------------------------ periodic, shutdown
 

@@ -70,6 +70,8 @@ class InboxCounters:
     busy: int = 0
     bad_stamps: int = 0
     """Stops and resets stamped far ahead of this host's clock (``STAMP_AHEAD_LIMIT_S``)."""
+    bad_keys: int = 0
+    """Command queries on a key naming no usable principal (refused by the unit's server)."""
     stop_copies: dict[bool, int] = field(default_factory=lambda: {False: 0, True: 0})
     """Stop copies received, per path (True: the datagram path)."""
     beat_copies: dict[bool, int] = field(default_factory=lambda: {False: 0, True: 0})
@@ -211,6 +213,8 @@ class CommandInbox:
         payload = query.payload.to_bytes() if query.payload is not None else b""
         item = IncomingQuery(arm, query, payload, self._principal_of(query.key_expr))
         with self._lock:
+            if item.principal is None:
+                self.counters.bad_keys += 1  # the unit's server refuses it, with the reason
             queued = len(self._queries) < COMMAND_DEPTH
             if queued:
                 self._queries.append(item)

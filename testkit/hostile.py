@@ -129,3 +129,19 @@ def decode(kind: type, data: bytes | None) -> object:
     """Decode a trusted payload in a test (our own processes published it)."""
     assert data is not None
     return msgspec.json.decode(data, type=kind)
+
+
+HOSTILE_CHUNKS: dict[str, str] = {
+    "dots": "bob.smith",
+    "star": "*",
+    "double-star": "**",
+    "dollar-star": "bob$*",
+    "long": "p" * 1000,
+    "unicode": "bób-ñ",
+    "space": "bob smith",
+}
+"""Last chunks of a command key that name no usable principal, though Zenoh accepts each
+(``keys.is_name`` refuses them). A reply on ``.../cmd/unknown`` does not match most of them:
+before the fix each such query made the agent's reply raise, and the agent exit."""
+EMPTY_CHUNKS = ("{unit}//bob", "{unit}/cmd//bob", "{unit}/cmd/bob/")
+"""Key expressions Zenoh itself refuses (empty chunks, a trailing slash): never sent."""

@@ -20,8 +20,8 @@ from fleet.guard import ThreadGuard
 from fleet.wire import keys
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, ErrorInfo, encode
+from fleet.wire.replies import answer
 
-JSON = zenoh.Encoding.APPLICATION_JSON
 MAX_ACTIVE_REQUESTS = 4
 """Multi-arm requests served at once; one more is answered 4003 "busy" at once."""
 QUERY_DEPTH = 64
@@ -30,8 +30,8 @@ BUSY_WHY = (
     f"the coordinator is busy ({MAX_ACTIVE_REQUESTS} requests in progress); retry when one finishes"
 )
 
-Serve = Callable[[bytes, str | None], m.MultiArmReply]
-"""(payload, the requester's principal from the key, or None) -> the reply."""
+Serve = Callable[[bytes, str], m.MultiArmReply]
+"""(payload, the requester's principal from the key) -> the reply."""
 
 
 def _principal(query: zenoh.Query) -> str | None:
@@ -60,11 +60,15 @@ class RequestDesk:
         # Guarded by _lock:
         self.active = 0
         self.busy = 0
+        self.bad_keys = 0
+        """Requests on a key naming no usable principal (answered 2001)."""
 
     def on_query(self, query: zenoh.Query) -> None:
         """Zenoh thread: queue the request; if the queue is full, answer it "busy" now."""
         with self._lock:
             queued = len(self._queries) < QUERY_DEPTH
+            if _principal(query) is None:
+                self.bad_keys += 1  # answered by a worker, with the reason
             if queued:
                 self._queries.append(query)
             else:
@@ -74,10 +78,10 @@ class RequestDesk:
         else:
             self._reply(query, error_reply(ErrorCode.BUSY, BUSY_WHY))
 
-    def counters(self) -> tuple[int, int]:
-        """(busy answers, requests being served)."""
+    def counters(self) -> tuple[int, int, int]:
+        """(busy answers, requests being served, requests on a key naming no principal)."""
         with self._lock:
-            return self.busy, self.active
+            return self.busy, self.active, self.bad_keys
 
     def run(self, stopping: threading.Event) -> None:
         """The ``multi-arm`` thread: hand requests to the pool or answer them "busy"."""
@@ -100,7 +104,12 @@ class RequestDesk:
     def _answer(self, query: zenoh.Query) -> None:
         try:
             payload = query.payload.to_bytes() if query.payload is not None else b""
-            self._reply(query, self._serve(payload, _principal(query)))
+            principal = _principal(query)
+            if principal is None:
+                why = keys.no_principal_why(str(query.key_expr))
+                self._reply(query, error_reply(ErrorCode.PARAMETER, why))
+            else:
+                self._reply(query, self._serve(payload, principal))
         finally:
             with self._lock:
                 self.active -= 1
@@ -108,9 +117,7 @@ class RequestDesk:
 
     def _reply(self, query: zenoh.Query, reply: m.MultiArmReply) -> None:
         # On the requester's own key (a concrete key that intersects the query's).
-        key = self._space.coordinator_command(_principal(query) or "unknown")
-        query.reply(key, encode(reply), encoding=JSON)
-        query.drop()
+        answer(query, f"{self._space.prefix}/{keys.COORDINATOR_CMD}", encode(reply))
 
     def close(self) -> None:
         """Drop pending requests (their callers see no reply) and stop the pool."""

@@ -91,6 +91,12 @@ def coordinator_collectors(coordinator: Coordinator) -> list[Any]:
             counter(
                 "d1_coordinator_busy", "multi-arm requests answered busy", [], [([], diag.busy)]
             ),
+            counter(
+                "d1_coordinator_bad_keys",
+                "multi-arm requests on a key naming no principal",
+                [],
+                [([], diag.bad_keys)],
+            ),
             gauge(
                 "d1_coordinator_requests_active",
                 "multi-arm requests being served",

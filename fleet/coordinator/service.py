@@ -183,7 +183,7 @@ class Coordinator:
     def diag(self, stamp_ns: int) -> m.CoordinatorDiag:
         """The coordinator's counters."""
         counters = self.intake.counters
-        busy, active = self.desk.counters()
+        busy, active, bad_keys = self.desk.counters()
         return m.CoordinatorDiag(
             stamp_ns=stamp_ns,
             coordinator=self.id,
@@ -193,6 +193,7 @@ class Coordinator:
             dropped_events=counters.dropped_events,
             busy=busy,
             requests_active=active,
+            bad_keys=bad_keys,
         )
 
     def _drain_events(self) -> None:
@@ -269,12 +270,9 @@ class Coordinator:
 
     # ------------------------------------------------------------------ multi-arm commands
 
-    def _serve(self, payload: bytes, principal: str | None) -> m.MultiArmReply:
+    def _serve(self, payload: bytes, principal: str) -> m.MultiArmReply:
         """One ``coordinator/cmd/<principal>`` request (on a desk worker). The coordinator
         commands the arms as itself; with security on, only a commander may ask it."""
-        if principal is None:
-            why = "send multi-arm requests to coordinator/cmd/<principal>"
-            return error_reply(ErrorCode.PARAMETER, why)
         role = self.inventory.role_of(principal)
         if self.inventory.security.enabled and role not in COMMANDERS:
             why = f"principal {principal!r} (role {role}) may not command arms"

@@ -14,6 +14,7 @@ from fleet.devices.safety import STAMP_AHEAD_LIMIT_S, ArmSafety, LeaseRefused, s
 from fleet.devices.unit import IncomingQuery
 from fleet.inventory import Inventory
 from fleet.security_config import COMMANDERS
+from fleet.wire import keys
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode
 
@@ -35,10 +36,8 @@ class Principals:
         when its role may not command arms (the router refuses those first)."""
         principal = item.principal
         if principal is None:
-            raise Refusal(
-                ErrorCode.PARAMETER,
-                f"send commands to arm/{item.arm}/cmd/<principal>, not to a wildcard principal",
-            )
+            why = keys.no_principal_why(str(item.query.key_expr))
+            raise Refusal(ErrorCode.PARAMETER, f"{item.arm!r}: {why}")
         if self._inventory.security.enabled:
             role = self._inventory.role_of(principal)
             if role not in COMMANDERS:

@@ -145,6 +145,16 @@ def check_name(kind: str, name: str) -> str:
     return name
 
 
+def no_principal_why(key: str) -> str:
+    """Why a command on ``key`` is refused when its last chunk names no usable principal."""
+    chunk = key.rpartition("/")[2]
+    shown = chunk if len(chunk) <= 64 else chunk[:64] + "..."
+    return (
+        f"the command key's last chunk {shown!r} names no usable principal: send commands to "
+        ".../cmd/<principal>, a name of letters, digits, '_' or '-' (at most 63)"
+    )
+
+
 class ArmKey(Struct, frozen=True):
     """A concrete per-arm key, parsed."""
 

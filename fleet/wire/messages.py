@@ -154,6 +154,9 @@ class Diag(Struct, frozen=True):
     """Of those, stops: each still stopped the arms (anyone may stop)."""
     busy: Count = 0
     """Commands answered 3205 "busy" at once because the agent's command queue was full."""
+    bad_keys: Count = 0
+    """Command queries on a key whose last chunk names no usable principal (``cmd/bob.smith``,
+    ``cmd/*``): each answered 2001 and served no further."""
     dropped_events: Count = 0
     """Resets and heartbeat sources dropped at a full queue (a flood); stops are never dropped."""
     bad_stamps: Count = 0
@@ -493,6 +496,8 @@ class CoordinatorDiag(Struct, frozen=True):
     """Multi-arm requests answered 3205 "busy" (the queue full, or every worker occupied)."""
     requests_active: Count
     """Multi-arm requests being served now."""
+    bad_keys: Count = 0
+    """Requests on a key whose last chunk names no usable principal (answered 2001)."""
 
 
 class MultiArmRequest(Struct, frozen=True, forbid_unknown_fields=True):

@@ -7,6 +7,7 @@ killed a process or made the coordinator report a dead fleet.
 
 from __future__ import annotations
 
+import json
 import threading
 import time
 from collections.abc import Iterator
@@ -18,9 +19,12 @@ from fleet.client import FleetClient
 from fleet.wire import keys
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode
+from fleet.wire.payloads import DIAG
 from fleet.wire.session import close_bounded, open_client
-from testkit.harness import FleetHarness, wait_until
+from testkit.harness import FleetHarness, free_port, wait_until
 from testkit.hostile import (
+    EMPTY_CHUNKS,
+    HOSTILE_CHUNKS,
     POISONS,
     ROUTER_DROPS,
     alive,
@@ -32,6 +36,8 @@ from testkit.hostile import (
     statuses,
     wait_reset,
 )
+from testkit.kinds import DEVICES, KIND_IDS, KINDS, Kind, LatchWatch, send
+from tests.e2e.test_metrics import scrape, value
 
 ARMS = ["a1", "a2"]
 FLOOD_BOUND_MS = 1000.0
@@ -422,3 +428,108 @@ def test_long_multi_arm_requests_never_queue_without_bound(
         assert [r for r in client.session.get(fault, payload=unstall) if r.ok is not None]
     client.command("a2", m.Release(owner=_state(client).coordinator))  # type: ignore[union-attr]
     assert_fleet_stops_and_serves(harness, client)
+
+
+# ---------------------------------------------------------------- hostile command keys, every kind
+
+
+@pytest.fixture(scope="module")
+def kinds_fleet(tmp_path_factory: pytest.TempPathFactory) -> Iterator[FleetHarness]:
+    """Router, simulators, one agent serving an arm, its gripper and a G1 (with metrics), and a
+    coordinator: every command queryable of the fleet."""
+    with FleetHarness(tmp_path_factory.mktemp("hostile-kinds"), arms=1, extra=DEVICES) as harness:
+        harness.start_router()
+        harness.start_sim()
+        harness.metrics_port = free_port()  # type: ignore[attr-defined]
+        agent = ["-m", "edge_agent", "--interface", "lo"]
+        harness.start("agent", [*agent, "--metrics-port", str(harness.metrics_port)])  # type: ignore[attr-defined]
+        harness.start_coordinator()
+        client = harness.client()
+        for kind in KINDS:
+            wait_until(LatchWatch(client, kind).link_ok, 30.0)
+        wait_until(lambda: _state(client) is not None, 15.0)
+        yield harness
+
+
+def _answers(client: FleetClient, key: str, payload: bytes) -> list[dict[str, object]]:
+    """Every answer to a query on ``key``, ok or error replies alike, as JSON objects."""
+    everyone = zenoh.QueryTarget.ALL
+    got = []
+    for reply in client.session.get(key, payload=payload, timeout=3.0, target=everyone):
+        sample = reply.ok if reply.ok is not None else reply.err
+        got.append(json.loads(sample.payload.to_bytes()))
+    return got
+
+
+def _bad_keys(client: FleetClient, unit: str) -> int | None:
+    """The agent's count of queries on keys naming no usable principal, from ``unit``'s diag
+    (None before a diag arrived)."""
+    data = latest(client, client.unit_key(unit, keys.DIAG), wait_s=1.5)
+    return None if data is None else DIAG.decode(data).bad_keys
+
+
+@pytest.mark.parametrize("kind", KINDS, ids=KIND_IDS)
+def test_a_command_key_naming_no_principal_is_answered_and_counted(
+    kinds_fleet: FleetHarness, kind: Kind
+) -> None:
+    """A query on ``<kind>/<unit>/cmd/<chunk>`` whose last chunk is no usable name (dots, a
+    wildcard, ``$*``, 1000 characters, unicode, a space) gets one clear error from the unit's
+    agent, which keeps serving and counts each one in its diag and metrics. Before the fix the
+    agent's reply raised ("does not intersect with query") and the agent exited at the first."""
+    harness = kinds_fleet
+    client = harness.client()
+    client.reset(kind.unit)
+    counted: list[int | None] = [None]
+
+    def counts() -> bool:
+        counted[0] = _bad_keys(client, kind.unit)
+        return counted[0] is not None
+
+    wait_until(counts, 10.0)
+    before = counted[0] or 0
+    payload = m.encode(client.stamp(kind.moves()))
+    for name, chunk in HOSTILE_CHUNKS.items():
+        key = f"{client.unit_key(kind.unit, keys.CMD)}/{chunk}"
+        answers = _answers(client, key, payload)
+        assert len(answers) == 1, (name, answers)
+        error = answers[0]["error"]
+        assert answers[0]["ok"] is False and isinstance(error, dict), (name, answers)
+        assert error["code"] == ErrorCode.PARAMETER, (name, error)
+        assert "principal" in str(error["message"]), (name, error)
+        assert all(code is None for code in alive(harness).values()), (name, alive(harness))
+    for template in EMPTY_CHUNKS:  # Zenoh refuses these before they leave the process
+        with pytest.raises(zenoh.ZError):
+            client.session.get(template.format(unit=client.unit_key(kind.unit, keys.CMD)[:-4]))
+    sent = len(HOSTILE_CHUNKS)
+    wait_until(lambda: (_bad_keys(client, kind.unit) or 0) >= before + sent, 10.0)
+    samples = scrape(harness.metrics_port)  # type: ignore[attr-defined]
+    assert (value(samples, "d1_agent_bad_keys_total") or 0) >= before + sent, samples
+    assert send(client, kind, kind.moves()).ok  # it still serves
+
+
+def test_hostile_keys_on_every_queryable_end_no_process(kinds_fleet: FleetHarness) -> None:
+    """Wildcard and malformed keys over every queryable at once (each agent's, the
+    coordinator's, the info queryables): every process stays up, the coordinator answers its
+    own with a clear error and counts them, and the fleet still stops and serves."""
+    harness = kinds_fleet
+    client = harness.client()
+    prefix = client.keys.prefix
+    request = m.encode(m.MultiArmRequest(target="all", command=m.Hold()))
+    for name, chunk in HOSTILE_CHUNKS.items():
+        answers = _answers(client, f"{client.keys.prefix}/{keys.COORDINATOR_CMD}/{chunk}", request)
+        assert len(answers) == 1, (name, answers)
+        error = answers[0]["error"]
+        assert isinstance(error, dict) and error["code"] == ErrorCode.PARAMETER, (name, error)
+        for key in (f"{prefix}/*/*/cmd/{chunk}", f"{prefix}/**/cmd/{chunk}"):
+            _answers(client, key, request)  # whatever answers, nobody may die
+        _answers(client, f"{prefix}/**", request)
+        assert all(code is None for code in alive(harness).values()), (name, alive(harness))
+
+    def coordinator_counted() -> bool:
+        diag = decode(m.CoordinatorDiag, latest(client, client.keys.coordinator_diag))
+        return diag.bad_keys >= len(HOSTILE_CHUNKS)  # type: ignore[attr-defined]
+
+    wait_until(coordinator_counted, 10.0)
+    for kind in KINDS:
+        assert send(client, kind, kind.moves()).ok, kind
+    assert all(code is None for code in alive(harness).values()), alive(harness)

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import pytest
+import zenoh
 from hypothesis import given
 from hypothesis import strategies as st
 
 from fleet.wire import keys
 from fleet.wire.keys import ArmKey, KeyError_, KeySpace
+from fleet.wire.replies import reply_key
 
 NAMES = st.from_regex(r"[A-Za-z0-9][A-Za-z0-9_\-]{0,62}", fullmatch=True)
 
@@ -222,3 +224,33 @@ def test_a_key_of_any_fleet_parses_without_its_keyspace() -> None:
     for bad in ("fleet", "fleet//state", "robot/lab/state", "fleet/a b/state"):
         with pytest.raises(KeyError_):
             keys.parse_key(bad)
+
+
+BASE = "fleet/lab/arm/a2/cmd"
+
+
+@pytest.mark.parametrize(
+    ("query", "expected"),
+    [
+        (f"{BASE}/alice", f"{BASE}/alice"),  # the usual case: the unit's own key
+        ("fleet/lab/arm/*/cmd/alice", f"{BASE}/alice"),  # one reply per arm of a wildcard
+        (f"{BASE}/*", f"{BASE}/unknown"),
+        ("fleet/lab/**", f"{BASE}/unknown"),
+        (f"{BASE}/bob.smith", f"{BASE}/bob.smith"),  # no usable name: the query's own key
+        (f"{BASE}/b\u00f3b", f"{BASE}/b\u00f3b"),
+        (f"{BASE}/{'p' * 1000}", f"{BASE}/{'p' * 1000}"),
+        (f"{BASE}/bob$*", f"{BASE}/bob$*"),  # a wildcard "unknown" does not match
+        ("fleet/lab/*/a2/cmd/bob.smith", "fleet/lab/*/a2/cmd/bob.smith"),
+    ],
+)
+def test_a_reply_key_always_matches_its_query(query: str, expected: str) -> None:
+    """Zenoh refuses a reply on a key that does not intersect the query's: the reply key is
+    the unit's own when it matches, else the query's own (which always matches itself)."""
+    key = reply_key(query, BASE)
+    assert key == expected
+    assert zenoh.KeyExpr(key).intersects(query)
+
+
+def test_a_refusal_for_no_principal_names_the_chunk_shortly() -> None:
+    why = keys.no_principal_why(f"{BASE}/{'p' * 1000}")
+    assert "no usable principal" in why and len(why) < 300, why
