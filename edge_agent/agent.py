@@ -112,10 +112,23 @@ class EdgeAgent:
         # ``self.servers`` as the kinds are built.
         self.servers: dict[str, UnitServer] = {}
         self.commands = CommandService(self.servers, self.command_inbox, self.stopping)
+        # The latch directory before DDS and Zenoh: one it may not use (a symbolic link) is a
+        # configuration error, and nothing is open yet to close.
+        self.latches = LatchStore(
+            state_dir or default_state_dir(),
+            inventory.fleet,
+            network.domain_id,
+            self.guard,
+            self._on_latch_written,
+        )
         # DDS first: if the interface is wrong we fail before announcing anything on Zenoh.
         self._next_status = self._next_diag = 0.0
         self._diag_counts = self._bad_input_counts()
-        self.link = DdsLink(network, self._tick, TICK_PERIOD_S, self.guard)
+        try:
+            self.link = DdsLink(network, self._tick, TICK_PERIOD_S, self.guard)
+        except BaseException:
+            self.latches.close()
+            raise
         try:
             self.relay = ZenohRelay(
                 inventory,
@@ -127,14 +140,15 @@ class EdgeAgent:
             )
         except BaseException:
             self.link.close()
+            self.latches.close()
             raise
         try:
             self._build_kinds(inventory, [*arm_ids, *device_ids])
         except BaseException:
             self.link.close()
             self.relay.close()  # an open session can hang the process at exit
+            self.latches.close()
             raise
-        self.latches = LatchStore(state_dir or default_state_dir(), inventory.fleet, self.guard)
         self.safety_loop = SafetyLoop(
             self.lock,
             self.units,
@@ -228,6 +242,12 @@ class EdgeAgent:
         """A stopped unit was seen still: its ack (caller holds the lock)."""
         self.safety_loop.on_still(unit, out)
 
+    def _on_latch_written(self, unit: str, why: str | None) -> None:
+        """The latches thread wrote ``unit``'s latch, or could not (``why``): its status says
+        whether its stop would survive a restart."""
+        with self.lock:
+            self.units[unit].safety.persist_error = why
+
     def _on_thread_failure(self, what: str) -> None:
         """The guard's failure path (on the failing thread): latch and stop every arm now;
         ``__main__`` then shuts down and exits 1."""
@@ -262,6 +282,7 @@ class EdgeAgent:
             counters.busy,
             counters.bad_stamps,
             counters.bad_keys,
+            self.latches.failures,
         )
 
     def _own_counts(self, diag: m.Diag) -> m.Diag:
@@ -274,6 +295,7 @@ class EdgeAgent:
             busy=counters.busy,
             bad_stamps=counters.bad_stamps,
             bad_keys=counters.bad_keys,
+            latch_failures=self.latches.failures,
             dropped_events=counters.dropped_events,
             write_failures=self.link.write_failures,
             stop_copies_reliable=counters.stop_copies[False],

@@ -84,9 +84,8 @@ class DeviceServer:
         safety = ArmSafety(config.lease_s, config.watchdog_s)
 
         def latch() -> tuple[bool, str | None, str | None]:
-            stop = safety.stop  # one reference read: no lock needed for a state payload
-            why = safety.last_reason if stop is not None else None
-            return stop is not None, why, safety.watched_by
+            why = safety.stop_reason  # reference reads: no lock needed for a state payload
+            return why is not None, why, safety.watched_by
 
         kind = kind_of(config)
         put = self._relay.device_put(device)

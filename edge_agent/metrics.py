@@ -76,6 +76,7 @@ def agent_collectors(agent: Any) -> list[Any]:
                 "d1_agent_bad_payloads": counters.bad_payloads,
                 "d1_agent_busy": counters.busy,
                 "d1_agent_bad_keys": counters.bad_keys,
+                "d1_agent_latch_failures": agent.latches.failures,
                 "d1_agent_dropped_events": counters.dropped_events,
             }
             copies = {

@@ -16,6 +16,7 @@ agent still looked "up" but relayed nothing, and a stop 0.8 s later found no fre
 
 from __future__ import annotations
 
+import errno
 import math
 import os
 import stat
@@ -38,14 +39,20 @@ class FileReadError(ValueError):
     """A file that was refused (its path and why in the message)."""
 
 
-def _open_regular_fd(path: str | Path, what: str) -> tuple[int, os.stat_result]:
-    """A descriptor of ``path`` opened without blocking, and its ``fstat``, if it is a regular
-    file. Raises FileNotFoundError when absent, FileReadError for anything else refused."""
+def _open_regular_fd(
+    path: str | Path, what: str, dir_fd: int | None = None, follow: bool = True
+) -> tuple[int, os.stat_result]:
+    """A descriptor of ``path`` (relative to ``dir_fd`` if given) opened without blocking, and
+    its ``fstat``, if it is a regular file; with ``follow`` False a symbolic link is refused.
+    Raises FileNotFoundError when absent, FileReadError for anything else refused."""
+    flags = os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC | (0 if follow else os.O_NOFOLLOW)
     try:
-        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+        fd = os.open(path, flags, dir_fd=dir_fd)
     except FileNotFoundError:
         raise
     except OSError as exc:
+        if exc.errno == errno.ELOOP and not follow:
+            raise FileReadError(f"{path}: the {what} is a symbolic link; refused") from None
         raise FileReadError(f"{path}: cannot open the {what} ({exc.strerror})") from None
     try:
         info = os.fstat(fd)
@@ -72,10 +79,18 @@ def open_regular(path: str | Path, max_bytes: int, what: str = "file") -> Binary
     return os.fdopen(fd, "rb")
 
 
-def read_regular(path: str | Path, max_bytes: int = MAX_FILE_BYTES, what: str = "file") -> bytes:
+def read_regular(
+    path: str | Path,
+    max_bytes: int = MAX_FILE_BYTES,
+    what: str = "file",
+    *,
+    dir_fd: int | None = None,
+    follow: bool = True,
+) -> bytes:
     """The bytes of ``path`` if it is a regular file of at most ``max_bytes``. Raises
-    FileNotFoundError when absent, FileReadError for anything else refused."""
-    fd, info = _open_regular_fd(path, what)
+    FileNotFoundError when absent, FileReadError for anything else refused. ``dir_fd`` and
+    ``follow`` as for ``_open_regular_fd``."""
+    fd, info = _open_regular_fd(path, what, dir_fd, follow)
     try:
         if info.st_size > max_bytes:
             raise FileReadError(

@@ -202,7 +202,7 @@ class ArmTracker:
             motors_ok=None if self.motors_ok is None else list(self.motors_ok),
             estopped=self.safety.latched,
             feedback_age_s=None if age is None else round(age, 3),
-            stop_reason=self.safety.last_reason if self.safety.latched else None,
+            stop_reason=self.safety.stop_reason,
             owner=None if lease is None else lease.owner,
             owned_s=None if lease is None else round(now - lease.since_s, 1),
             lease_left_s=None if lease is None else round(lease.expires_s - now, 1),

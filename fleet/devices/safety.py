@@ -137,6 +137,9 @@ class ArmSafety:
     """(source, reason) of every stop active since the latch, in arrival order (at most
     STOP_CAUSES_KEPT); ``more_causes`` counts the others."""
     more_causes: int = 0
+    persist_error: str | None = None
+    """Why the latched stop could not be written to disk (None: it was, or nothing to write):
+    an agent restart would forget it, so the status says so (``stop_reason``)."""
 
     # ------------------------------------------------------------------ stop latch
 
@@ -228,6 +231,19 @@ class ArmSafety:
         if len(text) > STOP_REASON_CHARS:
             text = text[: STOP_REASON_CHARS - 3] + "..."
         self.last_reason = text
+
+    @property
+    def stop_reason(self) -> str | None:
+        """What a status says about the latch (None: not latched): who stopped the unit and
+        why, and, when the stop could not be persisted, that a restart would forget it."""
+        if self.stop is None:
+            return None
+        reason = self.last_reason or "stopped"
+        if self.persist_error is None:
+            return reason
+        why = self.persist_error[:300]
+        note = f" [NOT PERSISTED ({why}): a restart of its agent would forget this stop]"
+        return reason[: STOP_REASON_CHARS - len(note)] + note
 
     def needs_resend(self, now_s: float) -> bool:
         """The stop should be written again: not yet confirmed by feedback (``done``) and the

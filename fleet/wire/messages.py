@@ -157,6 +157,10 @@ class Diag(Struct, frozen=True):
     bad_keys: Count = 0
     """Command queries on a key whose last chunk names no usable principal (``cmd/bob.smith``,
     ``cmd/*``): each answered 2001 and served no further."""
+    latch_failures: Count = 0
+    """Latched stops (or their removal at a reset) the agent could not write to disk (a full
+    disk, a refused symbolic link); while a unit's latest is unwritten its ``stop_reason``
+    says so."""
     dropped_events: Count = 0
     """Resets and heartbeat sources dropped at a full queue (a flood); stops are never dropped."""
     bad_stamps: Count = 0

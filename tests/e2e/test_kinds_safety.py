@@ -19,6 +19,7 @@ from typing import Any
 
 import pytest
 
+from edge_agent.latches import latch_dir
 from fleet.client import FleetClient
 from fleet.wire import keys
 from fleet.wire import messages as m
@@ -284,7 +285,8 @@ def test_latch_survives_an_agent_restart(fleet: FleetHarness, kind: Kind) -> Non
     # The latch is on disk once its file holds this stop (written just after the stop's DDS
     # write, on the agent's latches thread): a file of an earlier stop may still be there
     # while the reset in _ready is being written, and a kill then would lose this one.
-    latch_file = fleet.tmp_path / "state" / fleet.inventory.fleet / f"{kind.unit}.stop.json"
+    state = latch_dir(fleet.tmp_path / "state", fleet.inventory.fleet, fleet.domain)
+    latch_file = state / f"{kind.unit}.stop.json"
     stop_id = next(iter(acks.values())).stop_id  # type: ignore[union-attr]
 
     def on_disk() -> bool:
