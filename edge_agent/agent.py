@@ -50,6 +50,7 @@ from fleet.beat_limits import max_heartbeat_bytes
 from fleet.devices import kind_of
 from fleet.devices.envelope import Principals
 from fleet.devices.registry import served_kinds
+from fleet.devices.safety import ArmSafety
 from fleet.devices.served import CoreServices, KindSide
 from fleet.devices.unit import Outbox, Unit, UnitServer
 from fleet.guard import ThreadGuard
@@ -191,6 +192,7 @@ class EdgeAgent:
             self.stopping,
             (self._on_still, self._own_counts),
             self.reply_latencies_s,
+            self._safety_of,
         )
         for device in self.device_ids:
             self.devices.add(inventory, device, self.link)
@@ -241,6 +243,11 @@ class EdgeAgent:
     def _on_still(self, unit: str, out: Outbox) -> None:
         """A stopped unit was seen still: its ack (caller holds the lock)."""
         self.safety_loop.on_still(unit, out)
+
+    def _safety_of(self, unit: str) -> ArmSafety | None:
+        """The safety state of ``unit`` if this agent serves it (caller holds the lock)."""
+        served = self.units.get(unit)
+        return None if served is None else served.safety
 
     def _on_latch_written(self, unit: str, why: str | None) -> None:
         """The latches thread wrote ``unit``'s latch, or could not (``why``): its status says

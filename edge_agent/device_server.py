@@ -14,6 +14,7 @@ from __future__ import annotations
 import collections
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import zenoh
@@ -26,7 +27,7 @@ from fleet.devices.base import DeviceReply, Release
 from fleet.devices.driver import DeviceDriver, Refusal, error_reply
 from fleet.devices.envelope import Principals, check_lease, check_order, release
 from fleet.devices.ordering import CommandOrder
-from fleet.devices.safety import ArmSafety
+from fleet.devices.safety import ArmSafety, LeaseRefused
 from fleet.devices.served import OnStill, OwnCounts
 from fleet.devices.unit import IncomingQuery, Later, Outbox, owner_of
 from fleet.inventory import Inventory
@@ -66,6 +67,7 @@ class DeviceServer:
         stopping: threading.Event,
         hooks: tuple[OnStill, OwnCounts],
         reply_latencies_s: collections.deque[float],
+        safety_of: Callable[[str], ArmSafety | None] = lambda _unit: None,
     ) -> None:
         self._lock = lock
         self._locks = locks
@@ -74,6 +76,9 @@ class DeviceServer:
         self._stopping = stopping
         self._on_still, self._own_counts = hooks
         self._latencies = reply_latencies_s
+        self._safety_of = safety_of
+        """The safety state of a unit the agent serves (None: not served here): the arm a
+        device is mounted on, whose lease covers the device."""
         self.slots: dict[str, DeviceSlot] = {}
         self.threads: list[threading.Thread] = []
 
@@ -179,7 +184,8 @@ class DeviceServer:
                 check_order(label, slot.order, principal, owner, command)
                 exempt = driver.allowed_while_latched(command) and slot.safety.latched
                 if not exempt:
-                    check_lease(label, slot.safety, owner, command.takeover, now)
+                    takeover = self._arm_owner_commands(slot, label, owner, command.takeover, now)
+                    check_lease(label, slot.safety, owner, takeover or command.takeover, now)
                 if (
                     driver.moves(command)
                     and owner is not None
@@ -202,6 +208,26 @@ class DeviceServer:
             return
         if reply is not None:
             self._reply(item, reply, now)
+
+    def _arm_owner_commands(
+        self, slot: DeviceSlot, label: str, owner: str | None, takeover: bool, now: float
+    ) -> bool:
+        """An arm's lease covers the device mounted on it (caller holds the lock): while
+        another owner holds the arm, the device refuses ``owner`` (3207) unless it takes over;
+        True when ``owner`` holds the arm (it may command the device whoever holds the
+        device's own lease). An arm this agent does not serve covers nothing here."""
+        arm = self._safety_of(slot.mount) if slot.mount else None
+        holder = None if arm is None else arm.holder(now)
+        if holder is None:
+            return False
+        if holder.owner == owner:
+            return True
+        if not takeover:
+            refused = LeaseRefused(holder.owner, holder.expires_s - now)
+            raise Refusal(
+                ErrorCode.LEASE_EXISTS, f"{label} is mounted on arm {slot.mount!r}, {refused}"
+            )
+        return False
 
     def busy(self, item: IncomingQuery, why: str) -> None:
         """Answer a query the inbox could not queue (called on the Zenoh thread)."""

@@ -330,6 +330,32 @@ def test_an_arm_stop_stops_the_gripper_mounted_on_it(client: FleetClient) -> Non
     assert send(client, gripper, gripper.moves()).ok
 
 
+def test_an_arms_lease_covers_the_gripper_mounted_on_it(client: FleetClient) -> None:
+    """While alice holds arm a1, the gripper mounted on it refuses bob (and anonymous
+    motion) as the arm would, takeover aside; alice may command it even though bob took the
+    gripper's own lease first; once she releases the arm, the gripper's own lease rules again.
+    Before, bob closed the gripper in the hand of an arm alice was moving."""
+    arm, gripper = (next(k for k in KINDS if k.name == name) for name in ("arm", "gripper"))
+    _ready(client, arm)
+    _ready(client, gripper)
+    assert send(client, gripper, with_envelope(gripper.moves(), owner="bob")).ok
+    assert send(client, gripper, release(gripper, "bob")).ok
+    assert send(client, gripper, with_envelope(gripper.moves(), owner="bob")).ok  # bob's lease
+    assert send(client, arm, with_envelope(arm.moves(), owner="alice")).ok
+    try:
+        for owner in ("bob", None):
+            refused = send(client, gripper, with_envelope(gripper.moves(), owner=owner))
+            assert not refused.ok and refused.code == ErrorCode.LEASE_EXISTS, (owner, refused)
+            assert "mounted on arm 'a1'" in refused.message and "alice" in refused.message
+        assert send(client, gripper, with_envelope(gripper.moves(), owner="alice")).ok
+        bob = send(client, gripper, with_envelope(gripper.moves(), owner="bob", takeover=True))
+        assert bob.ok, bob  # an explicit takeover of the gripper, as for any unit
+    finally:
+        assert send(client, arm, release(arm, "alice")).ok
+    assert send(client, gripper, with_envelope(gripper.moves(), owner="bob")).ok
+    assert send(client, gripper, release(gripper, "bob")).ok
+
+
 def test_one_process_serves_every_kind_with_metrics_and_info(fleet: FleetHarness) -> None:
     """The one agent's metrics cover each device; its info/ lists every robot it serves."""
     from fleet.wire.info import query_info
