@@ -15,7 +15,7 @@ import msgspec
 
 from fleet.client import FleetClient, default_source
 from fleet.devices import kind_of
-from fleet.inventory import Inventory
+from fleet.inventory import Inventory, InventoryError
 from fleet.runtime import inventory_from_args
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
@@ -185,9 +185,27 @@ def _send(args: argparse.Namespace, command: m.ArmCommand) -> int:
 
 
 def device_id(inventory: Inventory, target: str) -> str | None:
-    """The device ``target`` names (``gl`` or ``gripper/gl``), or None when it names none."""
-    name = target.rpartition("/")[2]
-    return name if name in inventory.devices else None
+    """The device ``target`` names (``gl``, or ``gripper/gl`` with its own kind's word), or
+    None when it names none."""
+    kind, _, name = target.rpartition("/")
+    if name not in inventory.devices:
+        return None
+    return name if kind in ("", kind_of(inventory.device(name)).key) else None
+
+
+def unit_id(inventory: Inventory, target: str) -> str:
+    """The arm or device ``target`` names: ``a1`` or ``arm/a1``, ``gl`` or ``gripper/gl`` (the
+    way stops and statuses name them); InventoryError naming the known units otherwise."""
+    device = device_id(inventory, target)
+    if device is not None:
+        return device
+    kind, _, name = target.rpartition("/")
+    if kind in ("", keys.ARM) and name in inventory.arms:
+        return name
+    labels = [*inventory.arms, *(f"{kind_of(d).key}/{d.id}" for d in inventory.devices.values())]
+    raise InventoryError(
+        f"{inventory.path}: no arm or device {target!r} (known: {', '.join(labels) or 'none'})"
+    )
 
 
 def _send_device(args: argparse.Namespace, inventory: Inventory, device: str) -> int:

@@ -7,7 +7,7 @@ import sys
 import time
 from collections.abc import Callable
 
-from fleet.cli.arm_commands import device_id
+from fleet.cli.arm_commands import unit_id
 from fleet.client import FleetClient
 from fleet.runtime import inventory_from_args
 
@@ -22,7 +22,9 @@ def register(
         "the devices mounted on it)",
     )
     add_common(estop)
-    estop.add_argument("arm", nargs="?", default=None)
+    estop.add_argument(
+        "arm", nargs="?", default=None, help="an arm or device (a1, gl, or gripper/gl)"
+    )
     estop.add_argument("--reason", default="")
     estop.add_argument("--timeout", type=float, default=3.0, help="seconds to wait for standstill")
     estop.set_defaults(run=run_estop)
@@ -46,8 +48,9 @@ def _ms(later: int | None, earlier: int) -> str:
 def run_estop(args: argparse.Namespace) -> int:
     """Stop, then print per arm the times to receipt, DDS write and standstill."""
     inventory = inventory_from_args(args)
-    targets = [args.arm] if args.arm else list(inventory.arms)
-    for device in [args.arm] if args.arm in inventory.devices else list(inventory.devices):
+    target = None if args.arm is None else unit_id(inventory, args.arm)
+    targets = [target] if target else list(inventory.arms)
+    for device in [target] if target in inventory.devices else list(inventory.devices):
         if getattr(inventory.device(device), "stop_action", "") == "damp":
             print(
                 f"WARNING: {device}'s stop action is damp: a damped G1 sinks to the ground "
@@ -64,7 +67,7 @@ def run_estop(args: argparse.Namespace) -> int:
             )
     with FleetClient(inventory, connect_timeout_s=args.connect_timeout) as client:
         sent_ns = time.time_ns()
-        acks = client.estop(args.arm, reason=args.reason, timeout_s=args.timeout)
+        acks = client.estop(target, reason=args.reason, timeout_s=args.timeout)
     missing = [arm for arm, ack in acks.items() if ack is None]
     for arm, ack in acks.items():
         if ack is None:
@@ -96,9 +99,7 @@ def run_reset(args: argparse.Namespace) -> int:
     """Put a reset; print what it did to each unit it reached. Exit 0 when every one was
     released or not stopped, 1 when one is still stopped, 3 when one did not answer."""
     inventory = inventory_from_args(args)
-    target = args.arm
-    if target is not None:
-        target = device_id(inventory, target) or inventory.arm(target).id
+    target = None if args.arm is None else unit_id(inventory, args.arm)
     with FleetClient(inventory, connect_timeout_s=args.connect_timeout) as client:
         answers = client.reset_and_report(target, timeout_s=args.timeout)
     for unit, ack in answers.items():

@@ -11,6 +11,8 @@ from __future__ import annotations
 import json
 import random
 import signal
+import subprocess
+import sys
 import threading
 import time
 import uuid
@@ -354,6 +356,38 @@ def test_an_arms_lease_covers_the_gripper_mounted_on_it(client: FleetClient) -> 
         assert send(client, arm, release(arm, "alice")).ok
     assert send(client, gripper, with_envelope(gripper.moves(), owner="bob")).ok
     assert send(client, gripper, release(gripper, "bob")).ok
+
+
+@pytest.mark.parametrize("kind", KINDS, ids=KIND_IDS)
+def test_the_cli_stops_and_resets_a_unit_named_by_kind(fleet: FleetHarness, kind: Kind) -> None:
+    """``fleet estop gripper/gl`` (as stops and statuses name a unit; ``arm/a1``, ``g1/h1``
+    alike) stops that unit only, and ``fleet reset`` takes the same name. Before, the estop
+    looked for an arm named ``gripper/gl`` and failed."""
+    client = fleet.client()
+    watch = _ready(client, kind)
+    label = f"{kind.name}/{kind.unit}"
+
+    def cli(*argv: str) -> subprocess.CompletedProcess[str]:
+        command = [sys.executable, "-m", "fleet.cli.main", *argv]
+        return subprocess.run(
+            [*command, "--inventory", str(fleet.inventory_path)],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+
+    stopped = cli("estop", label, "--reason", "named by kind")
+    assert stopped.returncode == 0, stopped.stdout + stopped.stderr
+    shown = "a1" if kind.is_arm else label
+    assert f"{shown}: stopped" in stopped.stdout, stopped.stdout
+    wait_until(lambda: watch.estopped() is True and "named by kind" in watch.reason(), 5.0)
+    reset = cli("reset", label)
+    assert reset.returncode == 0, reset.stdout + reset.stderr
+    wait_until(lambda: watch.estopped() is False, 5.0)
+    wrong = "g1" if kind.name == "gripper" else "gripper"
+    refused = cli("estop", f"{wrong}/{kind.unit}")
+    assert refused.returncode != 0 and "no arm or device" in refused.stderr, refused.stderr
+    assert watch.estopped() is False
 
 
 def test_one_process_serves_every_kind_with_metrics_and_info(fleet: FleetHarness) -> None:
