@@ -16,12 +16,12 @@ waits for a slow ROS subscriber. That is what zenoh's own ``z_pong`` does, it co
 microseconds per sample, and it saves the hand-off to a thread of ours that made up most of
 the added latency on a loaded host (issue 27: 7.2 ms p50 at load 5-6 with a ``ros2`` thread
 and numpy kinematics per sample). Nothing there blocks or waits for the network. The
-``ros2-estop`` thread answers Trigger requests (a stop waits for the agents' acks: it must not
-stall joint states). Bad samples are counted (``bad``); bad requests (no or a malformed
-attachment, a payload that is no Trigger request, a flood) are counted in ``bad_requests``
-and refused or dropped; nothing dies of them. Shutdown: undeclare the queryables and
-subscribers -> stop the thread -> undeclare tokens and publishers -> close the session (if
-ours).
+``ros2-estop`` thread puts each Trigger request's stop as it arrives, and a pool of
+``ros2-stop`` workers answers them side by side (a stop waits for the agents' acks: it must not
+stall joint states, nor the stops called after it). Bad samples are counted (``bad``); bad
+requests (no or a malformed attachment, a payload that is no Trigger request, a flood) are
+counted in ``bad_requests`` and refused or dropped; nothing dies of them. Shutdown: see
+``Ros2Node.close``.
 """
 
 from __future__ import annotations
@@ -32,6 +32,7 @@ import logging
 import threading
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -55,6 +56,9 @@ log = logging.getLogger("fleet.ros2")
 NODE_NAME = "d1_fleet"
 REQUEST_DEPTH = 64
 """Trigger requests waiting for the stop thread; more are dropped and counted (a flood)."""
+STOP_WORKERS = 16
+"""Trigger requests waiting for their acks at once; more wait for a worker to answer them
+(their stops are put all the same, on arrival)."""
 STOP_TIMEOUT_S = 3.0
 TF_REFRESH_NS = 1_000_000_000
 """An arm at rest: its /tf once a second (tf2 keeps 10 s of history: RViz never loses it)."""
@@ -153,6 +157,7 @@ class Ros2Node:
             if self._own_session:
                 self.session.close()
             raise
+        self._workers = ThreadPoolExecutor(STOP_WORKERS, thread_name_prefix="ros2-stop")
         self._threads = [self.guard.thread(self._serve_stops, "ros2-estop")]
         for thread in self._threads:
             thread.start()
@@ -359,43 +364,60 @@ class Ros2Node:
     # ------------------------------------------------------------------ stops
 
     def _serve_stops(self) -> None:
+        """The ``ros2-estop`` thread: each request's stop is put at once, in arrival order;
+        waiting for its acks and replying happen on the ``ros2-stop`` workers, side by side
+        (one after another, ten calls to a unit whose agent is down held a fleet stop behind
+        them for ten ack timeouts: 30 s)."""
         while not self._stop.is_set():
             if not self._requests:
                 self._wake.wait(0.1)
                 self._wake.clear()
                 continue
             unit, query = self._requests.popleft()
-            try:
-                self._answer(unit, query)
-            finally:
+            answer = self._start(unit, query)
+            if answer is None:
                 query.drop()
+            else:
+                self._workers.submit(self.guard.wrap(answer, "ros2-stop"))
 
-    def _answer(self, unit: str | None, query: zenoh.Query) -> None:
+    def _start(self, unit: str | None, query: zenoh.Query) -> Callable[[], None] | None:
+        """Check a Trigger request and put its stop; what answers it (None: nothing to
+        answer: no client GID or sequence number to address a reply to)."""
         attachment = query.attachment
         try:
             request = c.decode_attachment(None if attachment is None else attachment.to_bytes())
         except c.AttachmentError as exc:
-            # No client GID or sequence number: nothing to address a reply to.
             self.bad_requests += 1
             log.warning("ignored a Trigger request on %s: %s", query.key_expr, exc)
-            return
+            return None
         payload = query.payload
         reply_to = c.Attachment(request.sequence, time.time_ns(), request.gid).encode()
         if payload is None or not msg.trigger_request_ok(payload.to_bytes()):
             self.bad_requests += 1
-            response = msg.trigger_response(False, "refused: not a std_srvs/srv/Trigger request")
-        else:
-            response = msg.trigger_response(*self._stop_unit(unit))
-        query.reply(query.key_expr, response, attachment=reply_to)
-
-    def _stop_unit(self, unit: str | None) -> tuple[bool, str]:
-        """Issue the fleet's protective stop (the whole fleet, or one arm or device) and wait
-        for the agents' acks."""
+            refused = msg.trigger_response(False, "refused: not a std_srvs/srv/Trigger request")
+            return lambda: self._reply(query, refused, reply_to)
         self.stops += 1
         source = f"ros2:{self.inventory.principal}"
-        acks = self.client.estop(
-            unit, reason="ROS 2 Trigger", source=source, timeout_s=STOP_TIMEOUT_S, wait_still=False
-        )
+        stop = self.client.stop_request(reason="ROS 2 Trigger", source=source)
+        self.client.put_stop(stop, unit)  # acted on now, whatever the workers are waiting for
+
+        def answer() -> None:
+            response = msg.trigger_response(*self._stop_unit(unit, stop))
+            self._reply(query, response, reply_to)
+
+        return answer
+
+    @staticmethod
+    def _reply(query: zenoh.Query, response: bytes, reply_to: bytes) -> None:
+        try:
+            query.reply(query.key_expr, response, attachment=reply_to)
+        finally:
+            query.drop()  # type: ignore[no-untyped-call]
+
+    def _stop_unit(self, unit: str | None, stop: Any) -> tuple[bool, str]:
+        """Wait for the agents' acks of ``stop``, already put (the whole fleet's, or one arm's
+        or device's), repeating it as every client does."""
+        acks = self.client.estop(unit, timeout_s=STOP_TIMEOUT_S, wait_still=False, request=stop)
         missing = sorted(name for name, ack in acks.items() if ack is None)
         done = sorted(name for name, ack in acks.items() if ack is not None)
         if missing:
@@ -406,8 +428,9 @@ class Ros2Node:
     # ------------------------------------------------------------------ shutdown
 
     def close(self) -> None:
-        """Undeclare queryables and subscribers -> stop the thread -> undeclare tokens and
-        publishers -> close the session if ours (idempotent)."""
+        """Undeclare queryables and subscribers -> stop the thread -> let the workers answer
+        the stops they wait for (each within STOP_TIMEOUT_S; those not started are dropped)
+        -> undeclare tokens and publishers -> close the session if ours (idempotent)."""
         if self._closed:
             return
         self._closed = True
@@ -420,6 +443,7 @@ class Ros2Node:
         for thread in self._threads:
             if thread.is_alive():
                 thread.join(timeout=STOP_TIMEOUT_S + 2.0)
+        self._workers.shutdown(wait=True, cancel_futures=True)
         publishers = [self._tf, self._tf_static]
         publishers += [p for u in self.units.values() for p in u.publishers.values()]
         for p in publishers:

@@ -14,6 +14,7 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Any
 
+import pytest
 import zenoh
 import zenoh.ext
 from pamoja import ros2 as pamoja
@@ -401,3 +402,69 @@ def test_humble_keys_and_tokens_carry_no_type_hash(tmp_path: Path) -> None:
             assert text.data == URDF.read_text()
         finally:
             peer.close()
+
+
+@pytest.mark.timing
+def test_a_stop_call_never_waits_behind_other_calls(tmp_path: Path) -> None:
+    """Ten calls of a2's stop service, whose agent is down (each waits the 3 s ack timeout
+    for an ack that never comes), then one of the fleet's: the fleet's stop reaches a1 at once
+    and is answered within one ack timeout. Served one after another, it waited behind the ten
+    (measured: 30 s before its stop was even put)."""
+    extra = '[ros2]\nestop_callers = ["operator"]\n'
+    with FleetHarness(tmp_path, arms=2, extra=extra) as harness:
+        harness.start_router()
+        harness.start_sim()
+        harness.start_agent("a1")  # a2 has no agent: its stop is never acknowledged
+        harness.start("ros2", ["-m", "fleet.cli.main", "ros2"])
+        client = harness.client()
+        wait_until(lambda: (s := client.snapshot(["a1"])["a1"][0]) and s.link == "ok", 30.0)
+        peer = open_client([harness.endpoint])
+        acks: list[float] = []
+        sub = peer.declare_subscriber(
+            f"fleet/test/arm/a1/{keys.ESTOP_ACK}", lambda _s: acks.append(time.monotonic())
+        )
+        try:
+            _check_stop_calls_side_by_side(peer, acks)
+        finally:
+            sub.undeclare()
+            peer.close()
+
+
+def _check_stop_calls_side_by_side(peer: zenoh.Session, acks: list[float]) -> None:
+    def served() -> bool:
+        found = [str(r.ok.key_expr) for r in peer.liveliness().get("@ros2_lv/0/**") if r.ok]
+        services = {p["topic"] for p in map(parse_token, found) if p["kind"] == "SS"}
+        return {"%test%estop", "%test%a2%estop"} <= services
+
+    wait_until(served, 30.0)
+    trigger = "std_srvs/srv/Trigger"
+    request = b"\x00\x01\x00\x00\x00"
+    options: dict[str, Any] = {"target": zenoh.QueryTarget.ALL_COMPLETE, "timeout": 45.0}
+    options["payload"] = request
+
+    def good(seq: int) -> bytes:
+        return struct.pack("<qqB16s", seq, time.time_ns(), 16, bytes(range(16)))
+
+    slow = [
+        peer.get(ros_key("/test/a2/estop", trigger), attachment=good(i), **options)
+        for i in range(10)
+    ]
+    # Pacing: the ten calls are made before the fleet's, 0.5 s earlier (each reaches the node
+    # in milliseconds; at once, the fleet's call could arrive between them on its own thread).
+    time.sleep(0.5)
+    started = time.monotonic()
+    fleet = peer.get(ros_key("/test/estop", trigger), attachment=good(99), **options)
+    replies = [r for r in fleet if r.ok is not None]
+    answered_s = time.monotonic() - started
+    stopped_s = (acks[0] - started) if acks else None
+    print(
+        f"fleet stop behind 10 calls: a1 acked after {stopped_s} s, "
+        f"answered after {answered_s:.2f} s"
+    )
+    assert replies, "the fleet's stop call was never answered"
+    answer = STORE.deserialize_cdr(replies[0].ok.payload.to_bytes(), TRIGGER_RESPONSE)
+    assert "no ack from a2" in answer.message, answer
+    assert stopped_s is not None and stopped_s < 1.0, stopped_s
+    assert answered_s < 3.0 + 2.0, answered_s  # one ack timeout (a2's), not eleven
+    for handler in slow:  # each answered, none lost
+        assert [r for r in handler if r.ok is not None], "a call of a2's stop went unanswered"
