@@ -71,7 +71,8 @@ class InboxCounters:
     bad_stamps: int = 0
     """Stops and resets stamped far ahead of this host's clock (``STAMP_AHEAD_LIMIT_S``)."""
     bad_keys: int = 0
-    """Command queries on a key naming no usable principal (refused by the unit's server)."""
+    """Command queries (refused by the unit's server) and heartbeats (ignored) on a key naming
+    no usable principal."""
     stop_copies: dict[bool, int] = field(default_factory=lambda: {False: 0, True: 0})
     """Stop copies received, per path (True: the datagram path)."""
     beat_copies: dict[bool, int] = field(default_factory=lambda: {False: 0, True: 0})
@@ -149,14 +150,16 @@ class SafetyInbox:
                 self.counters.dropped_events += 1
         if refused:
             return None
+        if principal is None:  # heartbeat/bob.smith: no principal the watchdog could watch
+            with self._lock:
+                self.counters.bad_keys += 1
+            return None
         try:
             beat = payloads.HEARTBEAT.decode(data if isinstance(data, bytes) else data.to_bytes())
         except payloads.PayloadError:
             with self._lock:
                 self.counters.bad_payloads += 1
             return None
-        if principal is None:
-            return None  # not a heartbeat key (cannot happen on heartbeat/*)
         with self._lock:
             source = owner_of(principal, beat.coordinator)
             if (

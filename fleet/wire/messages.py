@@ -156,7 +156,8 @@ class Diag(Struct, frozen=True):
     """Commands answered 3205 "busy" at once because the agent's command queue was full."""
     bad_keys: Count = 0
     """Command queries on a key whose last chunk names no usable principal (``cmd/bob.smith``,
-    ``cmd/*``): each answered 2001 and served no further."""
+    ``cmd/*``): each answered 2001 and served no further; and heartbeats on such a key
+    (``heartbeat/bob.smith``: ignored)."""
     latch_failures: Count = 0
     """Latched stops (or their removal at a reset) the agent could not write to disk (a full
     disk, a refused symbolic link); while a unit's latest is unwritten its ``stop_reason``

@@ -468,6 +468,19 @@ def _bad_keys(client: FleetClient, unit: str) -> int | None:
     return None if data is None else DIAG.decode(data).bad_keys
 
 
+def _counted_bad_keys(client: FleetClient, unit: str) -> int:
+    """The count in ``unit``'s next diag."""
+    counts: list[int] = []
+
+    def diag_arrived() -> bool:
+        count = _bad_keys(client, unit)
+        counts.extend([] if count is None else [count])
+        return bool(counts)
+
+    wait_until(diag_arrived, 10.0)
+    return counts[0]
+
+
 @pytest.mark.parametrize("kind", KINDS, ids=KIND_IDS)
 def test_a_command_key_naming_no_principal_is_answered_and_counted(
     kinds_fleet: FleetHarness, kind: Kind
@@ -479,14 +492,7 @@ def test_a_command_key_naming_no_principal_is_answered_and_counted(
     harness = kinds_fleet
     client = harness.client()
     client.reset(kind.unit)
-    counted: list[int | None] = [None]
-
-    def counts() -> bool:
-        counted[0] = _bad_keys(client, kind.unit)
-        return counted[0] is not None
-
-    wait_until(counts, 10.0)
-    before = counted[0] or 0
+    before = _counted_bad_keys(client, kind.unit)
     payload = m.encode(client.stamp(kind.moves()))
     for name, chunk in HOSTILE_CHUNKS.items():
         key = f"{client.unit_key(kind.unit, keys.CMD)}/{chunk}"
@@ -530,6 +536,19 @@ def test_hostile_keys_on_every_queryable_end_no_process(kinds_fleet: FleetHarnes
         return diag.bad_keys >= len(HOSTILE_CHUNKS)  # type: ignore[attr-defined]
 
     wait_until(coordinator_counted, 10.0)
+    # Heartbeats on keys naming no principal: ignored, and counted by the agent.
+    before = _counted_bad_keys(client, "a1")
+    concrete = [c for c in HOSTILE_CHUNKS.values() if "*" not in c]
+    beat = m.encode(m.Heartbeat(time.time_ns(), "hostile", 1, 0.1, {}))
+    for chunk in concrete:
+        put(client, f"{prefix}/{keys.HEARTBEAT}/{chunk}", beat, every_one=True)
+    wait_until(lambda: (_bad_keys(client, "a1") or 0) >= before + len(concrete), 10.0)
+    # The fleet still stops, and after a reset still serves, every kind.
+    watches = [LatchWatch(client, kind) for kind in KINDS]
+    acks = client.estop(timeout_s=5.0, wait_still=False)
+    assert all(ack is not None for ack in acks.values()), acks
+    client.reset()
+    wait_until(lambda: all(w.estopped() is False for w in watches), 10.0)
     for kind in KINDS:
         assert send(client, kind, kind.moves()).ok, kind
     assert all(code is None for code in alive(harness).values()), alive(harness)
