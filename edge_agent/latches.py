@@ -18,7 +18,8 @@ are opened with ``O_NOFOLLOW`` (a link there refuses to start the agent: ``Latch
 and every file operation is relative to that directory's descriptor, again with ``O_NOFOLLOW``,
 so whoever can write the state directory cannot make the agent write a file elsewhere. A write
 that fails (a full disk, a refused link) is logged, counted (``failures``, in every unit's
-diag) and reported to ``on_outcome``: the unit's status then says its stop is not persisted.
+diag) and reported to ``on_outcome``: the unit's status then says its stop is not persisted,
+until a retry (every ``RETRY_S``) writes it.
 
 Writing happens on a ``latches`` thread of its own (a synced write takes milliseconds, and a
 flood of stops must not make the safety thread wait on the disk): ``remember``/``forget`` only
@@ -47,6 +48,8 @@ log = logging.getLogger("edge_agent.latches")
 STATE_ENV = "D1_FLEET_STATE_DIR"
 MAX_LATCH_BYTES = 64 * 1024
 """A latched stop is one small StopRequest: a bigger file is refused (and latches anyway)."""
+RETRY_S = 0.5
+"""A latch the disk could not hold is written again this often until it is (or is reset)."""
 _DIR_FLAGS = os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW | os.O_CLOEXEC
 _NEW_FILE_FLAGS = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC
 
@@ -123,6 +126,7 @@ class LatchStore:
         """Latch writes and removals that failed (read by the diag without a lock: an int)."""
         self._lock = threading.Lock()
         self._pending: dict[str, m.StopRequest | None] = {}  # unit -> latched stop, None: reset
+        self._unwritten: dict[str, m.StopRequest] = {}  # latches the disk could not hold yet
         self._wake = threading.Event()
         self._closing = threading.Event()
         self._closed = False
@@ -142,13 +146,15 @@ class LatchStore:
 
     def _run(self) -> None:
         while not self._closing.is_set():
-            self._wake.wait(0.5)
+            self._wake.wait(RETRY_S)
             self._wake.clear()
             self._write_pending()
 
     def _write_pending(self) -> None:
         with self._lock:
             pending, self._pending = self._pending, {}
+            for unit, request in self._unwritten.items():  # tried again, unless superseded
+                pending.setdefault(unit, request)
         for unit, request in pending.items():
             if request is None:
                 self.clear(unit)
@@ -220,9 +226,15 @@ class LatchStore:
         """Remember that ``request`` is latched on ``unit`` (atomic, synced); a failure is
         counted and reported."""
         why = self._write(unit, m.encode(request))
-        if why is not None:
+        with self._lock:
+            again = self._unwritten.get(unit) == request
+            if why is None:
+                self._unwritten.pop(unit, None)
+            else:
+                self._unwritten[unit] = request
+        if why is not None and not again:  # counted and logged once per stop, not per retry
             self.failures += 1
-            log.error("%s: could not persist its latched stop (%s)", unit, why)
+            log.error("%s: could not persist its latched stop (%s); retrying", unit, why)
         self._on_outcome(unit, why)
 
     def _write(self, unit: str, data: bytes) -> str | None:
@@ -251,6 +263,8 @@ class LatchStore:
     def clear(self, unit: str) -> None:
         """``unit`` was reset: its file goes, and an older agent's (a failure is counted: a
         restart would latch the unit again, the safe side)."""
+        with self._lock:
+            self._unwritten.pop(unit, None)
         self._unlink(unit, self._fd)
         self._unlink(unit, self._legacy_fd)
         self._on_outcome(unit, None)
