@@ -143,5 +143,12 @@ HOSTILE_CHUNKS: dict[str, str] = {
 """Last chunks of a command key that name no usable principal, though Zenoh accepts each
 (``keys.is_name`` refuses them). A reply on ``.../cmd/unknown`` does not match most of them:
 before the fix each such query made the agent's reply raise, and the agent exit."""
-EMPTY_CHUNKS = ("{unit}//bob", "{unit}/cmd//bob", "{unit}/cmd/bob/")
-"""Key expressions Zenoh itself refuses (empty chunks, a trailing slash): never sent."""
+INVALID_KEYS = (
+    "{unit}//bob",
+    "{unit}/cmd//bob",
+    "{unit}/cmd/bob/",
+    "{unit}/cmd/$*",
+    "{unit}/cmd/b#b",
+)
+"""Key expressions Zenoh itself refuses (empty chunks, a trailing slash, a lone ``$*``, ``#``):
+never sent."""

@@ -23,8 +23,8 @@ from fleet.wire.payloads import DIAG
 from fleet.wire.session import close_bounded, open_client
 from testkit.harness import FleetHarness, free_port, wait_until
 from testkit.hostile import (
-    EMPTY_CHUNKS,
     HOSTILE_CHUNKS,
+    INVALID_KEYS,
     POISONS,
     ROUTER_DROPS,
     alive,
@@ -503,7 +503,7 @@ def test_a_command_key_naming_no_principal_is_answered_and_counted(
         assert error["code"] == ErrorCode.PARAMETER, (name, error)
         assert "principal" in str(error["message"]), (name, error)
         assert all(code is None for code in alive(harness).values()), (name, alive(harness))
-    for template in EMPTY_CHUNKS:  # Zenoh refuses these before they leave the process
+    for template in INVALID_KEYS:  # Zenoh refuses these before they leave the process
         with pytest.raises(zenoh.ZError):
             client.session.get(template.format(unit=client.unit_key(kind.unit, keys.CMD)[:-4]))
     sent = len(HOSTILE_CHUNKS)
