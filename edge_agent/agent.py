@@ -41,6 +41,7 @@ from edge_agent.device_server import DeviceServer
 from edge_agent.inbox import CommandInbox, InboxCounters, SafetyInbox
 from edge_agent.latches import LatchStore, default_state_dir
 from edge_agent.link import DdsLink
+from edge_agent.mount_leases import MountLeases
 from edge_agent.relay import ZenohRelay, principal_of
 from edge_agent.scheduler import SchedulerFull, StartScheduler
 from edge_agent.serving import CommandService
@@ -50,7 +51,7 @@ from fleet.beat_limits import max_heartbeat_bytes
 from fleet.devices import kind_of
 from fleet.devices.envelope import Principals
 from fleet.devices.registry import served_kinds
-from fleet.devices.safety import ArmSafety
+from fleet.devices.safety import Lease
 from fleet.devices.served import CoreServices, KindSide
 from fleet.devices.unit import Outbox, Unit, UnitServer
 from fleet.guard import ThreadGuard
@@ -103,6 +104,7 @@ class EdgeAgent:
         # drained by edge_agent/metrics.py; bounded, one append per reply).
         self.reply_latencies_s: collections.deque[float] = collections.deque(maxlen=10_000)
         units = len(inventory.arms) + len(inventory.devices)
+        self.mount_leases = MountLeases(self.counters)
         self.safety_inbox = SafetyInbox(self.counters, max_heartbeat_bytes(units))
         self.command_inbox = CommandInbox(
             self.counters, lambda item: self.commands.busy(item), principal_of
@@ -138,6 +140,7 @@ class EdgeAgent:
                 self.guard,
                 device_kinds,
                 [arm for arm in mounted if arm not in arm_ids],
+                self.mount_leases.on_status,
             )
         except BaseException:
             self.link.close()
@@ -192,7 +195,7 @@ class EdgeAgent:
             self.stopping,
             (self._on_still, self._own_counts),
             self.reply_latencies_s,
-            self._safety_of,
+            self._lease_of,
         )
         for device in self.device_ids:
             self.devices.add(inventory, device, self.link)
@@ -244,10 +247,13 @@ class EdgeAgent:
         """A stopped unit was seen still: its ack (caller holds the lock)."""
         self.safety_loop.on_still(unit, out)
 
-    def _safety_of(self, unit: str) -> ArmSafety | None:
-        """The safety state of ``unit`` if this agent serves it (caller holds the lock)."""
-        served = self.units.get(unit)
-        return None if served is None else served.safety
+    def _lease_of(self, arm: str, now: float) -> Lease | None:
+        """Who holds ``arm`` (caller holds the lock): its safety state if this agent serves it,
+        else its newest status."""
+        served = self.units.get(arm)
+        if served is None:
+            return self.mount_leases.holder(arm, now)
+        return served.safety.holder(now)
 
     def _on_latch_written(self, unit: str, why: str | None) -> None:
         """The latches thread wrote ``unit``'s latch, or could not (``why``): its status says

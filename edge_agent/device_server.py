@@ -27,7 +27,7 @@ from fleet.devices.base import DeviceReply, Release
 from fleet.devices.driver import DeviceDriver, Refusal, error_reply
 from fleet.devices.envelope import Principals, check_lease, check_order, release
 from fleet.devices.ordering import CommandOrder
-from fleet.devices.safety import ArmSafety, LeaseRefused
+from fleet.devices.safety import ArmSafety, Lease, LeaseRefused
 from fleet.devices.served import OnStill, OwnCounts
 from fleet.devices.unit import IncomingQuery, Later, Outbox, owner_of
 from fleet.inventory import Inventory
@@ -67,7 +67,7 @@ class DeviceServer:
         stopping: threading.Event,
         hooks: tuple[OnStill, OwnCounts],
         reply_latencies_s: collections.deque[float],
-        safety_of: Callable[[str], ArmSafety | None] = lambda _unit: None,
+        lease_of: Callable[[str, float], Lease | None] = lambda _arm, _now: None,
     ) -> None:
         self._lock = lock
         self._locks = locks
@@ -76,9 +76,9 @@ class DeviceServer:
         self._stopping = stopping
         self._on_still, self._own_counts = hooks
         self._latencies = reply_latencies_s
-        self._safety_of = safety_of
-        """The safety state of a unit the agent serves (None: not served here): the arm a
-        device is mounted on, whose lease covers the device."""
+        self._lease_of = lease_of
+        """Who holds an arm at a time (None: nobody): the arm a device is mounted on, whose
+        lease covers the device."""
         self.slots: dict[str, DeviceSlot] = {}
         self.threads: list[threading.Thread] = []
 
@@ -215,9 +215,8 @@ class DeviceServer:
         """An arm's lease covers the device mounted on it (caller holds the lock): while
         another owner holds the arm, the device refuses ``owner`` (3207) unless it takes over;
         True when ``owner`` holds the arm (it may command the device whoever holds the
-        device's own lease). An arm this agent does not serve covers nothing here."""
-        arm = self._safety_of(slot.mount) if slot.mount else None
-        holder = None if arm is None else arm.holder(now)
+        device's own lease). An arm served by another agent: by its newest status."""
+        holder = self._lease_of(slot.mount, now) if slot.mount else None
         if holder is None:
             return False
         if holder.owner == owner:

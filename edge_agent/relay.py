@@ -51,7 +51,8 @@ class ZenohRelay:
     """Declares everything an agent needs on the key space, for the arms and devices it serves.
 
     ``devices``: device id -> its kind's key word; ``mounts``: arms this agent does not serve
-    that devices it serves are mounted on (their stops and resets reach those devices too)."""
+    that devices it serves are mounted on (their stops and resets reach those devices too, and
+    their statuses go to ``on_mount_status``: their leases cover those devices)."""
 
     def __init__(
         self,
@@ -61,6 +62,7 @@ class ZenohRelay:
         guard: ThreadGuard,
         devices: dict[str, str] | None = None,
         mounts: list[str] | None = None,
+        on_mount_status: Callable[[str, bytes], None] | None = None,
     ) -> None:
         devices = devices or {}
         self.keys = keys.KeySpace(inventory.fleet)
@@ -107,6 +109,15 @@ class ZenohRelay:
             self._subscribers.append(sub(reset, on_reset(device)))
         for key, unit in stop_keys[1:]:
             self._subscribers.append(sub(key, on_stop(unit)))
+        if on_mount_status is not None:
+
+            def on_status(arm: str):  # type: ignore[no-untyped-def]
+                return direct(  # decode and store the newest: microseconds
+                    wrap(lambda s: on_mount_status(arm, s.payload.to_bytes()), "mount-status")
+                )
+
+            for arm in mounts or []:
+                self._subscribers.append(sub(self.keys.arm(arm, keys.STATUS), on_status(arm)))
         datagram, on_reliable_beat = self.datagram, on_heartbeat(False)
 
         def on_reliable_heartbeat(sample: zenoh.Sample) -> None:

@@ -17,6 +17,7 @@ import threading
 import time
 import uuid
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -356,6 +357,33 @@ def test_an_arms_lease_covers_the_gripper_mounted_on_it(client: FleetClient) -> 
         assert send(client, arm, release(arm, "alice")).ok
     assert send(client, gripper, with_envelope(gripper.moves(), owner="bob")).ok
     assert send(client, gripper, release(gripper, "bob")).ok
+
+
+def test_an_arms_lease_covers_its_gripper_served_by_another_agent(tmp_path: Path) -> None:
+    """The arm and its gripper each with an agent of its own: the gripper's agent learns the
+    arm's lease from the arm's status, and refuses bob while alice holds the arm."""
+    gripper_only = '[grippers.gl]\nfamily = "go"\nmount = "a1"\nsim_rate_hz = 100.0\n'
+    with FleetHarness(tmp_path, arms=1, extra=gripper_only) as harness:
+        harness.start_router()
+        harness.start_sim()
+        harness.start("arm-agent", ["-m", "edge_agent", "--arm", "a1"])
+        harness.start("gripper-agent", ["-m", "edge_agent", "--device", "gl"])
+        client = harness.client()
+        arm, gripper = (next(k for k in KINDS if k.name == name) for name in ("arm", "gripper"))
+        for kind in (arm, gripper):
+            wait_until(LatchWatch(client, kind).link_ok, 30.0)
+        assert send(client, arm, with_envelope(arm.moves(), owner="alice")).ok
+
+        def refused() -> bool:  # once the gripper's agent heard the arm's status since
+            bob = send(client, gripper, with_envelope(gripper.moves(), owner="bob"))
+            return not bob.ok and bob.code == ErrorCode.LEASE_EXISTS and "alice" in bob.message
+
+        wait_until(refused, 5.0)
+        assert send(client, gripper, with_envelope(gripper.moves(), owner="alice")).ok
+        assert send(client, arm, release(arm, "alice")).ok
+        wait_until(
+            lambda: send(client, gripper, with_envelope(gripper.moves(), owner="bob")).ok, 5.0
+        )
 
 
 @pytest.mark.parametrize("kind", KINDS, ids=KIND_IDS)
