@@ -55,7 +55,9 @@ log = logging.getLogger("fleet.ros2")
 
 NODE_NAME = "d1_fleet"
 REQUEST_DEPTH = 64
-"""Trigger requests waiting for the stop thread; more are dropped and counted (a flood)."""
+"""Trigger requests waiting for the stop thread, and again requests waiting for their answer;
+more are dropped and counted (a flood; a request dropped after its stop was put still
+stopped)."""
 STOP_WORKERS = 16
 """Trigger requests waiting for their acks at once; more wait for a worker to answer them
 (their stops are put all the same, on arrival)."""
@@ -158,6 +160,9 @@ class Ros2Node:
                 self.session.close()
             raise
         self._workers = ThreadPoolExecutor(STOP_WORKERS, thread_name_prefix="ros2-stop")
+        self._answering_lock = threading.Lock()
+        self._answering = 0
+        """Requests handed to the workers and not answered yet (at most REQUEST_DEPTH)."""
         self._threads = [self.guard.thread(self._serve_stops, "ros2-estop")]
         for thread in self._threads:
             thread.start()
@@ -377,8 +382,28 @@ class Ros2Node:
             answer = self._start(unit, query)
             if answer is None:
                 query.drop()
-            else:
-                self._workers.submit(self.guard.wrap(answer, "ros2-stop"))
+                continue
+            with self._answering_lock:
+                room = self._answering < REQUEST_DEPTH
+                if room:
+                    self._answering += 1
+            if room:
+                self._workers.submit(self.guard.wrap(self._answered(answer), "ros2-stop"))
+            else:  # a flood: its stop was put all the same; its answer is dropped, counted
+                self.bad_requests += 1
+                query.drop()
+
+    def _answered(self, answer: Callable[[], None]) -> Callable[[], None]:
+        """``answer``, then one request fewer being answered."""
+
+        def run() -> None:
+            try:
+                answer()
+            finally:
+                with self._answering_lock:
+                    self._answering -= 1
+
+        return run
 
     def _start(self, unit: str | None, query: zenoh.Query) -> Callable[[], None] | None:
         """Check a Trigger request and put its stop; what answers it (None: nothing to
