@@ -4,10 +4,11 @@ serves it and its own checks (seed 004's FSM states, joint limits, the distance 
 measured pose), its lease and its watchdog.
 
 A G1's arms are engaged before the synchronized start: the first target is the pose measured
-now, and the agent ramps the rt/arm_sdk weight 0 -> 1 over the G1's ``arm_engage_s`` while
-it holds that pose, so the robot does not move until the start. They are released at the end,
-on an abort and on a stop: ``arm_release`` ramps the weight 1 -> 0 over ``arm_release_s``
-(the agent does it itself on a stop, on its lease, and on the watchdog when the player dies).
+now, which the agent holds at weight 1 (or ramps the rt/arm_sdk weight 0 -> 1 over the G1's
+``arm_engage_s`` when it knows the robot's weight is 0), so the robot does not move until the
+start. They are released at the end and on an abort: ``arm_release`` ramps the weight 1 -> 0
+over ``arm_release_s``. On a stop, its lease or the watchdog when the player dies, the agent
+holds them where they are (``arm_on_stop``) until someone releases them.
 """
 
 from __future__ import annotations

@@ -23,6 +23,7 @@ from __future__ import annotations
 import itertools
 import logging
 import math
+import threading
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -75,6 +76,10 @@ RPC_QOS = Qos(
     Policy.History.KeepLast(16),
     Policy.Durability.Volatile,
 )
+ARM_READER_QOS = Qos(
+    Policy.Reliability.BestEffort, Policy.History.KeepLast(8), Policy.Durability.Volatile
+)
+"""rt/arm_sdk as others write it: the weight a previous writer left the robot holding."""
 ARM_WRITER_QOS = Qos(
     Policy.Reliability.Reliable(duration(milliseconds=5)),
     Policy.History.KeepLast(1),
@@ -131,14 +136,18 @@ class G1Driver(DriverBase):
             response = Topic(participant, loco.response_topic(service), idl.Response_)
             self.readers.append(DataReader(participant, response, qos=RPC_QOS))
             self._writers[service] = DataWriter(participant, request, qos=RPC_QOS)
-        # rt/lowstate (newest kept, checked when used) and the rt/arm_sdk stream.
+        # rt/lowstate (every sample checked, the newest good one kept), the rt/arm_sdk stream
+        # and a reader of rt/arm_sdk (what another writer left the robot holding).
         low = Topic(participant, arms.LOWSTATE_TOPIC, idl.LowState_)
         self._low_index = len(self.readers)
         self.readers.append(DataReader(participant, low, qos=STATE_READER_QOS))
         arm_topic = Topic(participant, arms.CMD_TOPIC, idl.LowCmd_)
         self._arm_writer = DataWriter(participant, arm_topic, qos=ARM_WRITER_QOS)
+        self._arm_seen_index = len(self.readers)
+        self.readers.append(DataReader(participant, arm_topic, qos=ARM_READER_QOS))
         self._arms = arms.ArmStream(arm_limits(config))
-        self._low_raw: tuple[idl.LowState_, float] | None = None
+        self._arms_off = threading.Event()
+        """Set while the arm stream is off (the agent's exit waits for it)."""
         self._low: tuple[idl.LowState_, list[float], float] | None = None
         self._next_arm_s = 0.0
         self._arm_messages = 0
@@ -157,18 +166,13 @@ class G1Driver(DriverBase):
     # ------------------------------------------------------------------ relay thread
 
     def on_data(self, index: int, now_s: float) -> None:
-        """State samples (newest kept; stop confirmation), rt/lowstate (newest kept, checked
-        when used) or RPC responses (matched by id)."""
+        """State samples (newest kept; stop confirmation), rt/lowstate (each checked, the
+        newest good one kept), rt/arm_sdk of other writers, or RPC responses (matched by id)."""
         if index == self._low_index:
-            newest, reader = None, self.readers[index]
-            for sample in reader.take(N=64):
-                if isinstance(sample, idl.LowState_) and self._own(
-                    reader, sample, arms.LOWSTATE_TOPIC, now_s
-                ):
-                    newest = sample
-            if newest is not None:
-                with self._lock:
-                    self._low_raw = (newest, now_s)
+            self._on_lowstate(now_s)
+            return
+        if index == self._arm_seen_index:
+            self._on_arm_sdk()
             return
         if index >= 1:
             self._on_responses(index)
@@ -260,8 +264,13 @@ class G1Driver(DriverBase):
         if message is not None:
             self._arm_writer.write(message)
         with self._lock:
-            if self._arms.active:
+            streaming = self._arms.active
+            if streaming:
                 next_s = min(next_s, self._next_arm_s)
+        if streaming:
+            self._arms_off.clear()
+        else:
+            self._arms_off.set()
         if state is not None:
             self._put(keys.STATE, m.encode(state), False)
         if low is not None:
@@ -312,34 +321,67 @@ class G1Driver(DriverBase):
             service_answered=self._probe.service in self._probe.answered,
             stop_detail=self._stop_detail if latched else None,
             arm_phase=self._arms.phase,
-            arm_weight=round(self._arms.weight, 3),
+            arm_weight=None if self._arms.weight is None else round(self._arms.weight, 3),
             arm_released=self._arms.why_released,
+            arm_held=self._arms.why_held,
             watched_by=watched_by,
         )
 
     # ------------------------------------------------------------------ the waist and arms
 
-    def _measured(self, now_s: float) -> list[float] | None:
-        """The 29 joint positions of the newest rt/lowstate, checked here (its CRC, finite,
-        near the limits: else counted bad, dropped), None when none is fresh. Checked when
-        used, not per sample: the robot sends 500 a second, the agent uses ~10."""
+    def _on_lowstate(self, now_s: float) -> None:
+        """Every rt/lowstate sample of the robot's own writer checked (its CRC, finite, near
+        the limits: else counted bad and dropped); the newest good one kept."""
+        reader, good, bad = self.readers[self._low_index], None, 0
+        for sample in reader.take(N=64):
+            if not isinstance(sample, idl.LowState_):
+                continue
+            if not self._own(reader, sample, arms.LOWSTATE_TOPIC, now_s):
+                continue
+            q = self._checked_q(sample)
+            if q is None:
+                bad += 1
+            else:
+                good = (sample, q, now_s)
         with self._lock:
-            raw, checked = self._low_raw, self._low
-        if raw is not None and (checked is None or raw[0] is not checked[0]):
-            sample, at_s = raw
-            q = [float(s.q) for s in sample.motor_state[: arms.MOTORS]]
-            good = sample.crc == low_state_crc(sample) and all(map(math.isfinite, q))
-            if good:
-                lo, hi = self._arms.limits.lower, self._arms.limits.upper
-                arm_q = q[arms.FIRST : arms.FIRST + arms.COUNT]
-                margin = LOWSTATE_MARGIN_RAD
-                good = all(a - margin <= v <= b + margin for v, a, b in zip(arm_q, lo, hi))
+            self._counts["bad_samples"] += bad
+            if good is not None:
+                self._low = good
+
+    def _checked_q(self, sample: idl.LowState_) -> list[float] | None:
+        """The 29 joint positions of a sound sample, None for a bad one."""
+        q = [float(s.q) for s in sample.motor_state[: arms.MOTORS]]
+        if sample.crc != low_state_crc(sample) or not all(map(math.isfinite, q)):
+            return None
+        lo, hi, margin = self._arms.limits.lower, self._arms.limits.upper, LOWSTATE_MARGIN_RAD
+        arm_q = q[arms.FIRST : arms.FIRST + arms.COUNT]
+        if not all(a - margin <= v <= b + margin for v, a, b in zip(arm_q, lo, hi, strict=True)):
+            return None
+        return q
+
+    def _on_arm_sdk(self) -> None:
+        """rt/arm_sdk as another writer (a previous agent, a script) sends it: while our
+        stream is off, the robot holds the weight of its newest sound message."""
+        reader, mine = self.readers[self._arm_seen_index], self._arm_writer.instance_handle
+        newest = None
+        for cmd in reader.take(N=64):
+            # (a message with a bad CRC the robot drops too)
+            if (
+                isinstance(cmd, idl.LowCmd_)
+                and cmd.sample_info.publication_handle != mine
+                and cmd.crc == low_cmd_crc(cmd)
+            ):
+                newest = float(cmd.motor_cmd[arms.WEIGHT_INDEX].q)
+        if newest is not None:
             with self._lock:
-                self._low_raw = None
-                if good:
-                    self._low = checked = (sample, q, at_s)
-                else:
-                    self._counts["bad_samples"] += 1
+                known = self._arms.weight
+                self._arms.seen(newest)
+                self._changed |= self._arms.weight != known
+
+    def _measured(self, now_s: float) -> list[float] | None:
+        """The 29 joint positions of the newest good rt/lowstate, None when none is fresh."""
+        with self._lock:
+            checked = self._low
         if checked is None or now_s - checked[2] > self.config.link_stale_s:
             return None
         return checked[1]
@@ -361,24 +403,22 @@ class G1Driver(DriverBase):
         )
 
     def _arm_step(self, now_s: float) -> idl.LowCmd_ | None:
-        """The next rt/arm_sdk message when one is due: the stream released first if the state
-        no longer allows it (stale, or an FSM seed 004 does not allow)."""
+        """The next rt/arm_sdk message when one is due. Without fresh sportmodestate the
+        stream is interrupted (held or released: ``arm_on_stop``); in an FSM seed 004 does not
+        allow, it ends (the robot ignores it)."""
         with self._lock:
             stream = self._arms
             if not stream.active or now_s < self._next_arm_s:
                 return None
-            latest = self._latest
+            latest, low = self._latest, self._low
         fresh = latest is not None and now_s - latest[1] <= self.config.link_stale_s
-        why = None
-        if not fresh:
-            why = f"no fresh {loco.STATE_TOPIC}"
-        elif latest is not None and latest[0].fsm_id not in loco.ARM_SDK_FSMS:
-            fsm = latest[0].fsm_id
-            why = f"fsm {fsm} {loco.fsm_name(fsm)} does not allow rt/arm_sdk (seed 004)"
         with self._lock:
-            if why is not None and stream.release(why):
-                self._changed = True
             phase = stream.phase
+            if not fresh:
+                stream.interrupt(f"no fresh {loco.STATE_TOPIC}")
+            elif latest is not None and latest[0].fsm_id not in loco.ARM_SDK_FSMS:
+                fsm = latest[0].fsm_id
+                stream.forget(f"fsm {fsm} {loco.fsm_name(fsm)} does not take rt/arm_sdk (seed 004)")
             step = stream.step(now_s)
             if stream.phase != phase:
                 self._changed = True
@@ -394,7 +434,9 @@ class G1Driver(DriverBase):
         for i, q in enumerate(q_cmd):
             motors[arms.FIRST + i] = idl.MotorCmd_(1, q, 0.0, 0.0, limits.kp[i], limits.kd[i], 0)
         motors[arms.WEIGHT_INDEX] = idl.MotorCmd_(1, weight, 0.0, 0.0, 0.0, 0.0, 0)
-        message = idl.LowCmd_(motor_cmd=motors)
+        # As Unitree's low-level example: the robot's mode_machine (its model) in every command.
+        mode_machine = 0 if low is None else int(low[0].mode_machine)
+        message = idl.LowCmd_(mode_machine=mode_machine, motor_cmd=motors)
         message.crc = low_cmd_crc(message)
         return message
 
@@ -402,8 +444,12 @@ class G1Driver(DriverBase):
         """A target (checked: seed 004's FSM states, limits, speed, distance from the measured
         pose) starts or steers the stream; a release ramps it down."""
         if isinstance(command, ArmRelease):
+            measured = self._measured(now_s)
+            arm_q = None if measured is None else measured[arms.FIRST : arms.FIRST + arms.COUNT]
             with self._lock:
-                self._changed |= self._arms.release("released by its owner")
+                if not self._arms.active:
+                    self._next_arm_s = now_s
+                self._changed |= self._arms.release("released by its owner", arm_q)
             return DeviceReply(ok=True, device=self.device)
         state = self._fresh_state(now_s)
         if state is None:
@@ -482,13 +528,7 @@ class G1Driver(DriverBase):
         always be activated."""
         with self._lock:
             targets = self._probe.targets
-            if self._arms.phase != "off":  # the arms back to the robot first
-                self._changed |= self._arms.release(f"stopped ({self.stop_action})")
-                weight = self._arms.weight
-                self._stop_detail = detail = (
-                    f"releasing the arms (weight {weight:.2f}), then {self.stop_action}"
-                )
-                return True, detail
+        # The stop action first, at once: the arms never delay it (they are handled beside).
         for service in targets:
             for call in loco.stop_calls(self.stop_action):
                 self._send(call, None, service)
@@ -499,7 +539,22 @@ class G1Driver(DriverBase):
             if self._stop_written_s is None:
                 self._stop_written_s, self._confirming = now_s, 0
             self._stop_detail = detail
+            # The arms held where they are (or released: ``arm_on_stop``), never moved.
+            self._changed |= self._arms.interrupt(f"stopped ({self.stop_action})")
         return True, detail
+
+    def leave(self, now_s: float) -> None:
+        """The agent exits: the arms go back to the robot's own controller (the weight ramped
+        to 0 over ``arm_release_s``) rather than stay held by a stream that is about to end."""
+        with self._lock:
+            if self._arms.release("the agent exits"):
+                self._changed = True
+
+    def wait_left(self) -> bool:
+        """Wait until the arm stream has ended (bounded: its release ramp, its tail and a
+        second); True if it has."""
+        ramp_s = self.config.arm_release_s + arms.TAIL_MESSAGES * arms.PERIOD_S
+        return self._arms_off.wait(ramp_s + 1.0)
 
     # ------------------------------------------------------------------ commands
 
