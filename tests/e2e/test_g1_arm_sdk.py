@@ -6,12 +6,12 @@ as the robot keeps a stream's weight when its writer goes away).
 
 Bad targets are refused with the reason and nothing reaches the robot; a new agent, not knowing
 the weight the robot holds, starts at weight 1 on the measured pose (Unitree's example) and
-copies the robot's mode_machine into every message; a fleet stop writes StopMove at once while
-the arms stream, and holds them where they are (weight kept) until an explicit release, which
-ramps 1 -> 0 over >= 3 s; a forbidden FSM refuses targets. An agent killed with the arms held
-and restarted takes them where they are (no drop of the weight); SIGTERM releases them before
-the agent exits. Every bad rt/lowstate sample is counted. The stream's jitter is measured at
-the receiver."""
+copies the robot's mode_machine into every message; a fleet stop writes StopMove (or damp) at
+once while the arms stream, and holds them where they are (weight kept) until an explicit
+release, which ramps 1 -> 0 over >= 3 s; a forbidden FSM refuses targets. An agent killed with
+the arms held and restarted takes them where they are (no drop of the weight); SIGTERM releases
+them before the agent exits. Every bad rt/lowstate sample is counted. The stream's jitter is
+measured at the receiver."""
 
 from __future__ import annotations
 
@@ -160,6 +160,36 @@ def test_arm_sdk_stream_to_a_fake_g1_on_unitrees_sdk(  # type: ignore[no-untyped
             reply.error is not None and "lock standing (4) and the walking" in reply.error.message
         )
         assert _arm_lines(harness)[before:] == []
+    finally:
+        states.close()
+        lows.close()
+
+
+def test_a_damp_stop_is_written_at_once_while_the_arms_stream(  # type: ignore[no-untyped-def]
+    tmp_path, closing: list[FleetHarness]
+) -> None:
+    harness = _fleet(tmp_path, "sport", "sport", "damp", "--arms")
+    closing.append(harness)
+    client = harness.client()
+    states, lows = _collectors(harness)
+    damp = (7101, '{"data": 1}')
+    try:
+        assert client.device_command("h1", ArmTarget(q_rad=_target(j0=0.3))).ok
+        wait_until(lambda: (s := states.latest()) is not None and s.arm_phase == "on", 5.0)
+        asked = time.monotonic()
+        client.estop(timeout_s=0.5)
+        wait_until(
+            lambda: damp in [(c["api_id"], c["parameter"]) for c in _calls(harness, "fake-g1")],
+            5.0,
+        )
+        call = next(c for c in _calls(harness, "fake-g1") if (c["api_id"], c["parameter"]) == damp)
+        latency_s = call["t"] - asked
+        print(f"stop -> damp {latency_s * 1000:.0f} ms while streaming")
+        assert latency_s < STOP_MOVE_GOAL_S, f"damp {latency_s:.3f} s after the stop"
+        # Damping takes no rt/arm_sdk: the stream ends, the weight it leaves is unknown.
+        wait_until(lambda: (s := states.latest()) is not None and s.arm_phase == "off", 3.0)
+        stopped = states.latest()
+        assert stopped is not None and stopped.arm_weight is None, stopped
     finally:
         states.close()
         lows.close()
