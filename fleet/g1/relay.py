@@ -450,7 +450,15 @@ class G1Driver(DriverBase):
                 if not self._arms.active:
                     self._next_arm_s = now_s
                 self._changed |= self._arms.release("released by its owner", arm_q)
-            return DeviceReply(ok=True, device=self.device)
+                phase, weight = self._arms.phase, self._arms.weight
+            result = None  # said when nothing was started, and why
+            if phase == "off":
+                result = (
+                    "nothing to release: the robot's own controller has the arms (weight 0)"
+                    if weight == 0.0
+                    else f"nothing released: no fresh {arms.LOWSTATE_TOPIC} to start from"
+                )
+            return DeviceReply(ok=True, device=self.device, result=result)
         state = self._fresh_state(now_s)
         if state is None:
             raise self._refuse(
@@ -553,6 +561,9 @@ class G1Driver(DriverBase):
     def wait_left(self) -> bool:
         """Wait until the arm stream has ended (bounded: its release ramp, its tail and a
         second); True if it has."""
+        with self._lock:
+            if not self._arms.active:
+                return True
         ramp_s = self.config.arm_release_s + arms.TAIL_MESSAGES * arms.PERIOD_S
         return self._arms_off.wait(ramp_s + 1.0)
 
