@@ -46,6 +46,9 @@ TAIL_MESSAGES = 10
 DEFAULT_KP, DEFAULT_KD = 60.0, 1.5
 MIN_RELEASE_S = 3.0
 """Unitree's example hands the arms back with the weight 1 -> 0 over 3 s: never faster."""
+MAX_RELEASE_S = 5.0
+"""The agent releases the arms before it exits, within the 8 s every process has from its
+SIGTERM (``fleet.runtime.SHUTDOWN_BOUND_S``) with its sessions' closes after it."""
 
 JOINTS: tuple[tuple[str, float, float], ...] = (
     ("waist_yaw", -2.618, 2.618),

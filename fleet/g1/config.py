@@ -6,7 +6,14 @@ import math
 from typing import Literal
 
 from fleet.devices.base import DeviceBase
-from fleet.g1.arms import COUNT, DEFAULT_KD, DEFAULT_KP, MIN_RELEASE_S, ArmLimits
+from fleet.g1.arms import (
+    COUNT,
+    DEFAULT_KD,
+    DEFAULT_KP,
+    MAX_RELEASE_S,
+    MIN_RELEASE_S,
+    ArmLimits,
+)
 
 G1StopAction = Literal["stop_move", "damp"]
 G1Service = Literal["sport", "loco", "auto"]
@@ -37,7 +44,8 @@ class G1Config(DeviceBase, frozen=True, forbid_unknown_fields=True, kw_only=True
     """rt/arm_sdk: the weight's ramp 0 -> 1 when control starts from a weight known to be 0
     (>= 0.4 s: steps <= 0.05); from an unknown weight it starts at 1 on the measured pose."""
     arm_release_s: float = MIN_RELEASE_S
-    """rt/arm_sdk: the weight's ramp 1 -> 0 on a release (>= 3 s, as Unitree's example)."""
+    """rt/arm_sdk: the weight's ramp 1 -> 0 on a release (3..5 s: never faster than Unitree's
+    example; the agent's exit, which releases, must fit its 8 s shutdown bound)."""
     arm_on_stop: Literal["hold", "release"] = "hold"
     """What a stop, the watchdog and a lapsed lease do to the arms: ``hold`` (the weight kept,
     the commanded pose frozen, until an ``arm_release`` or a new target after a reset) or
@@ -109,10 +117,12 @@ def check_g1(config: G1Config) -> str | None:
         low_hz * config.link_stale_s > 1.0 and low_hz <= config.sim_rate_hz
     ):
         return "sim_lowstate_hz must be above 1 / link_stale_s and at most sim_rate_hz"
-    if not 0.4 <= config.arm_engage_s <= 10 or not MIN_RELEASE_S <= config.arm_release_s <= 10:
+    if not 0.4 <= config.arm_engage_s <= 10:
+        return "arm_engage_s must be within 0.4..10"
+    if not MIN_RELEASE_S <= config.arm_release_s <= MAX_RELEASE_S:
         return (
-            f"arm_engage_s must be within 0.4..10 and arm_release_s within {MIN_RELEASE_S:g}..10 "
-            "(Unitree's example releases the arms over 3 s)"
+            f"arm_release_s must be within {MIN_RELEASE_S:g}..{MAX_RELEASE_S:g} (never faster "
+            "than Unitree's example's 3 s; the agent releases the arms within its shutdown)"
         )
     if not 0 < config.arm_speed_rad_s <= config.arm_max_speed_rad_s <= 3.0:
         return "need 0 < arm_speed_rad_s <= arm_max_speed_rad_s <= 3"

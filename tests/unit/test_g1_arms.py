@@ -11,6 +11,7 @@ from unitree_sdk2py.idl.default import unitree_hg_msg_dds__LowCmd_, unitree_hg_m
 from unitree_sdk2py.utils.crc import CRC
 
 from fleet.g1 import arms
+from fleet.g1.config import G1Config, arm_limits, check_g1
 from fleet.g1.crc import low_cmd_crc, low_state_crc
 from fleet.g1.sim import SimArms
 
@@ -193,3 +194,12 @@ def test_sim_blends_by_weight_in_allowed_states_only() -> None:
     sim.take(cmd, 500)
     assert sim.bad == 1
     assert sim.pose(1)[arms.FIRST] == 0.0  # the blending controller is gone
+
+
+def test_the_inventory_keeps_releases_no_faster_than_unitrees_example() -> None:
+    assert check_g1(G1Config(id="h1")) is None
+    assert arm_limits(G1Config(id="h1")).on_stop == "hold"
+    for too_fast_or_too_slow in (1.0, 6.0):
+        why = check_g1(G1Config(id="h1", arm_release_s=too_fast_or_too_slow))
+        assert why is not None and "arm_release_s must be within 3..5" in why, why
+    assert arm_limits(G1Config(id="h1", arm_on_stop="release")).on_stop == "release"
