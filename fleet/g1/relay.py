@@ -16,6 +16,9 @@ Firmware readings, in marked blocks: the service name per device
 per candidate name, GetFsmId asked from ``tick`` until answered); the stop action's calls from
 ``loco.stop_calls`` (``stop_move`` also ends continuous gait), to every candidate name while
 ``auto`` has not found it.
+
+The waist and arms (``rt/lowstate``, the ``rt/arm_sdk`` stream) are ``fleet/g1/arm_link.py``'s,
+on this driver's lock; the stop action is written first and the arms handled beside it.
 """
 
 from __future__ import annotations
@@ -23,7 +26,6 @@ from __future__ import annotations
 import itertools
 import logging
 import math
-import threading
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -37,8 +39,8 @@ from cyclonedds.util import duration
 from fleet.devices.base import DeviceReply, Release
 from fleet.devices.driver import Done, DriverBase, LatchView, Put, error_reply
 from fleet.g1 import arms, idl, loco
-from fleet.g1.config import G1Config, arm_limits
-from fleet.g1.crc import low_cmd_crc, low_state_crc
+from fleet.g1.arm_link import STATE_READER_QOS, ArmLink
+from fleet.g1.config import G1Config
 from fleet.g1.messages import (
     OPS,
     READS,
@@ -68,27 +70,11 @@ from fleet.wire.payloads import G1_COMMAND
 log = logging.getLogger("edge_agent.g1")
 
 COMMAND = G1_COMMAND
-STATE_READER_QOS = Qos(
-    Policy.Reliability.BestEffort, Policy.History.KeepLast(64), Policy.Durability.Volatile
-)
 RPC_QOS = Qos(
     Policy.Reliability.Reliable(duration(milliseconds=100)),
     Policy.History.KeepLast(16),
     Policy.Durability.Volatile,
 )
-ARM_READER_QOS = Qos(
-    Policy.Reliability.BestEffort, Policy.History.KeepLast(8), Policy.Durability.Volatile
-)
-"""rt/arm_sdk as others write it: the weight a previous writer left the robot holding."""
-ARM_WRITER_QOS = Qos(
-    Policy.Reliability.Reliable(duration(milliseconds=5)),
-    Policy.History.KeepLast(1),
-    Policy.Durability.Volatile,
-)
-"""rt/arm_sdk: reliable matches the robot's reader whatever its reliability; depth 1, the
-newest wins (a late message is worth less than the next one, 20 ms later)."""
-LOWSTATE_MARGIN_RAD = 0.3
-"""rt/lowstate joint positions further than this outside the limits are a bad sample."""
 CONFIRM_SAMPLES = 3
 """The stop is confirmed by this many consecutive sportmodestate samples after its write."""
 MAX_PENDING = 16
@@ -136,21 +122,10 @@ class G1Driver(DriverBase):
             response = Topic(participant, loco.response_topic(service), idl.Response_)
             self.readers.append(DataReader(participant, response, qos=RPC_QOS))
             self._writers[service] = DataWriter(participant, request, qos=RPC_QOS)
-        # rt/lowstate (every sample checked, the newest good one kept), the rt/arm_sdk stream
-        # and a reader of rt/arm_sdk (what another writer left the robot holding).
-        low = Topic(participant, arms.LOWSTATE_TOPIC, idl.LowState_)
+        # rt/lowstate and the waist and arms' rt/arm_sdk (``fleet/g1/arm_link.py``).
+        self._arms = ArmLink(config, participant, self._lock, self._own)
         self._low_index = len(self.readers)
-        self.readers.append(DataReader(participant, low, qos=STATE_READER_QOS))
-        arm_topic = Topic(participant, arms.CMD_TOPIC, idl.LowCmd_)
-        self._arm_writer = DataWriter(participant, arm_topic, qos=ARM_WRITER_QOS)
-        self._arm_seen_index = len(self.readers)
-        self.readers.append(DataReader(participant, arm_topic, qos=ARM_READER_QOS))
-        self._arms = arms.ArmStream(arm_limits(config))
-        self._arms_off = threading.Event()
-        """Set while the arm stream is off (the agent's exit waits for it)."""
-        self._low: tuple[idl.LowState_, list[float], float] | None = None
-        self._next_arm_s = 0.0
-        self._arm_messages = 0
+        self.readers += [self._arms.lowstate_reader, self._arms.arm_sdk_reader]
         self._probe_ids: dict[int, str] = {}
         # Request ids this driver's answers are matched by: from the clock at creation, so
         # two processes (an agent and a Unitree SDK client) asking the same robot differ.
@@ -169,10 +144,14 @@ class G1Driver(DriverBase):
         """State samples (newest kept; stop confirmation), rt/lowstate (each checked, the
         newest good one kept), rt/arm_sdk of other writers, or RPC responses (matched by id)."""
         if index == self._low_index:
-            self._on_lowstate(now_s)
+            bad = self._arms.on_lowstate(now_s)
+            with self._lock:
+                self._counts["bad_samples"] += bad
             return
-        if index == self._arm_seen_index:
-            self._on_arm_sdk()
+        if index == self._low_index + 1:
+            if self._arms.on_arm_sdk():
+                with self._lock:
+                    self._changed = True
             return
         if index >= 1:
             self._on_responses(index)
@@ -259,18 +238,14 @@ class G1Driver(DriverBase):
             self._counts["timeouts"] += len(late)
             next_s = min(self._next_put_s, now_s + TICK_MAX_S)
             ask = self._probe.due(now_s)
+            latest = self._latest
         low = self._lowstate(now_s) if due else None
-        message = self._arm_step(now_s)
-        if message is not None:
-            self._arm_writer.write(message)
-        with self._lock:
-            streaming = self._arms.active
-            if streaming:
-                next_s = min(next_s, self._next_arm_s)
-        if streaming:
-            self._arms_off.clear()
-        else:
-            self._arms_off.set()
+        if self._arms.step(now_s, latest):
+            with self._lock:
+                self._changed = True
+        arm_due = self._arms.next_due()
+        if arm_due is not None:
+            next_s = min(next_s, arm_due)
         if state is not None:
             self._put(keys.STATE, m.encode(state), False)
         if low is not None:
@@ -301,6 +276,7 @@ class G1Driver(DriverBase):
         sample, at_s = self._latest
         mode = {0: "static", 1: "dynamic"}.get(sample.fsm_mode, "unknown")
         latched, reason, watched_by = self._latch()
+        stream = self._arms.stream
         return G1State(
             stamp_ns=time.time_ns(),
             fsm_id=sample.fsm_id,
@@ -320,79 +296,22 @@ class G1Driver(DriverBase):
             service_setting=self.config.service,
             service_answered=self._probe.service in self._probe.answered,
             stop_detail=self._stop_detail if latched else None,
-            arm_phase=self._arms.phase,
-            arm_weight=None if self._arms.weight is None else round(self._arms.weight, 3),
-            arm_released=self._arms.why_released,
-            arm_held=self._arms.why_held,
+            arm_phase=stream.phase,
+            arm_weight=None if stream.weight is None else round(stream.weight, 3),
+            arm_released=stream.why_released,
+            arm_held=stream.why_held,
             watched_by=watched_by,
         )
 
     # ------------------------------------------------------------------ the waist and arms
 
-    def _on_lowstate(self, now_s: float) -> None:
-        """Every rt/lowstate sample of the robot's own writer checked (its CRC, finite, near
-        the limits: else counted bad and dropped); the newest good one kept."""
-        reader, good, bad = self.readers[self._low_index], None, 0
-        for sample in reader.take(N=64):
-            if not isinstance(sample, idl.LowState_):
-                continue
-            if not self._own(reader, sample, arms.LOWSTATE_TOPIC, now_s):
-                continue
-            q = self._checked_q(sample)
-            if q is None:
-                bad += 1
-            else:
-                good = (sample, q, now_s)
-        with self._lock:
-            self._counts["bad_samples"] += bad
-            if good is not None:
-                self._low = good
-
-    def _checked_q(self, sample: idl.LowState_) -> list[float] | None:
-        """The 29 joint positions of a sound sample, None for a bad one."""
-        q = [float(s.q) for s in sample.motor_state[: arms.MOTORS]]
-        if sample.crc != low_state_crc(sample) or not all(map(math.isfinite, q)):
-            return None
-        lo, hi, margin = self._arms.limits.lower, self._arms.limits.upper, LOWSTATE_MARGIN_RAD
-        arm_q = q[arms.FIRST : arms.FIRST + arms.COUNT]
-        if not all(a - margin <= v <= b + margin for v, a, b in zip(arm_q, lo, hi, strict=True)):
-            return None
-        return q
-
-    def _on_arm_sdk(self) -> None:
-        """rt/arm_sdk as another writer (a previous agent, a script) sends it: while our
-        stream is off, the robot holds the weight of its newest sound message."""
-        reader, mine = self.readers[self._arm_seen_index], self._arm_writer.instance_handle
-        newest = None
-        for cmd in reader.take(N=64):
-            # (a message with a bad CRC the robot drops too)
-            if (
-                isinstance(cmd, idl.LowCmd_)
-                and cmd.sample_info.publication_handle != mine
-                and cmd.crc == low_cmd_crc(cmd)
-            ):
-                newest = float(cmd.motor_cmd[arms.WEIGHT_INDEX].q)
-        if newest is not None:
-            with self._lock:
-                known = self._arms.weight
-                self._arms.seen(newest)
-                self._changed |= self._arms.weight != known
-
-    def _measured(self, now_s: float) -> list[float] | None:
-        """The 29 joint positions of the newest good rt/lowstate, None when none is fresh."""
-        with self._lock:
-            checked = self._low
-        if checked is None or now_s - checked[2] > self.config.link_stale_s:
-            return None
-        return checked[1]
-
     def _lowstate(self, now_s: float) -> G1LowState | None:
-        q = self._measured(now_s)
+        checked = self._arms.newest(now_s)
         with self._lock:
-            checked, bad = self._low, self._counts["bad_samples"]
-        if q is None or checked is None:
+            bad = self._counts["bad_samples"]
+        if checked is None:
             return None
-        imu = checked[0].imu_state
+        q, imu = checked[1], checked[0].imu_state
         return G1LowState(
             stamp_ns=time.time_ns(),
             q_rad=[round(v, 4) for v in q],
@@ -402,62 +321,13 @@ class G1Driver(DriverBase):
             bad_samples=bad,
         )
 
-    def _arm_step(self, now_s: float) -> idl.LowCmd_ | None:
-        """The next rt/arm_sdk message when one is due. Without fresh sportmodestate the
-        stream is interrupted (held or released: ``arm_on_stop``); in an FSM seed 004 does not
-        allow, it ends (the robot ignores it)."""
-        with self._lock:
-            stream = self._arms
-            if not stream.active or now_s < self._next_arm_s:
-                return None
-            latest, low = self._latest, self._low
-        fresh = latest is not None and now_s - latest[1] <= self.config.link_stale_s
-        with self._lock:
-            phase = stream.phase
-            if not fresh:
-                stream.interrupt(f"no fresh {loco.STATE_TOPIC}")
-            elif latest is not None and latest[0].fsm_id not in loco.ARM_SDK_FSMS:
-                fsm = latest[0].fsm_id
-                stream.forget(f"fsm {fsm} {loco.fsm_name(fsm)} does not take rt/arm_sdk (seed 004)")
-            step = stream.step(now_s)
-            if stream.phase != phase:
-                self._changed = True
-            self._next_arm_s = self._next_arm_s + arms.PERIOD_S
-            if self._next_arm_s <= now_s:  # late by a period: start the cadence again
-                self._next_arm_s = now_s + arms.PERIOD_S
-            if step is None:
-                return None
-            self._arm_messages += 1
-        weight, q_cmd = step
-        limits = stream.limits
-        motors = [idl.MotorCmd_() for _ in range(35)]
-        for i, q in enumerate(q_cmd):
-            motors[arms.FIRST + i] = idl.MotorCmd_(1, q, 0.0, 0.0, limits.kp[i], limits.kd[i], 0)
-        motors[arms.WEIGHT_INDEX] = idl.MotorCmd_(1, weight, 0.0, 0.0, 0.0, 0.0, 0)
-        # As Unitree's low-level example: the robot's mode_machine (its model) in every command.
-        mode_machine = 0 if low is None else int(low[0].mode_machine)
-        message = idl.LowCmd_(mode_machine=mode_machine, motor_cmd=motors)
-        message.crc = low_cmd_crc(message)
-        return message
-
     def _arm_command(self, command: ArmTarget | ArmRelease, now_s: float) -> DeviceReply:
         """A target (checked: seed 004's FSM states, limits, speed, distance from the measured
         pose) starts or steers the stream; a release ramps it down."""
         if isinstance(command, ArmRelease):
-            measured = self._measured(now_s)
-            arm_q = None if measured is None else measured[arms.FIRST : arms.FIRST + arms.COUNT]
+            changed, result = self._arms.release("released by its owner", now_s)
             with self._lock:
-                if not self._arms.active:
-                    self._next_arm_s = now_s
-                self._changed |= self._arms.release("released by its owner", arm_q)
-                phase, weight = self._arms.phase, self._arms.weight
-            result = None  # said when nothing was started, and why
-            if phase == "off":
-                result = (
-                    "nothing to release: the robot's own controller has the arms (weight 0)"
-                    if weight == 0.0
-                    else f"nothing released: no fresh {arms.LOWSTATE_TOPIC} to start from"
-                )
+                self._changed |= changed
             return DeviceReply(ok=True, device=self.device, result=result)
         state = self._fresh_state(now_s)
         if state is None:
@@ -473,19 +343,15 @@ class G1Driver(DriverBase):
                 f"{loco.fsm_name(state.fsm_id)}: send start first",
             )
         speed = command.speed_rad_s or self.config.arm_speed_rad_s
-        measured = self._measured(now_s)
-        arm_q = None if measured is None else measured[arms.FIRST : arms.FIRST + arms.COUNT]
-        why = arms.target_problem(command.q_rad, speed, arm_q, self._arms.limits)
+        arm_q = self._arms.arm_pose(now_s)
+        why = arms.target_problem(command.q_rad, speed, arm_q, self._arms.stream.limits)
         if why is not None:
             code = m.ErrorCode.REJECTED if arm_q is None else m.ErrorCode.PARAMETER
             raise self._refuse(code, f"g1 {self.device!r}: arm target refused: {why}")
         assert arm_q is not None
+        changed = self._arms.target(command.q_rad, speed, arm_q, now_s)
         with self._lock:
-            if not self._arms.active:
-                self._next_arm_s = now_s
-            phase = self._arms.phase
-            self._arms.set_target(command.q_rad, speed, arm_q, now_s)
-            self._changed |= phase != self._arms.phase
+            self._changed |= changed
         return DeviceReply(ok=True, device=self.device, written_ns=time.time_ns())
 
     def _fresh_state(self, now_s: float) -> idl.SportModeState_ | None:
@@ -547,25 +413,22 @@ class G1Driver(DriverBase):
             if self._stop_written_s is None:
                 self._stop_written_s, self._confirming = now_s, 0
             self._stop_detail = detail
-            # The arms held where they are (or released: ``arm_on_stop``), never moved.
-            self._changed |= self._arms.interrupt(f"stopped ({self.stop_action})")
+        # The arms held where they are (or released: ``arm_on_stop``), never moved.
+        if self._arms.interrupt(f"stopped ({self.stop_action})"):
+            with self._lock:
+                self._changed = True
         return True, detail
 
     def leave(self, now_s: float) -> None:
         """The agent exits: the arms go back to the robot's own controller (the weight ramped
         to 0 over ``arm_release_s``) rather than stay held by a stream that is about to end."""
-        with self._lock:
-            if self._arms.release("the agent exits"):
+        if self._arms.leave():
+            with self._lock:
                 self._changed = True
 
     def wait_left(self) -> bool:
-        """Wait until the arm stream has ended (bounded: its release ramp, its tail and a
-        second); True if it has."""
-        with self._lock:
-            if not self._arms.active:
-                return True
-        ramp_s = self.config.arm_release_s + arms.TAIL_MESSAGES * arms.PERIOD_S
-        return self._arms_off.wait(ramp_s + 1.0)
+        """Wait (bounded) until the arm stream has ended; True if it has."""
+        return self._arms.wait_left()
 
     # ------------------------------------------------------------------ commands
 
