@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 import signal
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -174,3 +175,32 @@ def test_a_dead_player_gets_the_g1_arms_held_by_the_watchdog(
     wait_until(lambda: (s := client.snapshot(["a1"])["a1"][0]) is not None and s.estopped, 5.0)
     for collector in (lows, states, joints):
         collector.close()
+
+
+def test_a_stop_mid_play_leaves_the_g1_arms_held(fleet: FleetHarness) -> None:
+    """The player aborts on a stop: it holds the D1 arm and leaves the G1's arms held where
+    they are (it used to give them back, which swung them to the robot's own pose)."""
+    lows, states, joints = _collectors(fleet)
+    client = fleet.client()
+    looped = SCRIPT.replace('name = "g1 wave e2e"', 'name = "g1 loop"\nloops = 0')
+    player = Player(client, parse_script(looped, "g1.toml", ["a1"], {}, ["h1"]))
+    results: list[object] = []
+    thread = threading.Thread(target=lambda: results.append(player.play(ready_s=10.0)))
+    thread.start()
+    try:
+        wait_until(lambda: (s := states.latest()) is not None and s.arm_weight == 1.0, 20.0)
+        wait_until(lambda: max(map(abs, lows.latest().q_rad[12:29])) > math.radians(10), 20.0)  # type: ignore[union-attr]
+        client.estop(reason="mid play", timeout_s=2.0)
+        wait_until(lambda: not thread.is_alive(), 20.0)
+        assert results and not results[0].ok, results  # type: ignore[attr-defined]
+        wait_until(lambda: (s := states.latest()) is not None and s.arm_phase == "holding", 5.0)
+        held = list(lows.latest().q_rad[12:29])  # type: ignore[union-attr]
+        time.sleep(1.0)  # pacing: a window in which the held arms must not move
+        after = states.latest()
+        drift = max(abs(a - b) for a, b in zip(lows.latest().q_rad[12:29], held))  # type: ignore[union-attr]
+        assert after is not None and after.arm_phase == "holding", after
+        assert drift < 1e-3 and max(map(abs, held)) > math.radians(5), (drift, held)
+    finally:
+        thread.join(timeout=20.0)
+        for collector in (lows, states, joints):
+            collector.close()
