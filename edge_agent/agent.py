@@ -332,7 +332,9 @@ class EdgeAgent:
 
     def close(self) -> None:
         """Shutdown order: stop taking commands (and drop pending synchronized starts) -> hold
-        every robot still moving (nobody will command it any more) -> stop the loops and join
+        every robot still moving (nobody will command it any more; a G1's arms are handed back
+        to the robot, over its release ramp, while the relay thread still streams) -> stop the
+        loops and join
         -> stop DDS -> undeclare Zenoh (tokens first, so the fleet sees the agent leave) and
         close the session. Idempotent."""
         if self.stopping.is_set():

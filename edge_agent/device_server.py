@@ -12,6 +12,7 @@ driver's own checks and write (``DeviceDriver.execute``).
 from __future__ import annotations
 
 import collections
+import logging
 import threading
 import time
 from collections.abc import Callable
@@ -35,6 +36,8 @@ from fleet.wire import keys, payloads
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, encode
 from fleet.wire.replies import answer
+
+log = logging.getLogger("edge_agent.devices")
 
 
 @dataclass
@@ -81,6 +84,7 @@ class DeviceServer:
         lease covers the device."""
         self.slots: dict[str, DeviceSlot] = {}
         self.threads: list[threading.Thread] = []
+        self._leaving = False
 
     def add(self, inventory: Inventory, device: str, link: DdsLink) -> DeviceSlot:
         """A device's slot: its kind's driver on the agent's participant, publishing through
@@ -285,7 +289,16 @@ class DeviceServer:
         return self._own_counts(own)
 
     def hold_if_moving(self, unit: str) -> bool:
-        """A device stays as it is at shutdown (its driver holds nothing on its own)."""
+        """At shutdown a device is left as its driver leaves it (a G1 hands its arms back to
+        the robot over ``arm_release_s``): the first call starts every device's leaving, so
+        they ramp side by side, then each call waits (bounded) for its own. Nothing is held."""
+        if not self._leaving:
+            self._leaving = True
+            now = time.monotonic()
+            for slot in self.slots.values():
+                slot.driver.leave(now)
+        if not self.slots[unit].driver.wait_left():
+            log.warning("%s %r: still leaving at the agent's exit", self.slots[unit].kind, unit)
         return False
 
 

@@ -7,9 +7,13 @@ process-wide singleton bound to one domain):
 - ``server``: a fake G1 built on its RPC ``Server`` (handlers for the LocoClient API ids) that
   publishes ``rt/sportmodestate`` with its ``ChannelPublisher`` (``--no-state``: firmware
   before 1.5.1, none); prints one JSON line per call it handled. With ``--arms`` it also
-  publishes ``rt/lowstate`` (the SDK's ``LowState_``, sealed with the SDK's ``CRC``) and prints
-  one line per ``rt/arm_sdk`` message its ``ChannelSubscriber`` took: the weight, whether the
-  SDK's CRC agrees, the waist yaw.
+  publishes ``rt/lowstate`` (the SDK's ``LowState_``, sealed with the SDK's ``CRC``, with
+  ``--mode-machine``; every ``--bad-lowstate-every``-th sample's CRC broken, one line each) and
+  prints one line per ``rt/arm_sdk`` message its ``ChannelSubscriber`` took: the weight, whether
+  the SDK's CRC agrees, the waist yaw, the mode_machine, when (monotonic). The pose it reports
+  blends the last message it took by that message's weight, and keeps it when the messages stop
+  (as the robot keeps a stream's weight when its writer goes away): an agent restarted beside it
+  finds the arms where the previous one left them. Each call's line says when it came too.
 
 The SDK chooses the service name from ``LOCO_SERVICE_NAME`` (``sport`` in its ``g1_loco_api``),
 which ``LocoClient.__init__`` reads from its own module: ``--service loco`` sets that module's
@@ -22,6 +26,7 @@ shipped.
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import signal
 import sys
@@ -136,7 +141,7 @@ def run_server(args: argparse.Namespace) -> int:
         def handle(parameter: str) -> tuple[int, str]:
             with lock:
                 code, data = model.call(api_id, parameter, time.monotonic())
-            _emit({"api_id": api_id, "parameter": parameter, "code": code})
+            _emit({"api_id": api_id, "parameter": parameter, "code": code, "t": time.monotonic()})
             return code, data
 
         return handle
@@ -147,7 +152,7 @@ def run_server(args: argparse.Namespace) -> int:
     server.Start()
     publisher = ChannelPublisher(STATE_TOPIC, hg.SportModeState_)
     publisher.Init()
-    lowstate = _arms(lock, model) if args.arms else None
+    lowstate = _arms(lock, model, args.mode_machine, args.bad_lowstate_every) if args.arms else None
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     _emit({"ready": args.service, "state": not args.no_state})
     while not stop.wait(0.01):  # 100 Hz, the G1's sportmodestate rate is not in the seeds
@@ -162,7 +167,7 @@ def run_server(args: argparse.Namespace) -> int:
     return 0
 
 
-def _arms(lock: threading.Lock, model: Any) -> Any:
+def _arms(lock: threading.Lock, model: Any, mode_machine: int, bad_every: int) -> Any:
     """rt/arm_sdk watched (one JSON line a message), rt/lowstate published: returns the
     function that publishes one (the pose blends the arm_sdk targets by their weight)."""
     from unitree_sdk2py.core.channel import ChannelPublisher, ChannelSubscriber
@@ -178,6 +183,7 @@ def _arms(lock: threading.Lock, model: Any) -> Any:
         ok = cmd.crc == crc.Crc(cmd)
         line = {"arm": round(weight, 4), "crc_ok": ok, "t": time.monotonic()}
         line["q12"] = round(float(cmd.motor_cmd[12].q), 4)
+        line["mode_machine"] = int(cmd.mode_machine)
         _emit(line)
         with lock:
             if ok and model.fsm_id in (4, 500, 501):
@@ -189,12 +195,19 @@ def _arms(lock: threading.Lock, model: Any) -> Any:
     writer = ChannelPublisher("rt/lowstate", LowState_)
     writer.Init()
 
+    published = itertools.count(1)
+    bad = itertools.count(1)
+
     def publish() -> None:
         state = unitree_hg_msg_dds__LowState_()
+        state.mode_machine = mode_machine
         with lock:
             for i, q in enumerate(pose):
                 state.motor_state[i].q = q
         state.crc = crc.Crc(state)
+        if bad_every and next(published) % bad_every == 0:
+            state.crc ^= 1  # a corrupted sample, as a flipped bit on the wire
+            _emit({"bad_lowstate": next(bad), "t": time.monotonic()})
         writer.Write(state)
 
     publish.keep = (subscriber, writer)  # type: ignore[attr-defined]
@@ -210,6 +223,8 @@ def main() -> int:
     parser.add_argument("--settle", type=float, default=0.3)
     parser.add_argument("--no-state", action="store_true")
     parser.add_argument("--arms", action="store_true")
+    parser.add_argument("--mode-machine", type=int, default=0)
+    parser.add_argument("--bad-lowstate-every", type=int, default=0)
     args = parser.parse_args()
     return run_client(args) if args.role == "client" else run_server(args)
 

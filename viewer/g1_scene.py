@@ -49,7 +49,8 @@ def g1_label(device: str, code: int, state: G1State | None) -> str:
     if state is not None:
         parts.append(f"fsm {state.fsm_id} {state.fsm_name}, {state.mode}")
         if state.arm_phase != "off":
-            parts.append(f"arms {state.arm_phase} {state.arm_weight:.2f}")
+            weight = "?" if state.arm_weight is None else f"{state.arm_weight:.2f}"
+            parts.append(f"arms {state.arm_phase} {weight}")
     words = {NORMAL: "", STALE: "stale", OFFLINE: "no state", STOPPED: "STOPPED"}[code]
     if words:
         parts.append(words)

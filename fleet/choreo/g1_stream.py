@@ -4,10 +4,12 @@ serves it and its own checks (seed 004's FSM states, joint limits, the distance 
 measured pose), its lease and its watchdog.
 
 A G1's arms are engaged before the synchronized start: the first target is the pose measured
-now, and the agent ramps the rt/arm_sdk weight 0 -> 1 over the G1's ``arm_engage_s`` while
-it holds that pose, so the robot does not move until the start. They are released at the end,
-on an abort and on a stop: ``arm_release`` ramps the weight 1 -> 0 over ``arm_release_s``
-(the agent does it itself on a stop, on its lease, and on the watchdog when the player dies).
+now, which the agent holds at weight 1 (or ramps the rt/arm_sdk weight 0 -> 1 over the G1's
+``arm_engage_s`` when it knows the robot's weight is 0), so the robot does not move until the
+start. They are released at the end of a completed play: ``arm_release`` ramps the weight
+1 -> 0 over ``arm_release_s``. An aborted play (a stop among them) leaves them held where they
+are, as it holds the D1 arms, and so does the agent on a stop, its lease or the watchdog when
+the player dies (``arm_on_stop``), until someone releases them.
 """
 
 from __future__ import annotations
@@ -200,13 +202,20 @@ class G1Stream:
                 return
             time.sleep(0.05)
 
-    def release(self, answers_s: float = 5.0) -> None:
-        """Give the arms back to the robots (weight 1 -> 0), end the lease, and wait (bounded)
-        for the weight's return to 0; the agents' answers are awaited ``answers_s`` in all."""
+    def release(self, answers_s: float = 5.0, give_back_arms: bool = True) -> None:
+        """End the lease; with ``give_back_arms`` first give the arms back to the robots (weight
+        1 -> 0) and wait (bounded) for the weight's return to 0. Without, the agent keeps them
+        where they are (held, the weight kept) until an ``arm_release``. The agents' answers are
+        awaited ``answers_s`` in all."""
         answer_by = time.monotonic() + answers_s
-        for make in (lambda: ArmRelease(owner=self.owner), lambda: DeviceRelease(owner=self.owner)):
+        makes = [lambda: DeviceRelease(owner=self.owner)]
+        if give_back_arms:
+            makes.insert(0, lambda: ArmRelease(owner=self.owner))
+        for make in makes:
             futures = [self.pool.submit(self.client.device_command, d, make()) for d in self.sides]
             wait(futures, timeout=max(0.0, answer_by - time.monotonic()))
+        if not give_back_arms:
+            return
         longest = max(c.arm_release_s for c in self.configs.values()) + RELEASED_MARGIN_S
         deadline = time.monotonic() + longest
         while time.monotonic() < deadline:

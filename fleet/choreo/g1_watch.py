@@ -98,6 +98,8 @@ class G1Watch:
         state = self.latest(device).state
         if state is None or state.arm_phase in ("engaging", "on"):
             return None
+        if state.arm_phase == "holding":
+            return f"g1 {device!r} holds its arms ({state.arm_held or 'held'})"
         why = state.arm_released or f"its arm stream is {state.arm_phase}"
         return f"g1 {device!r} released its arms ({why})"
 

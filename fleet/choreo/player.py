@@ -6,7 +6,8 @@ owner = the player, short lifetime) per D1 arm, and one ``arm_target`` per G1 wh
 script names (``g1_stream.py``), to a small thread pool: it never waits for a reply before the
 next tick. ``Liveness`` beats with the player's id so the agents hold the D1 arms and release
 the G1 arms if the player dies (their watchdog). Shutdown order: stop commanding -> hold every
-D1 arm -> wait until still -> release the G1 arms (weight 1 -> 0) and their lease -> stop the
+D1 arm -> wait until still -> give the G1 arms back (weight 1 -> 0: a completed play only; an
+aborted one leaves them held, a stop never moves them) and release their lease -> stop the
 heartbeat -> release the D1 leases -> undeclare.
 """
 
@@ -201,8 +202,9 @@ class Player:
             if self._end_by is None:
                 self._end_by = time.monotonic() + ENDING_S
             if liveness is not None and self.g1 is not None:
-                # before the heartbeat stops: else the watchdog stops it
-                self.g1.release(self._left())
+                # before the heartbeat stops: else the watchdog stops it. Aborted (a stop, a
+                # problem): the G1 arms stay held where they are, as the D1 arms are.
+                self.g1.release(self._left(), give_back_arms=self.result.ok)
             if liveness is not None:
                 liveness.close()
                 self._broadcast(lambda a: m.Release(owner=self.owner))

@@ -121,6 +121,13 @@ class DeviceDriver(Protocol):
     def still(self) -> bool | None:
         """The device does not move (None: unknown); the watchdog's owner check."""
 
+    def leave(self, now_s: float) -> None:
+        """The agent exits: start what the device needs before nobody commands it (a G1 hands
+        its arms back to the robot); the relay thread still runs."""
+
+    def wait_left(self) -> bool:
+        """Wait (bounded, by the driver) until what ``leave`` started is done; True if it is."""
+
     def health(self, now_s: float) -> DriverHealth:
         """Link and counters since start."""
 
@@ -203,6 +210,13 @@ class DriverBase:
         """A reset: nothing to confirm any more."""
         with self._lock:
             self._stop_written_s = None
+
+    def leave(self, now_s: float) -> None:
+        """Nothing to do at the agent's exit (a kind that has something overrides it)."""
+
+    def wait_left(self) -> bool:
+        """Nothing to wait for."""
+        return True
 
     def health(self, now_s: float) -> DriverHealth:
         """Link (from the newest reading's age: ``_latest`` is (reading, received_s)) and

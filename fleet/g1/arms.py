@@ -1,15 +1,27 @@
 """The G1's waist and arms through ``rt/arm_sdk`` (seed 004): joint table, target checks and
-the weight ramp. Pure (times are passed in; no DDS).
+the weight. Pure (times are passed in; no DDS).
 
 ``rt/arm_sdk`` takes a ``unitree_hg`` ``LowCmd_``: motors 12-28 (waist yaw/roll/pitch, then the
 left and the right arm, 7 joints each) and, on motor 29, ``q`` as the weight in 0..1 with which
 the robot's own controller blends our targets into its own. The agent streams it every
-``PERIOD_S`` (50 Hz). The weight ramps 0 -> 1 over ``engage_s`` when control starts and 1 -> 0
-over ``release_s`` (at least 1 s) on a release, a lease that ran out (no new target for
-``hold_s``), the watchdog's or an operator's stop, or a state that no longer allows it: one
-step per message, never more than ``MAX_WEIGHT_STEP`` (the config check keeps it so). The
-commanded pose starts at the measured one (no jump at engage), moves towards the target at
-most ``speed_rad_s`` per second on every joint, and holds while releasing.
+``PERIOD_S`` (50 Hz). The commanded pose moves towards the target at most ``speed_rad_s`` per
+second on every joint.
+
+The weight the robot holds is not observable: seed 004 names motor 29 of ``LowCmd_`` only, and
+Unitree's ``g1_arm7_sdk_dds_example`` never reads it back from ``rt/lowstate``; the robot keeps
+the last stream's weight when its writer goes away (a restarted agent found it near 1). So the
+stream starts as Unitree's example does, at weight 1 on the measured pose: whatever weight the
+robot holds, its blend of the measured pose is the measured pose, and nothing moves. Only when
+the weight is known to be 0 (this stream ended at 0, or the last message another writer was seen
+sending on ``rt/arm_sdk`` had 0) does it ramp 0 -> 1 over ``engage_s`` instead (the robot's own
+controller keeps the arms while it blends in).
+
+A stop, the watchdog and a lapsed lease (no new target for ``hold_s``) *hold* by default: the
+weight is kept and the commanded pose frozen, streamed until an explicit release (``on_stop =
+"release"`` ramps down instead). A release ramps the weight to 0 over ``release_s`` (at least
+Unitree's example's 3 s), the commanded pose held, then ``TAIL_MESSAGES`` at 0. An FSM that does
+not take ``rt/arm_sdk`` ends the stream at once (the robot ignores it; what weight it holds
+afterwards is unknown again).
 
 Joint limits: Unitree's G1 29-dof description (``g1_29dof`` URDF, as mujoco-menagerie ships it).
 kp/kd: Unitree's ``g1_arm7_sdk_dds_example`` (60, 1.5), per joint from the inventory.
@@ -32,6 +44,11 @@ MAX_WEIGHT_STEP = 0.05
 TAIL_MESSAGES = 10
 """Messages at weight 0 after a release (so a lost one cannot leave the last weight in force)."""
 DEFAULT_KP, DEFAULT_KD = 60.0, 1.5
+MIN_RELEASE_S = 3.0
+"""Unitree's example hands the arms back with the weight 1 -> 0 over 3 s: never faster."""
+MAX_RELEASE_S = 5.0
+"""The agent releases the arms before it exits, within the 8 s every process has from its
+SIGTERM (``fleet.runtime.SHUTDOWN_BOUND_S``) with its sessions' closes after it."""
 
 JOINTS: tuple[tuple[str, float, float], ...] = (
     ("waist_yaw", -2.618, 2.618),
@@ -63,9 +80,11 @@ class ArmLimits:
     """The inventory's arm settings of one G1."""
 
     engage_s: float = 1.0
-    release_s: float = 1.0
+    release_s: float = MIN_RELEASE_S
     hold_s: float = 3.0
-    """No new target for this long (the lease): released."""
+    """No new target for this long (the lease): held (or released, by ``on_stop``)."""
+    on_stop: Literal["hold", "release"] = "hold"
+    """What a stop, the watchdog and a lapsed lease do to the stream."""
     speed_rad_s: float = 0.5
     """The commanded pose's default top speed towards a target."""
     max_speed_rad_s: float = 1.5
@@ -104,7 +123,7 @@ def target_problem(
     return None
 
 
-Phase = Literal["off", "engaging", "on", "releasing"]
+Phase = Literal["off", "engaging", "on", "holding", "releasing"]
 
 
 @dataclass
@@ -113,11 +132,13 @@ class ArmStream:
 
     limits: ArmLimits
     phase: Phase = "off"
-    weight: float = 0.0
+    weight: float | None = None
+    """The weight the robot holds as far as we know (None: unknown)."""
     q_cmd: list[float] = field(default_factory=list)
     target: list[float] = field(default_factory=list)
     speed_rad_s: float = 0.5
     last_target_s: float = 0.0
+    why_held: str | None = None
     why_released: str | None = None
     tail: int = 0
 
@@ -129,45 +150,84 @@ class ArmStream:
     def set_target(
         self, q_rad: list[float], speed_rad_s: float, measured: list[float], now_s: float
     ) -> None:
-        """A checked target; from off (or mid-release) the stream (re)engages, the commanded
-        pose starting at the measured one when the weight is 0."""
-        if self.phase == "off" or self.weight == 0.0:
-            self.q_cmd = list(measured)
-        if self.phase in ("off", "releasing"):
-            self.phase = "engaging"
+        """A checked target. From off the stream starts on the measured pose: ramping from a
+        weight known to be 0, else at weight 1 (see the module docstring); held or releasing,
+        it goes on from the commanded pose."""
+        if self.phase == "off":
+            self.q_cmd, self.tail = list(measured), 0
+            if self.weight != 0.0:
+                self.weight = 1.0
+        self.phase = "on" if self.weight == 1.0 else "engaging"
         self.target, self.speed_rad_s, self.last_target_s = list(q_rad), speed_rad_s, now_s
-        self.why_released = None
+        self.why_held = self.why_released = None
 
-    def release(self, why: str) -> bool:
-        """Ramp the weight down (idempotent); True if this started a release."""
-        if self.phase in ("off", "releasing"):
+    def hold(self, why: str) -> bool:
+        """Keep the weight and freeze the commanded pose (idempotent); True if this started a
+        hold. A release under way goes on."""
+        if self.phase not in ("engaging", "on"):
             return False
-        self.phase, self.why_released = "releasing", why
+        self.phase, self.why_held = "holding", why
         return True
+
+    def interrupt(self, why: str) -> bool:
+        """A stop, the watchdog or the lease: hold or release, as ``limits.on_stop`` says."""
+        return self.hold(why) if self.limits.on_stop == "hold" else self.release(why)
+
+    def release(self, why: str, measured: list[float] | None = None) -> bool:
+        """Ramp the weight down (idempotent); True if this started a release. From off, with
+        the weight not known to be 0 and ``measured`` given, it starts at weight 1 on the
+        measured pose (nothing moves) and ramps from there: a restarted agent can hand back
+        the arms a previous one left held."""
+        if self.phase == "releasing":
+            return False
+        if self.phase == "off":
+            if self.weight == 0.0 or measured is None:
+                return False
+            self.q_cmd, self.weight, self.tail = list(measured), 1.0, 0
+        self.phase, self.why_released, self.why_held = "releasing", why, None
+        return True
+
+    def forget(self, why: str) -> bool:
+        """The robot does not take rt/arm_sdk now: stop streaming; the weight it will hold is
+        unknown. True if a stream ended."""
+        was = self.active
+        self.phase, self.tail, self.weight = "off", 0, None
+        if was:
+            self.why_released, self.why_held = why, None
+        return was
+
+    def seen(self, weight: float) -> None:
+        """The newest message another writer sent on rt/arm_sdk: while this stream is off,
+        the robot holds that weight."""
+        if self.phase == "off" and self.tail == 0:
+            self.weight = weight if 0.0 <= weight <= 1.0 else None
 
     def step(self, now_s: float) -> tuple[float, list[float]] | None:
         """The next message's (weight, 17 commanded q), or None when nothing is due."""
         if self.phase in ("engaging", "on") and now_s - self.last_target_s > self.limits.hold_s:
-            self.release(f"no new target for {self.limits.hold_s:g} s (lease)")
+            self.interrupt(f"no new target for {self.limits.hold_s:g} s (lease)")
         if self.phase == "off":
             if self.tail <= 0:
                 return None
             self.tail -= 1
             return 0.0, self.q_cmd
-        if self.phase == "engaging":
-            self.weight = min(1.0, self.weight + self.up_step)
-            if self.weight >= 1.0:
-                self.phase = "on"
-        elif self.phase == "releasing":
-            self.weight = max(0.0, self.weight - self.down_step)
-            if self.weight <= 0.0:
+        weight = self.weight if self.weight is not None else 1.0
+        if self.phase == "holding":
+            return weight, self.q_cmd
+        if self.phase == "releasing":
+            self.weight = weight = max(0.0, weight - self.down_step)
+            if weight <= 0.0:
                 self.phase, self.tail = "off", TAIL_MESSAGES
-            return self.weight, self.q_cmd
+            return weight, self.q_cmd
+        if self.phase == "engaging":
+            self.weight = weight = min(1.0, weight + self.up_step)
+            if weight >= 1.0:
+                self.phase = "on"
         limit = self.speed_rad_s * PERIOD_S
         self.q_cmd = [
             q + max(-limit, min(limit, t - q)) for q, t in zip(self.q_cmd, self.target, strict=True)
         ]
-        return self.weight, self.q_cmd
+        return weight, self.q_cmd
 
     @property
     def up_step(self) -> float:

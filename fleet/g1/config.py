@@ -6,7 +6,14 @@ import math
 from typing import Literal
 
 from fleet.devices.base import DeviceBase
-from fleet.g1.arms import COUNT, DEFAULT_KD, DEFAULT_KP, ArmLimits
+from fleet.g1.arms import (
+    COUNT,
+    DEFAULT_KD,
+    DEFAULT_KP,
+    MAX_RELEASE_S,
+    MIN_RELEASE_S,
+    ArmLimits,
+)
 
 G1StopAction = Literal["stop_move", "damp"]
 G1Service = Literal["sport", "loco", "auto"]
@@ -34,9 +41,17 @@ class G1Config(DeviceBase, frozen=True, forbid_unknown_fields=True, kw_only=True
     allow_continuous_move: bool = False
     """``move`` with ``continuous`` (Unitree's 864000 s velocity) is refused unless this is set."""
     arm_engage_s: float = 1.0
-    """rt/arm_sdk: the weight's ramp 0 -> 1 when control starts (>= 0.4 s: steps <= 0.05)."""
-    arm_release_s: float = 1.0
-    """rt/arm_sdk: the weight's ramp 1 -> 0 on a release, lease loss, watchdog or stop (>= 1 s)."""
+    """rt/arm_sdk: the weight's ramp 0 -> 1 when control starts from a weight known to be 0
+    (>= 0.4 s: steps <= 0.05); from an unknown weight it starts at 1 on the measured pose."""
+    arm_release_s: float = MIN_RELEASE_S
+    """rt/arm_sdk: the weight's ramp 1 -> 0 on a release (3..5 s: never faster than Unitree's
+    example; the agent's exit, which releases, must fit its 8 s shutdown bound)."""
+    arm_on_stop: Literal["hold", "release"] = "hold"
+    """What a stop, the watchdog and a lapsed lease do to the arms: ``hold`` (the weight kept,
+    the commanded pose frozen, until an ``arm_release`` or a new target after a reset) or
+    ``release`` (the weight ramped to 0 over ``arm_release_s``: the robot's own controller
+    takes the arms back, which moves them to its own pose). The stop action (StopMove, damp)
+    goes out at once either way. At the agent's exit (SIGTERM/SIGINT) the arms are released."""
     arm_speed_rad_s: float = 0.5
     """The commanded pose's default top speed towards an arm target (every joint)."""
     arm_max_speed_rad_s: float = 1.5
@@ -75,6 +90,7 @@ def arm_limits(config: G1Config) -> ArmLimits:
     return ArmLimits(
         engage_s=config.arm_engage_s,
         release_s=config.arm_release_s,
+        on_stop=config.arm_on_stop,
         hold_s=config.lease_s,
         speed_rad_s=config.arm_speed_rad_s,
         max_speed_rad_s=config.arm_max_speed_rad_s,
@@ -101,8 +117,13 @@ def check_g1(config: G1Config) -> str | None:
         low_hz * config.link_stale_s > 1.0 and low_hz <= config.sim_rate_hz
     ):
         return "sim_lowstate_hz must be above 1 / link_stale_s and at most sim_rate_hz"
-    if not 0.4 <= config.arm_engage_s <= 10 or not 1.0 <= config.arm_release_s <= 10:
-        return "arm_engage_s must be within 0.4..10 and arm_release_s within 1..10"
+    if not 0.4 <= config.arm_engage_s <= 10:
+        return "arm_engage_s must be within 0.4..10"
+    if not MIN_RELEASE_S <= config.arm_release_s <= MAX_RELEASE_S:
+        return (
+            f"arm_release_s must be within {MIN_RELEASE_S:g}..{MAX_RELEASE_S:g} (never faster "
+            "than Unitree's example's 3 s; the agent releases the arms within its shutdown)"
+        )
     if not 0 < config.arm_speed_rad_s <= config.arm_max_speed_rad_s <= 3.0:
         return "need 0 < arm_speed_rad_s <= arm_max_speed_rad_s <= 3"
     if not 0 < config.arm_max_jump_rad <= 1.5:

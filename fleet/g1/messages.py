@@ -41,12 +41,17 @@ class G1State(Struct, frozen=True):
     """The service answered GetFsmId (someone serves ``rt/api/<service>``)."""
     stop_detail: Text | None = None
     """The latched stop's state when not confirmed (``unconfirmed: no state``)."""
-    arm_phase: Literal["off", "engaging", "on", "releasing"] = "off"
+    arm_phase: Literal["off", "engaging", "on", "holding", "releasing"] = "off"
     """The rt/arm_sdk stream (``fleet/g1/arms.py``)."""
-    arm_weight: float = 0.0
-    """The weight of the newest rt/arm_sdk message (0: the robot's own controller has the arms)."""
+    arm_weight: float | None = None
+    """The weight the robot holds as far as the agent knows: its newest rt/arm_sdk message's,
+    or another writer's seen on rt/arm_sdk (0: the robot's own controller has the arms; None:
+    unknown, e.g. after the agent's restart; the next stream starts at 1 on the measured pose)."""
     arm_released: Text | None = None
-    """Why the arms were last released (a stop, the lease, an FSM that forbids it)."""
+    """Why the arms were last released (an ``arm_release``, the agent's exit, an FSM that
+    forbids rt/arm_sdk, or a stop with ``arm_on_stop = "release"``)."""
+    arm_held: Text | None = None
+    """Why the arms are held (weight kept, pose frozen): a stop, the watchdog, the lease."""
     watched_by: Text | None = None
     """The commander whose heartbeat the G1's watchdog watches now (None: none)."""
 
@@ -201,15 +206,18 @@ class ShakeHand(_G1Command, tag="shake_hand", kw_only=True):
 
 class ArmTarget(_G1Command, tag="arm_target", kw_only=True):
     """The waist and arms (motors 12-28, rad) as a target of the rt/arm_sdk stream: the agent
-    engages (weight 0 -> 1), then moves the commanded pose towards it at ``speed_rad_s`` (the
-    inventory's ``arm_speed_rad_s`` when None). Renew it within the lease, else released."""
+    engages (weight 1 on the measured pose, or 0 -> 1 when the robot's weight is known to be 0),
+    then moves the commanded pose towards it at ``speed_rad_s`` (the inventory's
+    ``arm_speed_rad_s`` when None). Renew it within the lease, else held (``arm_on_stop``)."""
 
     q_rad: Annotated[list[JointQ], Meta(min_length=17, max_length=17)]
     speed_rad_s: Annotated[float, Meta(gt=0.0, le=10.0)] | None = None
 
 
 class ArmRelease(_G1Command, tag="arm_release", kw_only=True):
-    """Give the arms back to the robot's own controller (weight 1 -> 0 over ``arm_release_s``)."""
+    """Give the arms back to the robot's own controller (weight 1 -> 0 over ``arm_release_s``);
+    with no stream of its own and the robot's weight unknown, the agent starts one at weight 1
+    on the measured pose to ramp it down."""
 
 
 G1Command = (

@@ -16,6 +16,9 @@ Firmware readings, in marked blocks: the service name per device
 per candidate name, GetFsmId asked from ``tick`` until answered); the stop action's calls from
 ``loco.stop_calls`` (``stop_move`` also ends continuous gait), to every candidate name while
 ``auto`` has not found it.
+
+The waist and arms (``rt/lowstate``, the ``rt/arm_sdk`` stream) are ``fleet/g1/arm_link.py``'s,
+on this driver's lock; the stop action is written first and the arms handled beside it.
 """
 
 from __future__ import annotations
@@ -36,8 +39,8 @@ from cyclonedds.util import duration
 from fleet.devices.base import DeviceReply, Release
 from fleet.devices.driver import Done, DriverBase, LatchView, Put, error_reply
 from fleet.g1 import arms, idl, loco
-from fleet.g1.config import G1Config, arm_limits
-from fleet.g1.crc import low_cmd_crc, low_state_crc
+from fleet.g1.arm_link import STATE_READER_QOS, ArmLink
+from fleet.g1.config import G1Config
 from fleet.g1.messages import (
     OPS,
     READS,
@@ -67,23 +70,11 @@ from fleet.wire.payloads import G1_COMMAND
 log = logging.getLogger("edge_agent.g1")
 
 COMMAND = G1_COMMAND
-STATE_READER_QOS = Qos(
-    Policy.Reliability.BestEffort, Policy.History.KeepLast(64), Policy.Durability.Volatile
-)
 RPC_QOS = Qos(
     Policy.Reliability.Reliable(duration(milliseconds=100)),
     Policy.History.KeepLast(16),
     Policy.Durability.Volatile,
 )
-ARM_WRITER_QOS = Qos(
-    Policy.Reliability.Reliable(duration(milliseconds=5)),
-    Policy.History.KeepLast(1),
-    Policy.Durability.Volatile,
-)
-"""rt/arm_sdk: reliable matches the robot's reader whatever its reliability; depth 1, the
-newest wins (a late message is worth less than the next one, 20 ms later)."""
-LOWSTATE_MARGIN_RAD = 0.3
-"""rt/lowstate joint positions further than this outside the limits are a bad sample."""
 CONFIRM_SAMPLES = 3
 """The stop is confirmed by this many consecutive sportmodestate samples after its write."""
 MAX_PENDING = 16
@@ -131,17 +122,10 @@ class G1Driver(DriverBase):
             response = Topic(participant, loco.response_topic(service), idl.Response_)
             self.readers.append(DataReader(participant, response, qos=RPC_QOS))
             self._writers[service] = DataWriter(participant, request, qos=RPC_QOS)
-        # rt/lowstate (newest kept, checked when used) and the rt/arm_sdk stream.
-        low = Topic(participant, arms.LOWSTATE_TOPIC, idl.LowState_)
+        # rt/lowstate and the waist and arms' rt/arm_sdk (``fleet/g1/arm_link.py``).
+        self._arms = ArmLink(config, participant, self._lock, self._own)
         self._low_index = len(self.readers)
-        self.readers.append(DataReader(participant, low, qos=STATE_READER_QOS))
-        arm_topic = Topic(participant, arms.CMD_TOPIC, idl.LowCmd_)
-        self._arm_writer = DataWriter(participant, arm_topic, qos=ARM_WRITER_QOS)
-        self._arms = arms.ArmStream(arm_limits(config))
-        self._low_raw: tuple[idl.LowState_, float] | None = None
-        self._low: tuple[idl.LowState_, list[float], float] | None = None
-        self._next_arm_s = 0.0
-        self._arm_messages = 0
+        self.readers += [self._arms.lowstate_reader, self._arms.arm_sdk_reader]
         self._probe_ids: dict[int, str] = {}
         # Request ids this driver's answers are matched by: from the clock at creation, so
         # two processes (an agent and a Unitree SDK client) asking the same robot differ.
@@ -157,18 +141,17 @@ class G1Driver(DriverBase):
     # ------------------------------------------------------------------ relay thread
 
     def on_data(self, index: int, now_s: float) -> None:
-        """State samples (newest kept; stop confirmation), rt/lowstate (newest kept, checked
-        when used) or RPC responses (matched by id)."""
+        """State samples (newest kept; stop confirmation), rt/lowstate (each checked, the
+        newest good one kept), rt/arm_sdk of other writers, or RPC responses (matched by id)."""
         if index == self._low_index:
-            newest, reader = None, self.readers[index]
-            for sample in reader.take(N=64):
-                if isinstance(sample, idl.LowState_) and self._own(
-                    reader, sample, arms.LOWSTATE_TOPIC, now_s
-                ):
-                    newest = sample
-            if newest is not None:
+            bad = self._arms.on_lowstate(now_s)
+            with self._lock:
+                self._counts["bad_samples"] += bad
+            return
+        if index == self._low_index + 1:
+            if self._arms.on_arm_sdk():
                 with self._lock:
-                    self._low_raw = (newest, now_s)
+                    self._changed = True
             return
         if index >= 1:
             self._on_responses(index)
@@ -255,13 +238,14 @@ class G1Driver(DriverBase):
             self._counts["timeouts"] += len(late)
             next_s = min(self._next_put_s, now_s + TICK_MAX_S)
             ask = self._probe.due(now_s)
+            latest = self._latest
         low = self._lowstate(now_s) if due else None
-        message = self._arm_step(now_s)
-        if message is not None:
-            self._arm_writer.write(message)
-        with self._lock:
-            if self._arms.active:
-                next_s = min(next_s, self._next_arm_s)
+        if self._arms.step(now_s, latest):
+            with self._lock:
+                self._changed = True
+        arm_due = self._arms.next_due()
+        if arm_due is not None:
+            next_s = min(next_s, arm_due)
         if state is not None:
             self._put(keys.STATE, m.encode(state), False)
         if low is not None:
@@ -292,6 +276,7 @@ class G1Driver(DriverBase):
         sample, at_s = self._latest
         mode = {0: "static", 1: "dynamic"}.get(sample.fsm_mode, "unknown")
         latched, reason, watched_by = self._latch()
+        stream = self._arms.stream
         return G1State(
             stamp_ns=time.time_ns(),
             fsm_id=sample.fsm_id,
@@ -311,46 +296,22 @@ class G1Driver(DriverBase):
             service_setting=self.config.service,
             service_answered=self._probe.service in self._probe.answered,
             stop_detail=self._stop_detail if latched else None,
-            arm_phase=self._arms.phase,
-            arm_weight=round(self._arms.weight, 3),
-            arm_released=self._arms.why_released,
+            arm_phase=stream.phase,
+            arm_weight=None if stream.weight is None else round(stream.weight, 3),
+            arm_released=stream.why_released,
+            arm_held=stream.why_held,
             watched_by=watched_by,
         )
 
     # ------------------------------------------------------------------ the waist and arms
 
-    def _measured(self, now_s: float) -> list[float] | None:
-        """The 29 joint positions of the newest rt/lowstate, checked here (its CRC, finite,
-        near the limits: else counted bad, dropped), None when none is fresh. Checked when
-        used, not per sample: the robot sends 500 a second, the agent uses ~10."""
-        with self._lock:
-            raw, checked = self._low_raw, self._low
-        if raw is not None and (checked is None or raw[0] is not checked[0]):
-            sample, at_s = raw
-            q = [float(s.q) for s in sample.motor_state[: arms.MOTORS]]
-            good = sample.crc == low_state_crc(sample) and all(map(math.isfinite, q))
-            if good:
-                lo, hi = self._arms.limits.lower, self._arms.limits.upper
-                arm_q = q[arms.FIRST : arms.FIRST + arms.COUNT]
-                margin = LOWSTATE_MARGIN_RAD
-                good = all(a - margin <= v <= b + margin for v, a, b in zip(arm_q, lo, hi))
-            with self._lock:
-                self._low_raw = None
-                if good:
-                    self._low = checked = (sample, q, at_s)
-                else:
-                    self._counts["bad_samples"] += 1
-        if checked is None or now_s - checked[2] > self.config.link_stale_s:
-            return None
-        return checked[1]
-
     def _lowstate(self, now_s: float) -> G1LowState | None:
-        q = self._measured(now_s)
+        checked = self._arms.newest(now_s)
         with self._lock:
-            checked, bad = self._low, self._counts["bad_samples"]
-        if q is None or checked is None:
+            bad = self._counts["bad_samples"]
+        if checked is None:
             return None
-        imu = checked[0].imu_state
+        q, imu = checked[1], checked[0].imu_state
         return G1LowState(
             stamp_ns=time.time_ns(),
             q_rad=[round(v, 4) for v in q],
@@ -360,51 +321,14 @@ class G1Driver(DriverBase):
             bad_samples=bad,
         )
 
-    def _arm_step(self, now_s: float) -> idl.LowCmd_ | None:
-        """The next rt/arm_sdk message when one is due: the stream released first if the state
-        no longer allows it (stale, or an FSM seed 004 does not allow)."""
-        with self._lock:
-            stream = self._arms
-            if not stream.active or now_s < self._next_arm_s:
-                return None
-            latest = self._latest
-        fresh = latest is not None and now_s - latest[1] <= self.config.link_stale_s
-        why = None
-        if not fresh:
-            why = f"no fresh {loco.STATE_TOPIC}"
-        elif latest is not None and latest[0].fsm_id not in loco.ARM_SDK_FSMS:
-            fsm = latest[0].fsm_id
-            why = f"fsm {fsm} {loco.fsm_name(fsm)} does not allow rt/arm_sdk (seed 004)"
-        with self._lock:
-            if why is not None and stream.release(why):
-                self._changed = True
-            phase = stream.phase
-            step = stream.step(now_s)
-            if stream.phase != phase:
-                self._changed = True
-            self._next_arm_s = self._next_arm_s + arms.PERIOD_S
-            if self._next_arm_s <= now_s:  # late by a period: start the cadence again
-                self._next_arm_s = now_s + arms.PERIOD_S
-            if step is None:
-                return None
-            self._arm_messages += 1
-        weight, q_cmd = step
-        limits = stream.limits
-        motors = [idl.MotorCmd_() for _ in range(35)]
-        for i, q in enumerate(q_cmd):
-            motors[arms.FIRST + i] = idl.MotorCmd_(1, q, 0.0, 0.0, limits.kp[i], limits.kd[i], 0)
-        motors[arms.WEIGHT_INDEX] = idl.MotorCmd_(1, weight, 0.0, 0.0, 0.0, 0.0, 0)
-        message = idl.LowCmd_(motor_cmd=motors)
-        message.crc = low_cmd_crc(message)
-        return message
-
     def _arm_command(self, command: ArmTarget | ArmRelease, now_s: float) -> DeviceReply:
         """A target (checked: seed 004's FSM states, limits, speed, distance from the measured
         pose) starts or steers the stream; a release ramps it down."""
         if isinstance(command, ArmRelease):
+            changed, result = self._arms.release("released by its owner", now_s)
             with self._lock:
-                self._changed |= self._arms.release("released by its owner")
-            return DeviceReply(ok=True, device=self.device)
+                self._changed |= changed
+            return DeviceReply(ok=True, device=self.device, result=result)
         state = self._fresh_state(now_s)
         if state is None:
             raise self._refuse(
@@ -419,19 +343,15 @@ class G1Driver(DriverBase):
                 f"{loco.fsm_name(state.fsm_id)}: send start first",
             )
         speed = command.speed_rad_s or self.config.arm_speed_rad_s
-        measured = self._measured(now_s)
-        arm_q = None if measured is None else measured[arms.FIRST : arms.FIRST + arms.COUNT]
-        why = arms.target_problem(command.q_rad, speed, arm_q, self._arms.limits)
+        arm_q = self._arms.arm_pose(now_s)
+        why = arms.target_problem(command.q_rad, speed, arm_q, self._arms.stream.limits)
         if why is not None:
             code = m.ErrorCode.REJECTED if arm_q is None else m.ErrorCode.PARAMETER
             raise self._refuse(code, f"g1 {self.device!r}: arm target refused: {why}")
         assert arm_q is not None
+        changed = self._arms.target(command.q_rad, speed, arm_q, now_s)
         with self._lock:
-            if not self._arms.active:
-                self._next_arm_s = now_s
-            phase = self._arms.phase
-            self._arms.set_target(command.q_rad, speed, arm_q, now_s)
-            self._changed |= phase != self._arms.phase
+            self._changed |= changed
         return DeviceReply(ok=True, device=self.device, written_ns=time.time_ns())
 
     def _fresh_state(self, now_s: float) -> idl.SportModeState_ | None:
@@ -482,13 +402,7 @@ class G1Driver(DriverBase):
         always be activated."""
         with self._lock:
             targets = self._probe.targets
-            if self._arms.phase != "off":  # the arms back to the robot first
-                self._changed |= self._arms.release(f"stopped ({self.stop_action})")
-                weight = self._arms.weight
-                self._stop_detail = detail = (
-                    f"releasing the arms (weight {weight:.2f}), then {self.stop_action}"
-                )
-                return True, detail
+        # The stop action first, at once: the arms never delay it (they are handled beside).
         for service in targets:
             for call in loco.stop_calls(self.stop_action):
                 self._send(call, None, service)
@@ -499,7 +413,22 @@ class G1Driver(DriverBase):
             if self._stop_written_s is None:
                 self._stop_written_s, self._confirming = now_s, 0
             self._stop_detail = detail
+        # The arms held where they are (or released: ``arm_on_stop``), never moved.
+        if self._arms.interrupt(f"stopped ({self.stop_action})"):
+            with self._lock:
+                self._changed = True
         return True, detail
+
+    def leave(self, now_s: float) -> None:
+        """The agent exits: the arms go back to the robot's own controller (the weight ramped
+        to 0 over ``arm_release_s``) rather than stay held by a stream that is about to end."""
+        if self._arms.leave():
+            with self._lock:
+                self._changed = True
+
+    def wait_left(self) -> bool:
+        """Wait (bounded) until the arm stream has ended; True if it has."""
+        return self._arms.wait_left()
 
     # ------------------------------------------------------------------ commands
 

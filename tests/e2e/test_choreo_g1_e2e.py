@@ -4,14 +4,16 @@ agent of a1 and the devices agent of h1, a router, and the player in this proces
 
 What the far side shows: the G1's joints as its agent relays rt/lowstate follow the script's
 keyframes, start moving at the instant a1 does (one synchronized start), and the rt/arm_sdk
-weight is back at 0 once the play ends; a player that dies mid-dance gets the G1's arms
-released by its agent's watchdog (the one every unit has), the D1 arm held.
+weight is back at 0 once the play ends; a player that dies mid-dance gets the G1's arms held
+where they are by its agent's watchdog (the one every unit has; the weight kept, nothing moves)
+until an operator releases them, the D1 arm held.
 """
 
 from __future__ import annotations
 
 import math
 import signal
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -22,7 +24,7 @@ from fleet.choreo import g1_arms
 from fleet.choreo.player import Player
 from fleet.choreo.script import Move, parse_script
 from fleet.g1.kind import KIND
-from fleet.g1.messages import G1LowState, G1State
+from fleet.g1.messages import ArmRelease, G1LowState, G1State
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
 from testkit.collect import Collector, agent_token
@@ -104,7 +106,7 @@ def test_g1_arms_follow_the_choreography_beside_a_d1_arm(fleet: FleetHarness) ->
     assert result.ok, result.reason
     # The weight ramps back to 0 at the end: the robot's own controller has the arms again.
     wait_until(lambda: (s := states.latest()) is not None and s.arm_phase == "off", 5.0)
-    weights = [s.arm_weight for s in states.items]
+    weights = [s.arm_weight for s in states.items if s.arm_weight is not None]
     assert max(weights) == 1.0 and states.latest().arm_weight == 0.0  # type: ignore[union-attr]
     # Far side: the G1's relayed rt/lowstate reached every keyframe of both its arms.
     g1 = [(t, g1_arms.side_pose_deg(low.q_rad, "right")) for t, low in lows.timed]
@@ -139,7 +141,7 @@ def test_g1_arms_follow_the_choreography_beside_a_d1_arm(fleet: FleetHarness) ->
     assert not late, result
 
 
-def test_a_dead_player_gets_the_g1_arms_released_by_the_watchdog(
+def test_a_dead_player_gets_the_g1_arms_held_by_the_watchdog(
     fleet: FleetHarness, tmp_path: Path
 ) -> None:
     lows, states, joints = _collectors(fleet)
@@ -151,21 +153,54 @@ def test_a_dead_player_gets_the_g1_arms_released_by_the_watchdog(
     wait_until(lambda: max(map(abs, lows.latest().q_rad[12:29])) > math.radians(10), 10.0)  # type: ignore[union-attr]
     fleet.stop("player", signal.SIGKILL)
     killed = time.monotonic()
-    # The agent's watchdog (the player's heartbeat is gone) stops the G1: the arms are
-    # released over arm_release_s first, then the weight stays 0.
+    # The agent's watchdog (the player's heartbeat is gone) stops the G1: the arms are held
+    # where they are, the weight kept (a release would swing them to the robot's own pose).
     wait_until(lambda: (s := states.latest()) is not None and s.estopped, 5.0)
-    wait_until(lambda: (s := states.latest()) is not None and s.arm_phase == "off", 5.0)
+    wait_until(lambda: (s := states.latest()) is not None and s.arm_phase == "holding", 5.0)
     stopped = states.latest()
     assert stopped is not None and "watchdog" in (stopped.stop_reason or ""), stopped
-    assert stopped.arm_weight == 0.0 and "stopped" in (stopped.arm_released or ""), stopped
+    assert stopped.arm_weight == 1.0 and "stopped" in (stopped.arm_held or ""), stopped
+    held = list(lows.latest().q_rad[12:29])  # type: ignore[union-attr]
+    time.sleep(1.0)  # pacing: a window in which the held arms must not move
+    drift = max(abs(a - b) for a, b in zip(lows.latest().q_rad[12:29], held))  # type: ignore[union-attr]
+    assert drift < 1e-3 and max(map(abs, held)) > math.radians(5), (drift, held)
     timed = [(t, st) for t, st in states.timed if t > killed]
     latched = next(t for t, st in timed if st.estopped) - killed
-    off = next(t for t, st in timed if st.arm_phase == "off") - killed
-    print(
-        f"player killed: g1 latched by the watchdog after {latched:.2f} s, "
-        f"weight 0 after {off:.2f} s"
-    )
+    print(f"player killed: g1 latched by the watchdog after {latched:.2f} s, arms held")
+    # Released only when asked: the robot's own controller (zeros) has the arms again.
+    assert fleet.client().device_command("h1", ArmRelease()).ok
+    wait_until(lambda: (s := states.latest()) is not None and s.arm_phase == "off", 6.0)
+    wait_until(lambda: max(map(abs, lows.latest().q_rad[12:29])) < math.radians(1), 5.0)  # type: ignore[union-attr]
     client = fleet.client()  # the D1 arm is held and latched by the same watchdog
     wait_until(lambda: (s := client.snapshot(["a1"])["a1"][0]) is not None and s.estopped, 5.0)
     for collector in (lows, states, joints):
         collector.close()
+
+
+def test_a_stop_mid_play_leaves_the_g1_arms_held(fleet: FleetHarness) -> None:
+    """The player aborts on a stop: it holds the D1 arm and leaves the G1's arms held where
+    they are (it used to give them back, which swung them to the robot's own pose)."""
+    lows, states, joints = _collectors(fleet)
+    client = fleet.client()
+    looped = SCRIPT.replace('name = "g1 wave e2e"', 'name = "g1 loop"\nloops = 0')
+    player = Player(client, parse_script(looped, "g1.toml", ["a1"], {}, ["h1"]))
+    results: list[object] = []
+    thread = threading.Thread(target=lambda: results.append(player.play(ready_s=10.0)))
+    thread.start()
+    try:
+        wait_until(lambda: (s := states.latest()) is not None and s.arm_weight == 1.0, 20.0)
+        wait_until(lambda: max(map(abs, lows.latest().q_rad[12:29])) > math.radians(10), 20.0)  # type: ignore[union-attr]
+        client.estop(reason="mid play", timeout_s=2.0)
+        wait_until(lambda: not thread.is_alive(), 20.0)
+        assert results and not results[0].ok, results  # type: ignore[attr-defined]
+        wait_until(lambda: (s := states.latest()) is not None and s.arm_phase == "holding", 5.0)
+        held = list(lows.latest().q_rad[12:29])  # type: ignore[union-attr]
+        time.sleep(1.0)  # pacing: a window in which the held arms must not move
+        after = states.latest()
+        drift = max(abs(a - b) for a, b in zip(lows.latest().q_rad[12:29], held))  # type: ignore[union-attr]
+        assert after is not None and after.arm_phase == "holding", after
+        assert drift < 1e-3 and max(map(abs, held)) > math.radians(5), (drift, held)
+    finally:
+        thread.join(timeout=20.0)
+        for collector in (lows, states, joints):
+            collector.close()

@@ -80,7 +80,7 @@ def test_the_replay_viewer_draws_the_gripper_and_the_g1(recording: Path) -> None
 
         seek(raised_ns)  # where the arm was highest: drawn at that very sample
         wait_until(lambda: abs(g1._q[0, 15] - raised_q) < 1e-9, 10.0)
-        timeline.request_seek(timeline.duration_s)  # the end: stopped (the arms released)
+        timeline.request_seek(timeline.duration_s)  # the end: stopped (the arms held)
         wait_until(lambda: g1._text[0].endswith("STOPPED"), 10.0)
         assert g1._text[0].startswith("h1 · fsm 500 walk")
         wait_until(lambda: abs(g1._q[0, 15] - poses[-1][1]) < 0.003, 10.0)  # in the deadband
@@ -88,9 +88,14 @@ def test_the_replay_viewer_draws_the_gripper_and_the_g1(recording: Path) -> None
         assert abs(opening - 0.8) < 0.04, opening  # gl's opening on a1's fingers
         assert timeline.state.malformed == 0
         fed_at_end = timeline._fed
-        seek(grips[0].log_time_ns)  # back to before anything moved: rebuilt, redrawn
+        # Back to before anything moved, once both robots had a sample (the G1's first may come
+        # after the gripper's: before it the G1 has nothing to be drawn from): rebuilt, redrawn.
+        # (The stop held the G1's arms raised to the end of the file.)
+        early_ns = max(grips[0].log_time_ns, lows[0].log_time_ns) + 1_000_000
+        seek(early_ns)
         wait_until(lambda: abs(g1._q[0, 15]) < 0.05 and "STOPPED" not in g1._text[0], 10.0)
-        first = GRIPPER.payloads[keys.STATE].decode(grips[0].data).opening_pct / 100.0
+        then = [g for g in grips if g.log_time_ns <= early_ns][-1]
+        first = GRIPPER.payloads[keys.STATE].decode(then.data).opening_pct / 100.0
         assert abs(first - 0.8) > 0.1  # the gripper moved during the file
 
         def drawn() -> float:
