@@ -9,6 +9,7 @@ own puts to itself locally, whatever the router decides).
 
 from __future__ import annotations
 
+import math
 import subprocess
 import sys
 import threading
@@ -20,13 +21,17 @@ import pytest
 import zenoh
 
 from fleet.client import FleetClient
+from fleet.g1 import arms
+from fleet.g1.messages import G1LowState
 from fleet.heartbeat import Liveness
-from fleet.inventory import load_inventory
+from fleet.inventory import Inventory, load_inventory
 from fleet.security.certs import make_certs
 from fleet.wire import keys
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode
+from fleet.wire.payloads import G1_LOWSTATE
 from fleet.wire.session import Credentials, RouterUnreachable, open_client
+from testkit.collect import Collector
 from testkit.harness import FleetHarness, free_port, wait_until
 from tests.e2e.test_demo import stop_demo
 
@@ -251,12 +256,30 @@ def test_password_mode_authenticates_users(tmp_path: Path) -> None:
             open_client([h.endpoint], connect_timeout_s=2.0, credentials=wrong)
 
 
+def _the_g1_is_posed_and_dances(inventory: Inventory) -> None:
+    """The G1's lowstate reaches the operator (the router denied it to its agent: the G1 was
+    never posed, and the dance, which waits for its pose, never started) and its right elbow
+    reaches the ripple's keyframe (-25 deg)."""
+    elbow = arms.FIRST + arms.RIGHT_ARM[3]
+    with FleetClient(inventory.with_principal("operator"), connect_timeout_s=10.0) as client:
+        key = client.keys.device("g1", "h1", keys.LOWSTATE)
+        lows: Collector[G1LowState] = Collector(client.session, key, G1_LOWSTATE.decode)
+        try:
+            wait_until(lambda: lows.items, 20.0)
+            wait_until(
+                lambda: any(math.degrees(low.q_rad[elbow]) < -24.0 for low in lows.items), 90.0
+            )
+        finally:
+            lows.close()
+
+
 def test_the_secure_demo_runs_end_to_end_and_its_printed_cli_command_works(
     tmp_path: Path, dds_domain: int
 ) -> None:
     """The secure demo prints its temporary inventory and a CLI command with it, and that
     command connects (it failed with "no Zenoh router answered": no certificate); the arms'
-    calibration files are found from the temporary copy (``calib NONE`` before)."""
+    calibration files are found from the temporary copy (``calib NONE`` before); its G1 is
+    posed and dances."""
     port, domain = free_port(), dds_domain
     inventory = tmp_path / "inventory.toml"
     inventory.write_text(
@@ -268,7 +291,7 @@ def test_the_secure_demo_runs_end_to_end_and_its_printed_cli_command_works(
     with open(out, "wb") as sink:
         demo = subprocess.Popen(
             [sys.executable, "-m", "fleet.cli.main", "demo", "--secure", "--no-viewer"]
-            + ["--for-s", "40", "--domain", str(domain), "--endpoint", f"tcp/127.0.0.1:{port}"]
+            + ["--for-s", "120", "--domain", str(domain), "--endpoint", f"tcp/127.0.0.1:{port}"]
             + ["--inventory", str(inventory)],
             stdout=sink,
             stderr=subprocess.STDOUT,
@@ -301,5 +324,8 @@ def test_the_secure_demo_runs_end_to_end_and_its_printed_cli_command_works(
         last = wait_until(status_ok, 40.0, interval_s=1.0)
         rows = [line.split() for line in last.splitlines()[1:4]]
         assert [r[:3] for r in rows] == [["a1", "up", "ok"], ["a2", "up", "ok"], ["a3", "up", "ok"]]
+        _the_g1_is_posed_and_dances(
+            load_inventory(secure).with_endpoints([f"tls/127.0.0.1:{port}"])
+        )
     finally:
         stop_demo(demo)
