@@ -13,7 +13,13 @@ from concurrent.futures import ThreadPoolExecutor
 
 import msgspec
 
-from fleet.cli.interrupt import EXIT_INTERRUPTED, Interrupted, hold_what_moved, until_interrupted
+from fleet.cli.interrupt import (
+    EXIT_BOUND_S,
+    EXIT_INTERRUPTED,
+    Interrupted,
+    hold_what_moved,
+    until_interrupted,
+)
 from fleet.client import FleetClient, default_source
 from fleet.devices import kind_of
 from fleet.inventory import Inventory
@@ -156,7 +162,7 @@ def _send(args: argparse.Namespace, command: m.ArmCommand) -> int:
     inventory = inventory_from_args(args)
     arms = inventory.resolve(args.target)
     # Ctrl-C while the command waits (a move with --wait takes seconds): hold what it moved.
-    stop = shutdown_event(quiet=True)
+    stop = shutdown_event(quiet=True, bound_s=EXIT_BOUND_S)
     with FleetClient(inventory, connect_timeout_s=args.connect_timeout) as client:
         try:
             replies, skew, error = until_interrupted(

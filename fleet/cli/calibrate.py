@@ -20,7 +20,7 @@ from collections.abc import Callable
 
 import zenoh
 
-from fleet.cli.interrupt import EXIT_INTERRUPTED, Interrupted, hold_what_moved
+from fleet.cli.interrupt import EXIT_BOUND_S, EXIT_INTERRUPTED, Interrupted, hold_what_moved
 from fleet.client import FleetClient, default_source
 from fleet.contact.calibration import (
     Calibration,
@@ -192,7 +192,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
     owner = default_source()
     fitted: list[JointCalibration] = []
     jitters: list[float] = []
-    stop = shutdown_event(quiet=True)  # Ctrl-C: hold the arm, write nothing (below)
+    # Ctrl-C: hold the arm, write nothing (below).
+    stop = shutdown_event(quiet=True, bound_s=EXIT_BOUND_S)
     with FleetClient(inventory, connect_timeout_s=args.connect_timeout) as client:
         rec = _Recorder(client, args.arm)
         try:

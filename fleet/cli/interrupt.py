@@ -8,9 +8,8 @@ releases it) is the fallback for an arm whose agent did not answer the hold. An 
 was refused because another owner took it over (3207) is theirs now: it is not stopped, and
 the line says so.
 
-The command installs ``fleet.runtime.shutdown_event`` first, so the signal sets an Event (and
-no KeyboardInterrupt lands inside a Zenoh call); from it, the process has 8 s to exit, which
-bounds the hold (5 s) and the stop (2 s) below.
+The command installs ``fleet.runtime.shutdown_event`` first (``bound_s=EXIT_BOUND_S``), so the
+signal sets an Event and no KeyboardInterrupt lands inside a Zenoh call.
 """
 
 from __future__ import annotations
@@ -26,6 +25,10 @@ from fleet.wire.messages import ErrorCode
 
 EXIT_INTERRUPTED = 130
 STOP_TIMEOUT_S = 2.0
+EXIT_BOUND_S = 12.0
+"""From the Ctrl-C, the command exits within this (else it prints its threads' stacks and exits
+1): a hold's reply (5 s at most), the fallback stop (2 s) and the session's close (2 s) fit in
+it; the default 8 s did not, for an arm whose agent does not answer."""
 T = TypeVar("T")
 
 

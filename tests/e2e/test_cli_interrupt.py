@@ -4,6 +4,7 @@ word, and the arm went on to the target (calibrate: on to the end of its step)."
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import sys
@@ -98,3 +99,36 @@ def test_ctrl_c_on_calibrate_holds_the_arm_writes_nothing_and_exits_130(
     # Its steps: 10 deg, back to 0, 40 deg: 15 deg is passed on the way to 40.
     print(f"interrupted at {at:.1f} deg, held at {held:.1f} deg (the step's target: 40)")
     assert held < 32.0, (at, held, out)
+
+
+def test_ctrl_c_with_a_silent_agent_says_the_arm_was_not_stopped(
+    slow_fleet: tuple[FleetHarness, FleetClient],
+) -> None:
+    """The agent freezes mid-move: the hold gets no answer, nor does the protective stop sent
+    instead; the command says so (use the hardware stop) and still exits 130, within its
+    bound."""
+    harness, client = slow_fleet
+    agent = harness.processes["agent"]
+    argv = ["move", "a1", "--joint", "0", "--angle", "90", "--wait", "--timeout", "20"]
+    process = subprocess.Popen(
+        [sys.executable, "-m", "fleet.cli.main", *argv, "--inventory", str(harness.inventory_path)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    try:
+        wait_until(lambda: (angle := _joint0(client)) is not None and angle > 5.0, 30.0)
+        os.kill(agent.pid, signal.SIGSTOP)
+        started = time.monotonic()
+        process.send_signal(signal.SIGINT)
+        out, _ = process.communicate(timeout=20)
+        took_s = time.monotonic() - started
+    finally:
+        os.kill(agent.pid, signal.SIGCONT)
+        if process.poll() is None:
+            process.kill()
+            process.wait(timeout=5)
+    print(out, f"exited {took_s:.1f} s after the Ctrl-C")
+    assert process.returncode == 130, out
+    assert "a1: NOT stopped: its hold failed" in out and "hardware stop" in out, out
+    assert took_s < 12.0, out
