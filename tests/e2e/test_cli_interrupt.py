@@ -42,17 +42,22 @@ def _still_at(client: FleetClient) -> float | None:
     return second
 
 
-def _ctrl_c_once_moving(
-    harness: FleetHarness, client: FleetClient, argv: list[str], beyond_deg: float
-) -> tuple[int, str, float]:
-    """Run ``fleet ARGV`` on the harness's inventory, Ctrl-C it once joint 0 passed
-    ``beyond_deg``; (exit code, its output, joint 0 when the signal went)."""
-    process = subprocess.Popen(
+def _fleet(harness: FleetHarness, argv: list[str]) -> subprocess.Popen[str]:
+    """``fleet ARGV`` on the harness's inventory, as a child process, its output piped."""
+    return subprocess.Popen(
         [sys.executable, "-m", "fleet.cli.main", *argv, "--inventory", str(harness.inventory_path)],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
     )
+
+
+def _ctrl_c_once_moving(
+    harness: FleetHarness, client: FleetClient, argv: list[str], beyond_deg: float
+) -> tuple[int, str, float]:
+    """Run ``fleet ARGV`` on the harness's inventory, Ctrl-C it once joint 0 passed
+    ``beyond_deg``; (exit code, its output, joint 0 when the signal went)."""
+    process = _fleet(harness, argv)
     try:
         at = wait_until(
             lambda: (angle := _joint0(client)) is not None and angle > beyond_deg and angle,
@@ -110,12 +115,7 @@ def test_ctrl_c_with_a_silent_agent_says_the_arm_was_not_stopped(
     harness, client = slow_fleet
     agent = harness.processes["agent"]
     argv = ["move", "a1", "--joint", "0", "--angle", "90", "--wait", "--timeout", "20"]
-    process = subprocess.Popen(
-        [sys.executable, "-m", "fleet.cli.main", *argv, "--inventory", str(harness.inventory_path)],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
+    process = _fleet(harness, argv)
     try:
         wait_until(lambda: (angle := _joint0(client)) is not None and angle > 5.0, 30.0)
         os.kill(agent.pid, signal.SIGSTOP)

@@ -169,24 +169,16 @@ def test_device_agents_publish_their_devices_and_only_commanders_command(tmp_pat
         assert {f"fleet/lab/{kind}/*/{k}" for k in ("cmd/**", "estop", "reset")} <= set(small)
 
 
-MIXED = """
-[fleet]
-name = "lab"
-[zenoh]
-endpoints = ["tls/10.0.0.5:7447"]
-[security]
-mode = "mtls"
-[defaults]
-simulated = true
-[arms.a1]
-suffix = "_1"
-[grippers.gl]
+MIXED = (
+    INVENTORY.split("[arms.a2]")[0]  # the fleet, its security and a1
+    + """[grippers.gl]
 mount = "a1"
 [g1.h1]
 interface = ""
 [principals]
 ann = "operator"
 """
+)
 
 
 def test_every_key_each_kind_uses_is_granted_to_who_uses_it(tmp_path: Path) -> None:
