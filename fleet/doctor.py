@@ -4,8 +4,8 @@ Checks, in the order a first bring-up meets them: the network card named in the 
 (exists, up, has an address), the DDS domain, the DDS peers (resolvable, and reached through
 that card, not through another one), the Zenoh router, every process's version and clock
 (``info/*/*`` queryables, fleet/wire/info.py), every arm's agent, the arm's feedback (link and
-rate as the agent sees them), each G1's LocoClient service name and the
-coordinator. Host checks are pure functions of this host; fleet checks take an open
+rate as the agent sees them), the access rules (secure fleets), each G1's LocoClient service
+name and the coordinator. Host checks are pure functions of this host; fleet checks take an open
 ``FleetClient``.
 """
 
@@ -179,9 +179,35 @@ def check_peers(inventory: Inventory) -> list[Check]:
     return found
 
 
+def check_access_rules(inventory: Inventory) -> list[Check]:
+    """With security on: the generated access control allows every key each unit's agent
+    publishes and serves, each commander queries and each reader reads (a denied key is
+    dropped by the router without a word to either side)."""
+    if not inventory.security.enabled:
+        return []
+    from fleet.security.coverage import gaps
+
+    missing = gaps(inventory)
+    what = "access rules"
+    if not missing:
+        return [Check(what, "ok", "every key of every unit is allowed to who uses it")]
+    shown = "; ".join(str(gap) for gap in missing[:5])
+    more = f" (and {len(missing) - 5} more)" if len(missing) > 5 else ""
+    fix = (
+        "check the roles in [principals] (an agent's principal needs role 'agent'); if they "
+        "are right, the generated rules miss a channel: report it with this line"
+    )
+    return [Check(what, "fail", f"{len(missing)} keys denied: {shown}{more}", fix)]
+
+
 def host_checks(inventory: Inventory) -> list[Check]:
-    """Every check of this host's network configuration."""
-    return [*check_interfaces(inventory), *check_domains(inventory), *check_peers(inventory)]
+    """Every check of this host's configuration: the network, and the access rules."""
+    return [
+        *check_interfaces(inventory),
+        *check_domains(inventory),
+        *check_peers(inventory),
+        *check_access_rules(inventory),
+    ]
 
 
 # ----------------------------------------------------------------------------- the fleet

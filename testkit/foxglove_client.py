@@ -15,6 +15,8 @@ from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from websockets.sync.client import ClientConnection, connect
 
 SUBPROTOCOL = "foxglove.sdk.v1"
+OLD_SUBPROTOCOL = "foxglove.websocket.v1"
+"""The same protocol under its first name: older Foxglove apps, Lichtblick, ws-protocol clients."""
 MESSAGE_DATA = 0x01
 
 
@@ -67,14 +69,20 @@ def stamp_ns_of(message: Any) -> int:
 class FoxgloveClient:
     """One connection: the advertised channels, subscriptions, decoded messages."""
 
-    def __init__(self, url: str, timeout_s: float = 10.0, origin: str | None = None) -> None:
+    def __init__(
+        self,
+        url: str,
+        timeout_s: float = 10.0,
+        origin: str | None = None,
+        subprotocol: str = SUBPROTOCOL,
+    ) -> None:
         self.ws: ClientConnection = connect(
             url,
-            subprotocols=[SUBPROTOCOL],  # type: ignore[list-item]
+            subprotocols=[subprotocol],  # type: ignore[list-item]
             open_timeout=timeout_s,
             origin=origin,  # type: ignore[arg-type]
         )
-        assert self.ws.subprotocol == SUBPROTOCOL
+        assert self.ws.subprotocol == subprotocol
         self.server_info: dict[str, Any] | None = None
         self.channels: dict[int, dict[str, Any]] = {}
         self._subscriptions: dict[int, int] = {}  # subscription id -> channel id

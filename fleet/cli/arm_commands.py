@@ -13,10 +13,17 @@ from concurrent.futures import ThreadPoolExecutor
 
 import msgspec
 
+from fleet.cli.interrupt import (
+    EXIT_BOUND_S,
+    EXIT_INTERRUPTED,
+    Interrupted,
+    hold_what_moved,
+    until_interrupted,
+)
 from fleet.client import FleetClient, default_source
 from fleet.devices import kind_of
 from fleet.inventory import Inventory, InventoryError
-from fleet.runtime import inventory_from_args
+from fleet.runtime import inventory_from_args, shutdown_event
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode
@@ -154,17 +161,23 @@ def run_raw(args: argparse.Namespace) -> int:
 def _send(args: argparse.Namespace, command: m.ArmCommand) -> int:
     inventory = inventory_from_args(args)
     arms = inventory.resolve(args.target)
-    skew = None
+    # Ctrl-C while the command waits (a move with --wait takes seconds): hold what it moved.
+    stop = shutdown_event(quiet=True, bound_s=EXIT_BOUND_S)
     with FleetClient(inventory, connect_timeout_s=args.connect_timeout) as client:
-        if args.sync:
-            multi = client.multi(args.target, command, partial=args.partial)
-            if multi.error is not None:
-                print(f"FAILED [{multi.error.code}] {multi.error.message}")
-                return 3 if multi.error.code == ErrorCode.NO_AGENT else 1
-            replies, skew = list(multi.replies.values()), multi.start_skew_ms
-        else:
-            with ThreadPoolExecutor(max_workers=min(16, len(arms))) as pool:
-                replies = list(pool.map(lambda arm: client.command(arm, command), arms))
+        try:
+            replies, skew, error = until_interrupted(
+                lambda: _exchange(client, args, arms, command), stop
+            )
+        except Interrupted:
+            what = f"fleet {args.command}"
+            if not isinstance(command, m.MOTION_OPS):
+                print(f"{what}: interrupted before every reply; the command was sent")
+                return EXIT_INTERRUPTED
+            sync_target = args.target if args.sync else ""
+            return hold_what_moved(client, arms, command.owner, what, sync_target)
+    if error is not None:
+        print(f"FAILED [{error.code}] {error.message}")
+        return 3 if error.code == ErrorCode.NO_AGENT else 1
     for reply in replies:
         if args.json:
             print(msgspec.json.encode(reply).decode())
@@ -182,6 +195,20 @@ def _send(args: argparse.Namespace, command: m.ArmCommand) -> int:
         r.ok or (r.error is not None and r.error.code == ErrorCode.NO_AGENT) for r in replies
     )
     return 3 if unreachable else 1
+
+
+def _exchange(
+    client: FleetClient, args: argparse.Namespace, arms: list[str], command: m.ArmCommand
+) -> tuple[list[m.CommandReply], float | None, m.ErrorInfo | None]:
+    """Send ``command`` to ``arms`` (through the coordinator with --sync) and wait for the
+    replies: (replies, start skew with --sync, the coordinator's refusal)."""
+    if args.sync:
+        multi = client.multi(args.target, command, partial=args.partial)
+        if multi.error is not None:
+            return [], None, multi.error
+        return list(multi.replies.values()), multi.start_skew_ms, None
+    with ThreadPoolExecutor(max_workers=min(16, len(arms))) as pool:
+        return list(pool.map(lambda arm: client.command(arm, command), arms)), None, None
 
 
 def device_id(inventory: Inventory, target: str) -> str | None:

@@ -7,7 +7,8 @@ The routine (``fleet/contact/fit.py``): joint by joint, from where the arm stand
 mode 1 then mode 0; each step is waited out until the joint is still on its target. The arm is
 held under this client's lease. It stops at once, holds the arm and writes nothing when a step
 does not arrive (the joint stands still more than 2 deg short: an obstacle), when the agent
-confirms a contact, or when a command fails. Keep the arm's surroundings clear of the sweep.
+confirms a contact, when a command fails, or on Ctrl-C (exit 130). Keep the arm's
+surroundings clear of the sweep.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from collections.abc import Callable
 
 import zenoh
 
+from fleet.cli.interrupt import EXIT_BOUND_S, EXIT_INTERRUPTED, Interrupted, hold_what_moved
 from fleet.client import FleetClient, default_source
 from fleet.contact.calibration import (
     Calibration,
@@ -38,7 +40,7 @@ from fleet.contact.fit import (
     plan,
 )
 from fleet.d1.limits import JOINT_COUNT, JOINT_RANGE_DEG
-from fleet.runtime import inventory_from_args
+from fleet.runtime import inventory_from_args, shutdown_event
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
 
@@ -109,11 +111,15 @@ class _Recorder:
             sub.undeclare()
 
 
-def _wait_step(rec: _Recorder, joint: int, target: float, sent_s: float) -> str | None:
-    """Wait until ``joint`` is still on ``target``; the reason to stop otherwise."""
+def _wait_step(
+    rec: _Recorder, joint: int, target: float, sent_s: float, stop: threading.Event
+) -> str | None:
+    """Wait until ``joint`` is still on ``target``; the reason to stop otherwise. Interrupted
+    when ``stop`` (Ctrl-C) is set."""
     deadline = sent_s + STEP_TIMEOUT_S
     while time.monotonic() < deadline:
-        time.sleep(0.05)
+        if stop.wait(0.05):
+            raise Interrupted
         if rec.contact is not None:
             return rec.contact
         recent = [(t, a[joint]) for t, a in rec.since(sent_s)]
@@ -140,9 +146,11 @@ def _calibrate_joint(
     owner: str,
     jitter: list[float],
     timing_s: float,
+    stop: threading.Event,
 ) -> JointCalibration | str:
     """Run the steps of ``joint`` and fit them; or the reason the routine stopped.
-    ``timing_s``: the arm's contact ``timing_tolerance_s`` (the fit's error beyond it)."""
+    ``timing_s``: the arm's contact ``timing_tolerance_s`` (the fit's error beyond it).
+    Interrupted when ``stop`` (Ctrl-C) is set."""
     pose = rec.latest()
     assert pose is not None
     records: list[StepRecord] = []
@@ -157,7 +165,7 @@ def _calibrate_joint(
         if not reply.ok:
             why = reply.error.message if reply.error else "no reply"
             return f"the step of joint {joint} to {target:.1f} deg failed: {why}"
-        problem = _wait_step(rec, joint, target, sent)
+        problem = _wait_step(rec, joint, target, sent, stop)
         if problem is not None:
             return problem
         samples = [(t, a[joint]) for t, a in rec.since(sent)]
@@ -184,18 +192,28 @@ def run_calibrate(args: argparse.Namespace) -> int:
     owner = default_source()
     fitted: list[JointCalibration] = []
     jitters: list[float] = []
+    # Ctrl-C: hold the arm, write nothing (below).
+    stop = shutdown_event(quiet=True, bound_s=EXIT_BOUND_S)
     with FleetClient(inventory, connect_timeout_s=args.connect_timeout) as client:
         rec = _Recorder(client, args.arm)
         try:
             deadline = time.monotonic() + 5.0
             while rec.latest() is None and time.monotonic() < deadline:
-                time.sleep(0.05)
+                if stop.wait(0.05):
+                    return EXIT_INTERRUPTED  # nothing was sent yet
             if rec.latest() is None:
                 print(f"fleet calibrate: no joint reports from arm {args.arm!r} within 5 s")
                 return 3
             for joint in joints:
                 print(f"calibrating joint {joint} ...", flush=True)
-                result = _calibrate_joint(client, rec, args.arm, joint, owner, jitters, timing_s)
+                try:
+                    result = _calibrate_joint(
+                        client, rec, args.arm, joint, owner, jitters, timing_s, stop
+                    )
+                except Interrupted:
+                    code = hold_what_moved(client, [args.arm], owner, "fleet calibrate")
+                    print("nothing was written; run it again to calibrate")
+                    return code
                 if isinstance(result, str):
                     client.command(args.arm, m.Hold(owner=owner, takeover=True))
                     print(f"fleet calibrate: STOPPED, the arm holds its pose: {result}")

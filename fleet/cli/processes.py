@@ -24,7 +24,7 @@ import zenoh
 
 from fleet.cli.demo_secure import secure_demo_inventory
 from fleet.cli.screen import LogStream, Screen
-from fleet.cli.supervise import Supervisor
+from fleet.cli.supervise import Supervisor, stop_children
 from fleet.client import FleetClient
 from fleet.guard import EXIT_THREAD_FAILED, ThreadGuard
 from fleet.inventory import Inventory
@@ -259,11 +259,15 @@ def _port_free(endpoint: str) -> bool:
 PR_SET_PDEATHSIG = 1
 
 
-def _die_with_parent(parent: int) -> Callable[[], None]:
-    """For a child, run between fork and exec: the kernel sends it SIGTERM when the demo dies,
-    however it dies (a SIGKILL cannot be handled, so the demo could not stop its children)."""
+def _owned_by_demo(parent: int) -> Callable[[], None]:
+    """For a child, run between fork and exec. It gets a process group of its own: a Ctrl-C in
+    the demo's terminal (SIGINT to the terminal's foreground group) reaches the demo alone, which
+    stops each child by PID; before, every child got it too, most in the middle of their imports
+    (a traceback each). And the kernel sends it SIGTERM when the demo dies, however it dies (a
+    SIGKILL cannot be handled, so the demo could not stop its children)."""
 
     def arrange() -> None:
+        os.setpgid(0, 0)
         ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
         if os.getppid() != parent:  # the demo died before the line above: nobody will stop us
             os._exit(1)
@@ -273,7 +277,7 @@ def _die_with_parent(parent: int) -> Callable[[], None]:
 
 def _spawn(argv: list[str], **options: Any) -> subprocess.Popen[Any]:
     return subprocess.Popen(
-        [sys.executable, *argv], preexec_fn=_die_with_parent(os.getpid()), **options
+        [sys.executable, *argv], preexec_fn=_owned_by_demo(os.getpid()), **options
     )
 
 
@@ -308,8 +312,21 @@ def _common_argv(args: argparse.Namespace, inventory: Inventory) -> list[str]:
     return argv + ["--log-level", "WARNING", "--log-format", args.log_format]
 
 
+DANCE = "dance"
+"""The demo's child that plays the choreography: not supervised (a stop ends it, and the fleet
+is fine without it; the operator starts it again)."""
+PATIENCE_S = 5.0
+"""How long the demo's children have, in all, to shut down cleanly (an agent holds its robots
+first) after the demo's SIGTERM; then SIGKILL."""
+PATIENCE_STARTING_S = 1.5
+"""The same when the demo is stopped while it starts them: a child may be mid start-up (a DDS
+participant, a session to a router) with its handler set, and nothing is commanded yet."""
+
+
 def run_demo(args: argparse.Namespace) -> int:
     """Start the demo fleet as child processes, print a status line per arm, stop them all."""
+    # First: a Ctrl-C from here on stops the demo cleanly, even while it writes certificates.
+    stop = shutdown_event(bound_s=None)  # its children are bounded (supervise.stop_children)
     inventory = inventory_from_args(args)
     if args.domain is None:
         # A domain of its own, so two demos (or a demo and a test run) never cross-talk.
@@ -321,69 +338,101 @@ def run_demo(args: argparse.Namespace) -> int:
     if args.secure:
         inventory = secure_demo_inventory(args, inventory, Path(workdir.name))
     try:
-        return _run_demo(args, inventory)
+        return 0 if stop.is_set() else _run_demo(args, inventory, stop)
     finally:
         workdir.cleanup()
 
 
-def _run_demo(args: argparse.Namespace, inventory: Inventory) -> int:
+def _demo_children(args: argparse.Namespace, inventory: Inventory) -> list[tuple[str, list[str]]]:
+    """(name, argv) of the demo's children in start order, the router first."""
+    common = _common_argv(args, inventory)
+    out = [("router", ["-m", "fleet.cli.main", "router", *common])]
+    if any(a.simulated for a in inventory.arms.values()):
+        out.append(("simulator", ["-m", "fleet.cli.main", "sim", *common]))
+    # One agent process per network card and agent identity: an arm and the devices mounted
+    # on it share one (their agent is the arm's by default).
+    for label, argv in agent_processes(inventory):
+        out.append((f"agent of {label}", ["-m", "edge_agent", *argv, *common]))
+    out.append(("coordinator", ["-m", "fleet.cli.main", "coordinator", *common]))
+    if not args.no_dance:
+        # Loops until a stop, which ends it: a reset permits motion, never restarts it (the
+        # operator does, with the command printed by _intro).
+        dance = ["play", args.dance, "--loops", "0", "--quiet", "--ready-s", "30"]
+        out.append((DANCE, ["-m", "fleet.cli.main", *dance, *common]))
+    if args.foxglove is not None:
+        # The token reaches the child in its environment (not its argv: the process list
+        # shows that to every user); _intro prints the URL with it.
+        from fleet.web.access import FOXGLOVE_TOKEN_ENV as TOKEN_ENV
+        from fleet.web.access import new_token
+
+        os.environ.setdefault(TOKEN_ENV, new_token())
+        fox = ["-m", "fleet.cli.main", "foxglove", "--port", str(args.foxglove), *common]
+        out.append(("foxglove", fox))
+    if args.ros2:
+        out.append(("ros2", ["-m", "fleet.cli.main", "ros2", *common]))
+    if not args.no_viewer:
+        # The person running the demo operates their own simulated fleet: the viewer acts
+        # as 'operator' (reset and jog), not as the read-only default principal 'viewer'.
+        viewer = ["-m", "fleet.cli.main", "viewer", "--port", str(args.port)]
+        out.append(("viewer", [*viewer, "--principal", "operator", *common]))
+    return out
+
+
+def _run_demo(args: argparse.Namespace, inventory: Inventory, stop: threading.Event) -> int:
     busy = [e for e in inventory.endpoints if not _port_free(e)]
     if busy:
         print(busy_message("fleet demo", busy), file=sys.stderr)
         return 3
-    stop = shutdown_event(bound_s=None)  # its children are bounded each (_stop_children)
-    common = _common_argv(args, inventory)
     screen = Screen(sys.stdout)
     spawner = _Children(screen)
     supervisor = Supervisor(spawner.spawn, say=screen.log)
-    supervisor.start("router", ["-m", "fleet.cli.main", "router", *common])
-    children: list[subprocess.Popen[Any]] = []
+    unsupervised: list[subprocess.Popen[Any]] = []
+    started: dict[str, subprocess.Popen[Any]] = {}  # the first process of each
     gave_up = None
+    running = False
     try:
-        time.sleep(0.5)  # let the router bind before the others connect (they retry anyway)
-        simulated = [a.id for a in inventory.arms.values() if a.simulated]
-        if simulated:
-            supervisor.start("simulator", ["-m", "fleet.cli.main", "sim", *common])
-        # One agent process per network card and agent identity: an arm and the devices
-        # mounted on it share one (their agent is the arm's by default).
-        for label, argv in agent_processes(inventory):
-            supervisor.start(f"agent of {label}", ["-m", "edge_agent", *argv, *common])
-        supervisor.start("coordinator", ["-m", "fleet.cli.main", "coordinator", *common])
-        if not args.no_dance:
-            # Loops until a stop, which ends it: a reset permits motion, never restarts it (the
-            # operator does, with the command printed below). Not watched like the others: the
-            # fleet is fine without it.
-            dance = ["play", args.dance, "--loops", "0", "--quiet", "--ready-s", "30"]
-            children.append(spawner.spawn(["-m", "fleet.cli.main", *dance, *common]))
-        if args.foxglove is not None:
-            # The token reaches the child in its environment (not its argv: the process list
-            # shows that to every user); _intro prints the URL with it.
-            from fleet.web.access import FOXGLOVE_TOKEN_ENV as TOKEN_ENV
-            from fleet.web.access import new_token
-
-            os.environ.setdefault(TOKEN_ENV, new_token())
-            fox = ["-m", "fleet.cli.main", "foxglove", "--port", str(args.foxglove), *common]
-            supervisor.start("foxglove", fox)
-        if args.ros2:
-            supervisor.start("ros2", ["-m", "fleet.cli.main", "ros2", *common])
+        for name, argv in _demo_children(args, inventory):
+            if stop.is_set():  # Ctrl-C while starting: start no more, stop those started
+                break
+            if name == DANCE:
+                started[name] = spawner.spawn(argv)
+                unsupervised.append(started[name])
+            else:
+                started[name] = supervisor.start(name, argv)
+            if name == "router":
+                stop.wait(0.5)  # let the router bind before the others connect (they retry)
         url = "not started (--no-viewer)"
-        if not args.no_viewer:
-            # The person running the demo operates their own simulated fleet: the viewer acts
-            # as 'operator' (reset and jog), not as the read-only default principal 'viewer'.
-            viewer_argv = ["-m", "fleet.cli.main", "viewer", "--port", str(args.port)]
-            viewer_argv += ["--principal", "operator", *common]
+        if "viewer" in started and not stop.is_set():
             # (A restarted viewer prints its new URL on the demo's own output.)
-            viewer = supervisor.start("viewer", viewer_argv)
-            url = _viewer_url(viewer, spawner.urls)
-        for line in _intro(args, inventory, url):
-            screen.log(line)
-        gave_up = _print_status_until(stop, inventory, args.for_s, supervisor, screen, children)
+            url = _viewer_url(started["viewer"], spawner.urls, stop)
+        if not stop.is_set():
+            running = True
+            for line in _intro(args, inventory, url):
+                screen.log(line)
+            gave_up = _print_status_until(
+                stop, inventory, args.for_s, supervisor, screen, unsupervised
+            )
     finally:
-        _stop_children([*supervisor.processes(), *children])
+        patience_s = PATIENCE_S if running else PATIENCE_STARTING_S
+        stop_children(_stop_stages({**supervisor.current(), **started}), patience_s)
     if gave_up is not None:
         print(f"fleet demo: {gave_up}", file=sys.stderr)
         return 1
     return 0
+
+
+COMMANDERS = (DANCE, "viewer", "foxglove", "ros2")
+"""The demo's children that command robots or serve people (the player, the viewer's jog...)."""
+
+
+def _stop_stages(
+    children: dict[str, subprocess.Popen[Any]],
+) -> list[list[subprocess.Popen[Any]]]:
+    """The order the demo stops its children in: the commanders (what they moved is held while
+    its agent still listens), then the fleet's processes, the router last."""
+    commanders = [p for name, p in children.items() if name in COMMANDERS]
+    fleet = [p for name, p in children.items() if name not in (*COMMANDERS, "router")]
+    return [commanders, fleet, [children["router"]] if "router" in children else []]
 
 
 def fleet_command() -> str:
@@ -437,11 +486,14 @@ def _intro(args: argparse.Namespace, inventory: Inventory, url: str) -> list[str
     return lines
 
 
-def _viewer_url(viewer: subprocess.Popen[Any], urls: list[str], timeout_s: float = 30.0) -> str:
+def _viewer_url(
+    viewer: subprocess.Popen[Any], urls: list[str], stop: threading.Event, timeout_s: float = 30.0
+) -> str:
     """The URL the viewer prints once it serves (it may move to another port if busy)."""
     deadline = time.monotonic() + timeout_s
     while not urls and time.monotonic() < deadline and viewer.poll() is None:
-        time.sleep(0.1)
+        if stop.wait(0.1):
+            break
     return urls[0] if urls else "did not start (see its log above)"
 
 
@@ -477,26 +529,6 @@ def _print_status_until(
     finally:
         sys.stderr = stderr
     return None
-
-
-def _stop_children(children: list[subprocess.Popen[bytes]]) -> None:
-    """SIGTERM every child by PID (agents first, router last), then SIGKILL stragglers."""
-    for child in reversed(children):
-        if child.poll() is None:
-            child.terminate()
-    for child in reversed(children):
-        try:
-            child.wait(timeout=5.0)
-        except subprocess.TimeoutExpired:
-            child.kill()
-            try:
-                child.wait(timeout=5.0)
-            except subprocess.TimeoutExpired:
-                print(
-                    f"fleet demo: could not stop PID {child.pid} ({' '.join(child.args[1:4])}); "
-                    "stop it by hand",
-                    file=sys.stderr,
-                )
 
 
 def agent_processes(inventory: Inventory) -> list[tuple[str, list[str]]]:

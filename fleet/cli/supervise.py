@@ -7,6 +7,7 @@ from __future__ import annotations
 import signal
 import subprocess
 import sys
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -93,3 +94,40 @@ class Supervisor:
     def processes(self) -> list[subprocess.Popen[Any]]:
         """Every child's current process, in start order."""
         return [child.process for child in self.children]
+
+    def current(self) -> dict[str, subprocess.Popen[Any]]:
+        """Each child's current process (a restart replaces it) by name."""
+        return {child.name: child.process for child in self.children}
+
+
+def stop_children(stages: list[list[subprocess.Popen[Any]]], patience_s: float) -> None:
+    """Stop the children by PID, stage after stage: SIGTERM a stage's children at once and wait
+    for them before the next stage (the commanders first, so they hold what they moved while
+    the agents still listen, and the router last, which everyone's shutdown talks through: a
+    player whose agents were gone waited 5 s for them). One deadline, ``patience_s`` from now,
+    for all: a child still running then (one still starting, its shutdown handler not yet
+    reached) is SIGKILLed."""
+    deadline = time.monotonic() + patience_s
+    for stage in stages:
+        _terminate(stage, deadline)
+
+
+def _terminate(children: list[subprocess.Popen[Any]], deadline: float) -> None:
+    """SIGTERM ``children``, wait for them until ``deadline``, SIGKILL the rest and reap them."""
+    for child in children:
+        if child.poll() is None:
+            child.terminate()
+    for child in children:
+        try:
+            child.wait(timeout=max(0.0, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            child.kill()
+    for child in children:
+        try:
+            child.wait(timeout=5.0)
+        except subprocess.TimeoutExpired:
+            print(
+                f"fleet demo: could not stop PID {child.pid} ({' '.join(child.args[1:4])}); "
+                "stop it by hand",
+                file=sys.stderr,
+            )

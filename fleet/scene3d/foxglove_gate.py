@@ -36,7 +36,7 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import NameOID
 from websockets.datastructures import Headers
-from websockets.exceptions import ConnectionClosed
+from websockets.exceptions import ConnectionClosed, InvalidHandshake
 from websockets.http11 import Request, Response
 from websockets.sync.client import ClientConnection, connect
 from websockets.sync.server import Server, ServerConnection, serve
@@ -48,6 +48,13 @@ from fleet.web.refusals import Refusals
 log = logging.getLogger("fleet.foxglove")
 
 SUBPROTOCOLS = ("foxglove.sdk.v1", "foxglove.websocket.v1")
+"""What clients may offer: the protocol's name in Foxglove's SDK, and its first name, which
+older Foxglove apps, Lichtblick and Foxglove's ws-protocol clients still offer."""
+UPSTREAM_SUBPROTOCOL = "foxglove.sdk.v1"
+"""The one name the SDK's server (foxglove-sdk 0.30) accepts: it answers HTTP 400 to
+``foxglove.websocket.v1``. The two name one protocol (Foxglove's stance, and what Lichtblick
+and Flora rely on to accept both), so the gate opens the private server with this name
+whatever the client offered, and copies the frames as they are."""
 FOXGLOVE_APP_ORIGIN = "https://app.foxglove.dev"
 """Foxglove's web app: allowed by default (its pages still need the token)."""
 MAX_CLIENTS = 16
@@ -155,7 +162,7 @@ class FoxgloveGate:
         return None
 
     def _handle(self, client: ServerConnection) -> None:
-        """One admitted client's thread: open the private server with the same subprotocol,
+        """One admitted client's thread: open the private server (``UPSTREAM_SUBPROTOCOL``),
         then copy both ways until either side closes."""
         with self._lock:
             admit = not self._closed and len(self._clients) < MAX_CLIENTS
@@ -188,7 +195,7 @@ class FoxgloveGate:
                 self._clients.pop(client, None)
 
     def _open_upstream(self, client: ServerConnection) -> ClientConnection | None:
-        """The private server, with the client's subprotocol; None if it did not answer.
+        """The private server, with the SDK's subprotocol; None if it did not answer.
         Tried twice: on a loaded host its handshake once took more than 5 s (measured at load
         6-9), and a client that waits a little longer is better served than refused."""
         for attempt in range(UPSTREAM_TRIES):
@@ -196,13 +203,15 @@ class FoxgloveGate:
                 return connect(
                     self._upstream,
                     ssl=self._tls,
-                    subprotocols=[client.subprotocol] if client.subprotocol else None,  # type: ignore[list-item]
+                    subprotocols=[UPSTREAM_SUBPROTOCOL],  # type: ignore[list-item]
                     max_size=SERVER_MESSAGE_BYTES,
                     compression=None,
                     open_timeout=UPSTREAM_OPEN_S,
                     close_timeout=CLOSE_S,
                 )
-            except (OSError, TimeoutError, ConnectionClosed) as exc:
+            except (OSError, TimeoutError, ConnectionClosed, InvalidHandshake) as exc:
+                # A refused handshake (an HTTP status) fails this client only, never the
+                # command: it took `fleet foxglove` down (exit 1) for one client.
                 log.warning(
                     "foxglove gate: the private server did not answer (%s; try %d of %d)",
                     exc,

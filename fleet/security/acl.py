@@ -29,7 +29,7 @@ from fleet.devices import kind_of
 from fleet.inventory import Inventory
 from fleet.security_config import Role
 from fleet.wire import keys
-from fleet.wire.payloads import KIB
+from fleet.wire.payloads import KIB, device_payloads
 
 PUT = ["put", "delete"]
 ARM_STATE = (
@@ -109,8 +109,12 @@ class _Grants:
         return out
 
 
-DEVICE_STATE = ("state", "contact", "diag", "estop/ack", "reset/ack")
-"""What a device agent publishes for its own devices."""
+def device_agent_channels(kind: str) -> list[str]:
+    """What a device agent publishes for its own devices of ``kind``: every channel of the
+    kind's rows in the channel table but those others send it (commands, stops, resets). From
+    the table, so a kind's new channel (a G1's ``lowstate``) is granted with it."""
+    received = (keys.CMD, keys.ESTOP, keys.RESET)
+    return [channel for channel in device_payloads(kind) if channel not in received]
 
 
 def _device_kinds(inventory: Inventory) -> list[str]:
@@ -137,7 +141,7 @@ def _grants(inventory: Inventory, principal: str, role: Role) -> _Grants:
         g.read += [f"{f}/arm/{a}/{channel}" for a in arms for channel in ("estop", "reset")]
         # Devices: the same, for the devices this principal's agent serves.
         own = [(kind_of(d).key, i) for i, d in inventory.devices.items() if d.agent == principal]
-        g.put += [f"{f}/{k}/{d}/{channel}" for k, d in own for channel in DEVICE_STATE]
+        g.put += [f"{f}/{k}/{d}/{channel}" for k, d in own for channel in device_agent_channels(k)]
         g.queryable += [f"{f}/{k}/{d}/cmd/*" for k, d in own]
         g.token += [f"{f}/{k}/{d}/agent" for k, d in own]
         g.read += [f"{f}/{k}/{d}/{channel}" for k, d in own for channel in ("estop", "reset")]

@@ -13,20 +13,23 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
 import zenoh
 
 from fleet.client import FleetClient
+from fleet.g1.messages import G1LowState, G1State
 from fleet.heartbeat import Liveness
-from fleet.inventory import load_inventory
+from fleet.inventory import Inventory, load_inventory
 from fleet.security.certs import make_certs
 from fleet.wire import keys
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode
+from fleet.wire.payloads import G1_LOWSTATE, G1_STATE
 from fleet.wire.session import Credentials, RouterUnreachable, open_client
+from testkit.collect import Collector
 from testkit.harness import FleetHarness, free_port, wait_until
 from tests.e2e.test_demo import stop_demo
 
@@ -251,12 +254,39 @@ def test_password_mode_authenticates_users(tmp_path: Path) -> None:
             open_client([h.endpoint], connect_timeout_s=2.0, credentials=wrong)
 
 
+def _the_g1_is_posed_and_dances(inventory: Inventory, demo_output: Callable[[], str]) -> None:
+    """The G1's lowstate reaches the operator (the router denied it to its agent: the G1 was
+    never posed, and the dance, which waits for its pose, never started) and the dance takes
+    the G1's arms (their weight ramps up). Not the ripple's keyframe: on a loaded host the
+    agents' watchdog may stop the dance first (a player's heartbeat late by 0.5 s), as in any
+    demo."""
+    with FleetClient(inventory.with_principal("operator"), connect_timeout_s=10.0) as client:
+        space = client.keys
+        lows: Collector[G1LowState] = Collector(
+            client.session, space.device("g1", "h1", keys.LOWSTATE), G1_LOWSTATE.decode
+        )
+        states: Collector[G1State] = Collector(
+            client.session, space.device("g1", "h1", keys.STATE), G1_STATE.decode
+        )
+        try:
+            wait_until(lambda: lows.items, 20.0, explain=lambda: demo_output()[-4000:])
+            wait_until(
+                lambda: any(s.arm_phase in ("engaging", "on") for s in states.items),
+                60.0,
+                explain=lambda: demo_output()[-4000:],
+            )
+        finally:
+            lows.close()
+            states.close()
+
+
 def test_the_secure_demo_runs_end_to_end_and_its_printed_cli_command_works(
     tmp_path: Path, dds_domain: int
 ) -> None:
     """The secure demo prints its temporary inventory and a CLI command with it, and that
     command connects (it failed with "no Zenoh router answered": no certificate); the arms'
-    calibration files are found from the temporary copy (``calib NONE`` before)."""
+    calibration files are found from the temporary copy (``calib NONE`` before); its G1 is
+    posed and the dance takes its arms."""
     port, domain = free_port(), dds_domain
     inventory = tmp_path / "inventory.toml"
     inventory.write_text(
@@ -268,7 +298,7 @@ def test_the_secure_demo_runs_end_to_end_and_its_printed_cli_command_works(
     with open(out, "wb") as sink:
         demo = subprocess.Popen(
             [sys.executable, "-m", "fleet.cli.main", "demo", "--secure", "--no-viewer"]
-            + ["--for-s", "40", "--domain", str(domain), "--endpoint", f"tcp/127.0.0.1:{port}"]
+            + ["--for-s", "240", "--domain", str(domain), "--endpoint", f"tcp/127.0.0.1:{port}"]
             + ["--inventory", str(inventory)],
             stdout=sink,
             stderr=subprocess.STDOUT,
@@ -301,5 +331,8 @@ def test_the_secure_demo_runs_end_to_end_and_its_printed_cli_command_works(
         last = wait_until(status_ok, 40.0, interval_s=1.0)
         rows = [line.split() for line in last.splitlines()[1:4]]
         assert [r[:3] for r in rows] == [["a1", "up", "ok"], ["a2", "up", "ok"], ["a3", "up", "ok"]]
+        _the_g1_is_posed_and_dances(
+            load_inventory(secure).with_endpoints([f"tls/127.0.0.1:{port}"]), text
+        )
     finally:
         stop_demo(demo)

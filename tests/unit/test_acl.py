@@ -167,3 +167,55 @@ def test_device_agents_publish_their_devices_and_only_commanders_command(tmp_pat
     small = next(f for f in payload_limits(inventory) if f["id"] == "commands")["key_exprs"]
     for kind in ("gripper", "g1"):
         assert {f"fleet/lab/{kind}/*/{k}" for k in ("cmd/**", "estop", "reset")} <= set(small)
+
+
+MIXED = (
+    INVENTORY.split("[arms.a2]")[0]  # the fleet, its security and a1
+    + """[grippers.gl]
+mount = "a1"
+[g1.h1]
+interface = ""
+[principals]
+ann = "operator"
+"""
+)
+
+
+def test_every_key_each_kind_uses_is_granted_to_who_uses_it(tmp_path: Path) -> None:
+    """The agent publishes every channel of its kinds (a G1's lowstate was denied: the secure
+    demo's G1 was never posed), commanders command, readers read: no gap."""
+    from fleet.security.coverage import gaps
+
+    inventory = parse_inventory(MIXED, str(tmp_path / "inventory.toml"))
+    assert set(inventory.devices) == {"gl", "h1"}
+    assert gaps(inventory) == []
+    agent = inventory.device("h1").agent
+    puts = _allowed(access_control(inventory), agent, "put", "ingress")
+    assert "fleet/lab/g1/h1/lowstate" in puts
+
+
+def test_a_channel_the_rules_forget_is_named(tmp_path: Path, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """What fleet doctor says when the rules leave a channel out."""
+    from fleet.security import acl, coverage
+
+    inventory = parse_inventory(MIXED, str(tmp_path / "inventory.toml"))
+    forgetful = lambda kind: [c for c in acl.device_payloads(kind) if c == "state"]  # noqa: E731
+    monkeypatch.setattr(acl, "device_agent_channels", forgetful)
+    found = {str(gap) for gap in coverage.gaps(inventory)}
+    assert any(g.endswith("may not put fleet/lab/g1/h1/lowstate") for g in found), found
+
+
+def test_fleet_doctor_fails_when_a_unit_key_is_denied(tmp_path: Path, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """``fleet doctor`` said OK while the router denied the G1's lowstate: it checks now."""
+    from fleet import doctor
+    from fleet.security import acl
+
+    inventory = parse_inventory(MIXED, str(tmp_path / "inventory.toml"))
+    [ok] = doctor.check_access_rules(inventory)
+    assert ok.level == "ok", ok
+    forgetful = lambda kind: [c for c in acl.device_payloads(kind) if c == "state"]  # noqa: E731
+    monkeypatch.setattr(acl, "device_agent_channels", forgetful)
+    [failed] = doctor.check_access_rules(inventory)
+    assert failed.level == "fail" and "fleet/lab/g1/h1/lowstate" in failed.detail, failed
+    plain = parse_inventory(MIXED.replace('mode = "mtls"', 'mode = "none"'), str(tmp_path / "i"))
+    assert doctor.check_access_rules(plain) == []
