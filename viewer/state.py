@@ -29,6 +29,7 @@ from fleet.guard import ThreadGuard
 from fleet.watch import UnitReport
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
+from viewer.dance import DanceTracker, DanceView
 from viewer.events import (
     CONTACT,
     OFFLINE,
@@ -76,6 +77,7 @@ class Snapshot:
     contact: npt.NDArray[np.bool_] | None = None  # (N, 7), joint in confirmed contact
     diag: tuple[m.Diag | None, ...] = ()  # the agents' newest counters (empty: none yet)
     devices: tuple[DeviceView, ...] = ()  # grippers, G1s: their newest state, in inventory order
+    dances: tuple[DanceView, ...] = ()  # the choreography players heard of, newest first
 
     def diag_of(self, i: int) -> m.Diag | None:
         """Arm ``i``'s newest diag, None before the first."""
@@ -138,6 +140,7 @@ class ViewerFleet:
         self._device_index = {device: i for i, device in enumerate(self._devices)}
         self._device_kinds = {kind.key: kind for kind, _mount in self._devices.values()}
         self.events = EventLog()
+        self.dances = DanceTracker(self.events)
         self._lock = threading.Lock()
         self._handles: list[zenoh.Subscriber[None]] = []
         self.malformed = 0  # payloads we could not decode (counted, dropped)
@@ -149,6 +152,7 @@ class ViewerFleet:
         replay scrubbed backwards counts them again as it re-feeds the file)."""
         n = len(self.arms)
         self.events.clear()
+        self.dances.clear()
         with self._lock:
             self.malformed = 0
             self._last_warning = -math.inf
@@ -187,6 +191,7 @@ class ViewerFleet:
             for key in (self.keys.estop, self.keys.reset)
         ]
         self._handles.append(self._session.declare_subscriber(self.keys.stop_report, on_sample))
+        self._handles.append(self._session.declare_subscriber(self.keys.choreo, on_sample))
         self._handles += [
             self._session.declare_subscriber(
                 self.keys.device(kind, "*", channel), ordered if channel in CONTROL else on_sample
@@ -224,6 +229,9 @@ class ViewerFleet:
         passes the recorded times; default now)."""
         if key == self.keys.stop_report:
             self._on_stop_report(data, wall_ns)
+            return
+        if key.startswith(f"{self.keys.prefix}/{keys.CHOREO}/"):
+            self._on_choreo(key, data, at_s, wall_ns)
             return
         if key in (self.keys.estop, self.keys.reset):
             arm, channel = None, key.rpartition("/")[2]
@@ -371,6 +379,18 @@ class ViewerFleet:
         if text is not None and self.events.first_sight(f"still:{report.stop_id}"):
             self.events.add(STOP, None, text, wall_ns)
 
+    def _on_choreo(self, key: str, data: bytes, at_s: float | None, wall_ns: int | None) -> None:
+        """A choreography player's state (``choreo/<principal>``)."""
+        try:
+            principal = self.keys.principal_of(key)
+            status = payloads.decode(keys.CHOREO, data)
+        except keys.KeyError_:
+            return
+        except payloads.PayloadError as exc:
+            self._bad(keys.CHOREO, exc)
+            return
+        self.dances.on_status(principal, status, self._clock() if at_s is None else at_s, wall_ns)
+
     def _on_token(self, sample: zenoh.Sample) -> None:
         try:
             i = self._index.get(self.keys.parse_arm_key(str(sample.key_expr)).arm)
@@ -429,6 +449,7 @@ class ViewerFleet:
             contact=contact,
             diag=diag,
             devices=tuple(views),
+            dances=self.dances.views(now),
         )
 
     def close(self) -> None:

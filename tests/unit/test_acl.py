@@ -167,3 +167,10 @@ def test_device_agents_publish_their_devices_and_only_commanders_command(tmp_pat
     small = next(f for f in payload_limits(inventory) if f["id"] == "commands")["key_exprs"]
     for kind in ("gripper", "g1"):
         assert {f"fleet/lab/{kind}/*/{k}" for k in ("cmd/**", "estop", "reset")} <= set(small)
+
+
+def test_a_players_choreography_state_is_put_under_its_own_name(tmp_path: Path) -> None:
+    acl = access_control(_inventory(tmp_path))
+    puts = _allowed(acl, "ann", "put", "ingress")
+    assert "fleet/lab/choreo/ann" in puts and "fleet/lab/choreo/operator" not in puts
+    assert not any("/choreo/" in key for key in _allowed(acl, "kiosk", "put", "ingress"))
