@@ -145,4 +145,4 @@ def dance_html(views: tuple[DanceView, ...]) -> str:
             f"<div data-dance-state='{view.state}' style='color:{colour};font-weight:bold'>"
             f"{text}</div>"
         )
-    return f"<div id='dance-status' style='font-size:0.85em'>{''.join(lines)}</div>"
+    return f"<div id='dance-status' style='font-size:0.85em;padding:0 8px'>{''.join(lines)}</div>"
