@@ -1,9 +1,8 @@
 """The viewer's access token, kept across restarts of the viewer of one fleet.
 
 A restarted viewer with a new token answered 403 to every tab still open on it (the demo
-restarts a viewer that died). So the token lives in ``<state dir>/<fleet>/viewer.token``: the
-state directory is the agents' (``$D1_FLEET_STATE_DIR``, else ``$XDG_STATE_HOME/d1-fleet``,
-else ``~/.local/state/d1-fleet``; the demo gives each run its own), the file is created with
+restarts a viewer that died). So the token lives in ``<state dir>/<fleet>/viewer.token``
+(``fleet.state_dir``: the agents' state directory; the demo gives each run its own), created with
 mode 0600 and written whole (a temporary file linked into place: two viewers starting at once
 both end up with the one that got there first). A file that others could read, that is not
 ours or not a regular file, or that holds no usable token is replaced by a new token (the
@@ -18,28 +17,19 @@ import os
 import stat
 from pathlib import Path
 
+from fleet.state_dir import default_state_dir
 from fleet.web.access import check_token, new_token
 
 log = logging.getLogger("fleet.web.token_store")
 
-STATE_ENV = "D1_FLEET_STATE_DIR"
 TOKEN_FILE = "viewer.token"
 MAX_TOKEN_BYTES = 256
 """A token is at most 128 characters; anything much longer is not one."""
 
 
-def state_dir() -> Path:
-    """The state directory (the same rule as the agents' latched stops, edge_agent/latches.py)."""
-    given = os.environ.get(STATE_ENV)
-    if given:
-        return Path(given)
-    base = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
-    return Path(base) / "d1-fleet"
-
-
 def token_path(fleet: str, directory: Path | None = None) -> Path:
     """Where the viewer of ``fleet`` keeps its token."""
-    return (directory or state_dir()) / fleet / TOKEN_FILE
+    return (directory or default_state_dir()) / fleet / TOKEN_FILE
 
 
 class UnusableTokenFile(Exception):
