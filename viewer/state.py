@@ -5,7 +5,9 @@ Zenoh callbacks run on Zenoh threads. They only decode and store the newest payl
 (latest wins, nothing queues up) and return; the viewer's own thread takes ``snapshot()`` copies
 at its render rate. ``_lock`` guards the arrays and dicts below it, never any I/O. Transitions
 (a stop latched or released, a contact, a refusal, an agent gone or back) and the stop and reset
-requests seen on the key space also go to the bounded event log (viewer/events.py).
+requests seen on the key space, for the fleet, its arms and its devices, also go to the bounded
+event log (viewer/events.py); the choreography players' states to ``DanceTracker``
+(viewer/dance.py).
 """
 
 from __future__ import annotations
