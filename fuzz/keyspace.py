@@ -77,6 +77,7 @@ def seeds() -> list[bytes]:
         m.MultiArmReply(True, {"a1": reply}, 0.5),
         m.CoordinatorDiag(1, "c", 1, 2, 3, 4, 5, 6),
         m.StopReport("s1", "cli", 1, {"a1": m.StopTiming(1.0, 1.5, None)}),
+        m.ChoreoStatus(1, "player@host:1:ab", "demo", "aborted", "a1 is stopped", 2, "ripple"),
         m.ContactEvent(1, 6, "confirmed", "model", 4.5, 0.75, grip=True),
     ]
     values += device_payloads()

@@ -2,7 +2,8 @@
 
 Stops (who asked, why, and once every arm is still how long each took: the coordinator's
 ``estop/report``, slowest arm named), resets, contacts, refusals, agents going offline and
-coming back, each with its wall-clock time. Events come from the key space (viewer/state.py
+coming back, choreographies starting, completing or stopping (and why), each with its
+wall-clock time. Events come from the key space (viewer/state.py
 derives them from transitions, so a status repeated at 4 Hz is one event, not four a second)
 and from the viewer itself (a jog refused). The log is bounded: a flapping agent or a hostile
 flood of stop requests pushes old entries out, it never grows memory. Thread-safe: Zenoh
@@ -37,6 +38,8 @@ STOP, RESET, CONTACT, REFUSED, OFFLINE, ONLINE, RELEASED = (
     "online",
     "released",
 )
+DANCE, DANCE_STOPPED = "dance", "dance stopped"
+"""A choreography started or completed; one stopped before its end (viewer/dance.py)."""
 KIND_COLOUR = {
     STOP: "#c0392b",
     RESET: "#2471a3",
@@ -45,6 +48,8 @@ KIND_COLOUR = {
     OFFLINE: "#555555",
     ONLINE: "#1e8449",
     RELEASED: "#1e8449",
+    DANCE: "#1e8449",
+    DANCE_STOPPED: "#c0392b",
 }
 
 

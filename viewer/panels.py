@@ -36,6 +36,7 @@ from viewer.arm_panel import (
 )
 from viewer.commands import Commander
 from viewer.confirm import FLEET, Confirmations
+from viewer.dance import dance_html
 from viewer.device_panel import DevicePanel
 from viewer.events import EventLog
 from viewer.replay import ReplayTimeline
@@ -245,6 +246,9 @@ class FleetPanels:
         )
         self.fit_button.on_click(lambda e: fit(e.client) if fit and e.client else None)
         self.stop_info = gui.add_markdown("")
+        # The dances' status, above the tables: a stopped dance says so, and why, in red.
+        self.dance_status = gui.add_html(dance_html(()))
+        self.dance_text = ""
         self.table_html = ""
         self.events_version = -1
         self.fleet_table = FleetTable()
@@ -352,6 +356,10 @@ class FleetPanels:
     def update(self, snapshot: Snapshot) -> None:
         """Refresh the table, the event log, readouts, plots and slider states (only what
         changed)."""
+        dance = dance_html(snapshot.dances)
+        if dance != self.dance_text:
+            self.dance_text = dance
+            self.dance_status.content = dance
         table = self.fleet_table.html(snapshot)
         if table != self.table_html:
             self.table_html = table

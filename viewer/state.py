@@ -5,7 +5,9 @@ Zenoh callbacks run on Zenoh threads. They only decode and store the newest payl
 (latest wins, nothing queues up) and return; the viewer's own thread takes ``snapshot()`` copies
 at its render rate. ``_lock`` guards the arrays and dicts below it, never any I/O. Transitions
 (a stop latched or released, a contact, a refusal, an agent gone or back) and the stop and reset
-requests seen on the key space also go to the bounded event log (viewer/events.py).
+requests seen on the key space, for the fleet, its arms and its devices, also go to the bounded
+event log (viewer/events.py); the choreography players' states to ``DanceTracker``
+(viewer/dance.py).
 """
 
 from __future__ import annotations
@@ -26,8 +28,10 @@ from fleet.control import direct
 from fleet.d1.limits import JOINT_COUNT
 from fleet.devices import DeviceKind
 from fleet.guard import ThreadGuard
+from fleet.watch import UnitReport
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
+from viewer.dance import DanceTracker, DanceView
 from viewer.events import (
     CONTACT,
     OFFLINE,
@@ -75,6 +79,7 @@ class Snapshot:
     contact: npt.NDArray[np.bool_] | None = None  # (N, 7), joint in confirmed contact
     diag: tuple[m.Diag | None, ...] = ()  # the agents' newest counters (empty: none yet)
     devices: tuple[DeviceView, ...] = ()  # grippers, G1s: their newest state, in inventory order
+    dances: tuple[DanceView, ...] = ()  # the choreography players heard of, newest first
 
     def diag_of(self, i: int) -> m.Diag | None:
         """Arm ``i``'s newest diag, None before the first."""
@@ -105,6 +110,8 @@ class Snapshot:
 
 DEVICE_SHOWN = (keys.STATE, keys.LOWSTATE)
 """A device's channels the viewer shows: its state, and a G1's joints (``lowstate``)."""
+CONTROL = (keys.ESTOP, keys.RESET)
+"""Stop and reset requests: logged for the fleet, every arm and every device."""
 INGESTED = frozenset((keys.JOINTS, keys.STATUS, keys.CONTACT, keys.DIAG, keys.ESTOP, keys.RESET))
 """The channels the viewer shows (per arm; ``estop`` and ``reset`` also fleet-wide)."""
 
@@ -135,6 +142,7 @@ class ViewerFleet:
         self._device_index = {device: i for i, device in enumerate(self._devices)}
         self._device_kinds = {kind.key: kind for kind, _mount in self._devices.values()}
         self.events = EventLog()
+        self.dances = DanceTracker(self.events)
         self._lock = threading.Lock()
         self._handles: list[zenoh.Subscriber[None]] = []
         self.malformed = 0  # payloads we could not decode (counted, dropped)
@@ -146,6 +154,7 @@ class ViewerFleet:
         replay scrubbed backwards counts them again as it re-feeds the file)."""
         n = len(self.arms)
         self.events.clear()
+        self.dances.clear()
         with self._lock:
             self.malformed = 0
             self._last_warning = -math.inf
@@ -173,10 +182,9 @@ class ViewerFleet:
         # Stops and resets on the receiving Zenoh thread, so the event log shows them in
         # arrival order (fleet.control); ingest only decodes and appends under a short lock.
         ordered = direct(on_sample)
-        control = (keys.ESTOP, keys.RESET)
         self._handles = [
             self._session.declare_subscriber(
-                self.keys.all_arms(channel), ordered if channel in control else on_sample
+                self.keys.all_arms(channel), ordered if channel in CONTROL else on_sample
             )
             for channel in sorted(INGESTED)
         ]
@@ -185,10 +193,13 @@ class ViewerFleet:
             for key in (self.keys.estop, self.keys.reset)
         ]
         self._handles.append(self._session.declare_subscriber(self.keys.stop_report, on_sample))
+        self._handles.append(self._session.declare_subscriber(self.keys.choreo, on_sample))
         self._handles += [
-            self._session.declare_subscriber(self.keys.device(kind, "*", channel), on_sample)
+            self._session.declare_subscriber(
+                self.keys.device(kind, "*", channel), ordered if channel in CONTROL else on_sample
+            )
             for kind, device_kind in self._device_kinds.items()
-            for channel in DEVICE_SHOWN
+            for channel in (*DEVICE_SHOWN, *CONTROL)
             if channel in device_kind.payloads
         ]
         self._handles.append(
@@ -221,13 +232,16 @@ class ViewerFleet:
         if key == self.keys.stop_report:
             self._on_stop_report(data, wall_ns)
             return
+        if key.startswith(f"{self.keys.prefix}/{keys.CHOREO}/"):
+            self._on_choreo(key, data, at_s, wall_ns)
+            return
         if key in (self.keys.estop, self.keys.reset):
             arm, channel = None, key.rpartition("/")[2]
         else:
             try:
                 parsed = self.keys.parse_arm_key(key)
             except keys.KeyError_:
-                self._ingest_device(key, data, at_s)
+                self._ingest_device(key, data, at_s, wall_ns)
                 return
             arm, channel = parsed.arm, parsed.channel
         i = None if arm is None else self._index.get(arm)
@@ -239,11 +253,8 @@ class ViewerFleet:
             self._bad(channel, exc)
             return
         now = self._clock() if at_s is None else at_s
-        if isinstance(payload, m.StopRequest):
-            self._on_stop_request(arm, payload, wall_ns)
-        elif isinstance(payload, m.ResetRequest):
-            # Read-only by construction: logged, not acted on (the agents decide).
-            self.events.add(RESET, arm, f"reset requested by {payload.source}", wall_ns)
+        if isinstance(payload, (m.StopRequest, m.ResetRequest)):
+            self._on_control(arm, payload, wall_ns)
         elif i is None:
             return
         elif isinstance(payload, m.Joints):
@@ -255,8 +266,11 @@ class ViewerFleet:
         elif isinstance(payload, m.Diag):
             self._on_diag(i, payload, wall_ns)
 
-    def _ingest_device(self, key: str, data: bytes, at_s: float | None) -> None:
-        """A device's state or lowstate (anything else of a device is not shown)."""
+    def _ingest_device(
+        self, key: str, data: bytes, at_s: float | None, wall_ns: int | None
+    ) -> None:
+        """A device's state or lowstate, or a stop or reset request to it (anything else of a
+        device is not shown)."""
         kind_key = key[len(self.keys.prefix) + 1 :].partition("/")[0]
         kind = self._device_kinds.get(kind_key)
         if kind is None:
@@ -267,21 +281,28 @@ class ViewerFleet:
             return
         i = self._device_index.get(parsed.device)
         channel = parsed.channel
-        if i is None or channel not in DEVICE_SHOWN or channel not in kind.payloads:
+        shown = (*DEVICE_SHOWN, *CONTROL)
+        if i is None or channel not in shown or channel not in kind.payloads:
             return
         try:
             state = kind.payloads[channel].decode(data)
         except payloads.PayloadError as exc:
             self._bad(f"{kind.key} {channel}", exc)
             return
+        if channel in CONTROL:
+            self._on_control(parsed.device, state, wall_ns)
+            return
         now = self._clock() if at_s is None else at_s
         with self._lock:
             if channel == keys.STATE:
+                before = self._device_state[i]
                 self._device_state[i] = state
                 self._device_at[i] = now
             else:
                 self._device_low[i] = state
                 self._device_low_at[i] = now
+        if channel == keys.STATE:
+            self._log_latch(parsed.device, before, state, wall_ns)
 
     def _on_joints(self, i: int, joints: m.Joints, now: float) -> None:
         row = np.asarray(joints.angles_deg, dtype=float)
@@ -297,12 +318,19 @@ class ViewerFleet:
             before = self._status[i]
             self._status[i] = status
             self._status_at[i] = now
+        self._log_latch(self.arms[i], before, status, wall_ns)
+
+    def _log_latch(
+        self, unit: str, before: UnitReport | None, now: UnitReport, wall_ns: int | None
+    ) -> None:
+        """An arm's status or a device's state latched or released its stop: one event per
+        transition, never one per repeated report."""
         was = before is not None and before.estopped
-        if status.estopped and not was:
-            why = status.stop_reason or "no reason given"
-            self.events.add(STOP, self.arms[i], f"STOPPED (latched): {why}", wall_ns)
-        elif was and not status.estopped:
-            self.events.add(RELEASED, self.arms[i], "stop released by a reset", wall_ns)
+        if now.estopped and not was:
+            why = now.stop_reason or "no reason given"
+            self.events.add(STOP, unit, f"STOPPED (latched): {why}", wall_ns)
+        elif was and not now.estopped:
+            self.events.add(RELEASED, unit, "stop released by a reset", wall_ns)
 
     def _on_contact(self, i: int, event: m.ContactEvent, wall_ns: int | None) -> None:
         if not 0 <= event.joint < JOINT_COUNT:
@@ -330,12 +358,16 @@ class ViewerFleet:
             text = f"refused {count} command{'s' if count > 1 else ''}: {why}"
             self.events.add(REFUSED, self.arms[i], text, wall_ns)
 
-    def _on_stop_request(self, arm: str | None, stop: m.StopRequest, wall_ns: int | None) -> None:
-        if arm is not None and arm not in self._index:
-            return
-        if self.events.first_sight(stop.stop_id):  # stops are repeated until acknowledged
-            why = stop.reason or "no reason given"
-            self.events.add(STOP, arm, f"stop requested by {stop.source}: {why}", wall_ns)
+    def _on_control(
+        self, unit: str | None, request: m.StopRequest | m.ResetRequest, wall_ns: int | None
+    ) -> None:
+        """A stop or reset request to the fleet (``unit`` None), an arm or a device: logged,
+        never acted on (the agents decide)."""
+        if isinstance(request, m.ResetRequest):
+            self.events.add(RESET, unit, f"reset requested by {request.source}", wall_ns)
+        elif self.events.first_sight(request.stop_id):  # stops are repeated until acknowledged
+            why = request.reason or "no reason given"
+            self.events.add(STOP, unit, f"stop requested by {request.source}: {why}", wall_ns)
 
     def _on_stop_report(self, data: bytes, wall_ns: int | None) -> None:
         """The coordinator's fan-out report of one stop (on every ack): logged once, when every
@@ -348,6 +380,18 @@ class ViewerFleet:
         text = stop_timing_text(report)
         if text is not None and self.events.first_sight(f"still:{report.stop_id}"):
             self.events.add(STOP, None, text, wall_ns)
+
+    def _on_choreo(self, key: str, data: bytes, at_s: float | None, wall_ns: int | None) -> None:
+        """A choreography player's state (``choreo/<principal>``)."""
+        try:
+            principal = self.keys.principal_of(key)
+            status = payloads.decode(keys.CHOREO, data)
+        except keys.KeyError_:
+            return
+        except payloads.PayloadError as exc:
+            self._bad(keys.CHOREO, exc)
+            return
+        self.dances.on_status(principal, status, self._clock() if at_s is None else at_s, wall_ns)
 
     def _on_token(self, sample: zenoh.Sample) -> None:
         try:
@@ -407,6 +451,7 @@ class ViewerFleet:
             contact=contact,
             diag=diag,
             devices=tuple(views),
+            dances=self.dances.views(now),
         )
 
     def close(self) -> None:

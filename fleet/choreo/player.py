@@ -5,10 +5,12 @@ tolerance, failed replies), advances the pure ``Timeline`` and hands one ``MoveJ
 owner = the player, short lifetime) per D1 arm, and one ``arm_target`` per G1 whose arms the
 script names (``g1_stream.py``), to a small thread pool: it never waits for a reply before the
 next tick. ``Liveness`` beats with the player's id so the agents hold the D1 arms and release
-the G1 arms if the player dies (their watchdog). Shutdown order: stop commanding -> hold every
-D1 arm -> wait until still -> give the G1 arms back (weight 1 -> 0: a completed play only; an
-aborted one leaves them held, a stop never moves them) and release their lease -> stop the
-heartbeat -> release the D1 leases -> undeclare.
+the G1 arms if the player dies (their watchdog). Ticks that come late skip, and the timeline
+holds through the stall (``timeline.PlayClock``); the play's state goes to
+``choreo/<principal>`` (``announce.py``: the viewer shows a dance that stopped, and why).
+Shutdown order: stop commanding -> hold every D1 arm -> wait until still -> give the G1 arms
+back (weight 1 -> 0: a completed play only; an aborted one leaves them held, a stop never moves
+them) and release their lease -> stop the heartbeat -> release the D1 leases -> undeclare.
 """
 
 from __future__ import annotations
@@ -24,11 +26,12 @@ from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field
 
+from fleet.choreo.announce import PlayAnnouncer
 from fleet.choreo.g1_arms import is_g1_arm
 from fleet.choreo.g1_stream import G1Stream
 from fleet.choreo.grip import GripDetector
-from fleet.choreo.script import Pose, Script
-from fleet.choreo.timeline import ArmFacts, Frame, Timeline, max_error_deg
+from fleet.choreo.script import Pose, Script, ScriptError
+from fleet.choreo.timeline import ArmFacts, Frame, PlayClock, Timeline, max_error_deg, next_tick
 from fleet.choreo.validate import check_motion
 from fleet.client import FleetClient, start_at_ns
 from fleet.d1.limits import CONTROL_RATE_HZ, GRIPPER_JOINT, JointRanges
@@ -175,6 +178,10 @@ class Player:
         (nothing moved) when the script breaks a joint or speed limit from the measured poses."""
         stop = stop or threading.Event()
         watch = ArmWatch(self.client.session, self.client.keys, self.d1_arms)
+        client = self.client
+        announce = PlayAnnouncer(
+            client.session, client.keys, client.principal, self.owner, self.script.name
+        )
         liveness: Liveness | None = None
         started = time.monotonic()
         try:
@@ -190,10 +197,15 @@ class Player:
                 if problem is not None:
                     raise Abort(f"not started: {problem}")
             timeline = Timeline(self.script, poses)
-            self._run(timeline, watch, stop)
+            self._run(timeline, watch, stop, announce)
             self.result.ok, self.result.reason = True, "completed"
+            announce.end(True, "completed")
+        except ScriptError as exc:  # refused before anything moved
+            self.result.reason = f"not started: {exc}"
+            raise
         except Abort as exc:
             self.result.ok, self.result.reason = False, str(exc)
+            announce.end(False, str(exc))  # before the ending: the viewer says so at once
             log.warning("choreography %r aborted: %s", self.script.name, exc)
             self._end_by = time.monotonic() + ENDING_S
             if liveness is not None:  # something may have moved: hold every D1 arm
@@ -213,6 +225,8 @@ class Player:
             if self.g1 is not None:
                 self.g1.close()
             self.result.elapsed_s = round(time.monotonic() - started, 3)
+            announce.end(self.result.ok, self.result.reason)  # whatever ended it (idempotent)
+            announce.close()
         return self.result
 
     def check(self, ready_s: float = 3.0) -> None:
@@ -252,22 +266,30 @@ class Player:
         joints = watch.latest(arm).joints
         return None if joints is None else tuple(joints.angles_deg)
 
-    def _run(self, timeline: Timeline, watch: ArmWatch, stop: threading.Event) -> None:
+    def _run(
+        self,
+        timeline: Timeline,
+        watch: ArmWatch,
+        stop: threading.Event,
+        announce: PlayAnnouncer,
+    ) -> None:
         start_ns = start_at_ns(self.script.start_lead_s)
         start_s = time.monotonic() + self.script.start_lead_s
         timeline.start(start_s)
         first = timeline.tick(start_s + self.period_s, {})
         self.result.start_skew_ms = self._synchronized_start(first, start_ns)
         tick = 1
+        clock = PlayClock(self.period_s)
         shown = (-1, -1)
         last_shown_s = 0.0
         while True:
-            stop.wait(max(0.0, start_s + tick * self.period_s - time.monotonic()))
+            due_s = start_s + tick * self.period_s
+            stop.wait(max(0.0, due_s - time.monotonic()))
             if stop.is_set():
                 raise Abort("interrupted by the operator")
             now = time.monotonic()
             self._check(watch, now)
-            frame = timeline.tick(now, self._facts(watch, timeline))
+            frame = timeline.tick(clock.play_time(due_s, now), self._facts(watch, timeline))
             self._book_keyframes(frame, watch, timeline)
             if frame.kind == "failed":
                 raise Abort(frame.error or "a wait failed")
@@ -278,12 +300,13 @@ class Player:
                 self._book_keyframes(frame, watch, timeline, flush=True)
                 return
             self._send(frame)
+            announce.playing(frame.iteration, frame.label)
             if self.on_progress and (
                 (frame.iteration, frame.step_index) != shown or now - last_shown_s >= 1.0
             ):
                 self.on_progress(frame)
                 shown, last_shown_s = (frame.iteration, frame.step_index), now
-            tick += 1
+            tick = next_tick(tick, now - start_s, self.period_s)
 
     def _synchronized_start(self, frame: Frame, start_ns: int) -> float | None:
         """Every D1 arm gets its first target with the same ``start_at_ns`` (its agent writes

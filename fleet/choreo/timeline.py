@@ -8,6 +8,7 @@ streams the targets; tests feed it a fake clock and fake facts.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
@@ -190,3 +191,33 @@ class Timeline:
         whole = (self.script.loops - self.iteration - 1) * self.script.iteration_s
         running = step_left if isinstance(self.script.steps[self.index], Move) else 0.0
         return running + later + whole
+
+
+def next_tick(tick: int, elapsed_s: float, period_s: float) -> int:
+    """The tick to wait for after ``tick``, ``elapsed_s`` into the play: the next one still
+    ahead. Ticks skip, never catch up: the ticks a descheduled player missed, run back to
+    back, each appended a target to the player's path window within microseconds, flushing
+    from it the target the arm was at."""
+    return max(tick + 1, math.floor(elapsed_s / period_s) + 1)
+
+
+class PlayClock:
+    """The timeline's time: the monotonic clock less the time the player lost to stalls.
+
+    A player descheduled for 0.25-0.4 s (a load spike on its host) woke to a timeline that
+    had moved on: its next target lay 15-35 deg further along the path, the arm leapt there
+    at its top speed, and a feedback sample caught between the two targets read 12-17 deg
+    "off its path" (the play aborted). A tick later than one period resumes the timeline
+    where that tick was due instead: every arm holds its last target through the stall and
+    goes on from it, all of them together (one clock), and no target is ever a leap."""
+
+    def __init__(self, period_s: float) -> None:
+        self.period_s = period_s
+        self.lost_s = 0.0
+        """The time lost to stalls so far (the play ends that much later)."""
+
+    def play_time(self, due_s: float, now_s: float) -> float:
+        """The timeline's time for a tick due at ``due_s`` and run at ``now_s`` (monotonic)."""
+        if now_s - due_s > self.period_s:
+            self.lost_s += now_s - due_s
+        return now_s - self.lost_s

@@ -67,8 +67,14 @@ def register(
         "--token",
         type=_token,
         default=None,
-        help="the access token (16-128 of A-Z a-z 0-9 - _) instead of a random one per run; "
+        help="the access token (16-128 of A-Z a-z 0-9 - _) instead of the fleet's kept one; "
         "other users of this host can read it in the process list",
+    )
+    viewer.add_argument(
+        "--new-token",
+        action="store_true",
+        help="replace the fleet's kept token (<state dir>/<fleet>/viewer.token, mode 0600) by "
+        "a new one: open tabs need the new URL (the kept token survives restarts otherwise)",
     )
     viewer.add_argument(
         "--allow-origin",
@@ -108,7 +114,11 @@ def run_viewer(args: argparse.Namespace) -> int:
         who = f"principal {inventory.principal!r}, role {role}: {mode}"
         return f"fleet {inventory.fleet!r}; {who}"
 
-    return _serve(args, describe, inventory=inventory, read_only=args.read_only)
+    from fleet.web.token_store import viewer_token
+
+    # A restarted viewer keeps its token, so the tabs open on it keep working.
+    token = args.token or viewer_token(inventory.fleet, renew=args.new_token)
+    return _serve(args, describe, token, inventory=inventory, read_only=args.read_only)
 
 
 def run_replay_viewer(args: argparse.Namespace) -> int:
@@ -140,7 +150,7 @@ def run_replay_viewer(args: argparse.Namespace) -> int:
             f"{timeline.duration_s:.1f} s; no command controls"
         )
 
-    return _serve(args, describe, replay=source)
+    return _serve(args, describe, args.token, replay=source)
 
 
 def viewer_collectors(viewer: Viewer) -> list[Any]:
@@ -154,9 +164,11 @@ def viewer_collectors(viewer: Viewer) -> list[Any]:
     return [FunctionCollector(collect)]
 
 
-def _serve(args: argparse.Namespace, describe: Callable[[Viewer], str], **shows: Any) -> int:
-    """Run a viewer of ``shows`` (``inventory=`` or ``replay=``) until SIGINT/SIGTERM; prints
-    its URL and ``describe(viewer)``."""
+def _serve(
+    args: argparse.Namespace, describe: Callable[[Viewer], str], token: str | None, **shows: Any
+) -> int:
+    """Run a viewer of ``shows`` (``inventory=`` or ``replay=``) with ``token`` (None: a
+    random one) until SIGINT/SIGTERM; prints its URL and ``describe(viewer)``."""
     from viewer.app import Viewer  # viser and numpy load only for this command
 
     stop = shutdown_event()
@@ -164,7 +176,7 @@ def _serve(args: argparse.Namespace, describe: Callable[[Viewer], str], **shows:
         host=args.host,
         port=args.port,
         rate_hz=args.rate_hz,
-        token=args.token,
+        token=token,
         allow_origins=args.allow_origin,
         **shows,
     ) as viewer:

@@ -81,7 +81,8 @@ class Report:
     changes: list[ContactChange] = field(default_factory=list)
     force_limit: dict[int, float] = field(default_factory=dict)
     model_note: str | None = None
-    """Set when this report made the detector stop trusting its model (online sanity)."""
+    """Set when this report made the detector stop trusting its model, or trust it again
+    (online sanity)."""
 
 
 @dataclass
@@ -257,7 +258,7 @@ class ContactDetector:
             ):
                 joint.limited = True
                 report.force_limit[j] = angles_deg[j]
-            self._check_model(report, j, error, angles_deg[j])
+            self._check_model(report, j, error, angles_deg[j], now_s)
         return report
 
     @staticmethod
@@ -270,7 +271,9 @@ class ContactDetector:
             joint.thresholds.stall_velocity_deg_s
         )
 
-    def _check_model(self, report: Report, j: int, error: float, angle: float) -> None:
+    def _check_model(
+        self, report: Report, j: int, error: float, angle: float, now_s: float
+    ) -> None:
         """Online sanity: the model's error during a move, judged when the move ends free."""
         joint = self._joints[j]
         t = joint.thresholds
@@ -283,7 +286,7 @@ class ContactDetector:
             return
         lag = mth.behind(self._model.residual(j, angle), joint.demand)
         if lag is not None:
-            self.sanity.sample(j, max(0.0, lag), self._tolerance(j))
+            self.sanity.sample(j, max(0.0, lag), self._tolerance(j), now_s)
         speed = mth.velocity_deg_s(joint.samples)
         settled = abs(error) < t.release_deg and (
             speed is None or abs(speed) < t.stall_velocity_deg_s

@@ -8,8 +8,8 @@ name of its client certificate, or its user name), with rules that follow from i
   an ``agent`` too: ``[grippers.<id>]``/``[g1.<id>]`` ``agent``, default ``agent-<id>``);
 - ``coordinator``: its own heartbeat, the fleet state, stop reports and diag, commands under its
   own name, the multi-arm queryable; hears the agents' state, stops, resets, acks and contacts;
-- ``operator``: commands (to arms and devices) and heartbeats under its own name, stops,
-  resets, multi-arm requests; reads everything;
+- ``operator``: commands (to arms and devices), heartbeats and choreography state under its own
+  name, stops, resets, multi-arm requests; reads everything;
 - ``maintainer``: an operator who may also inject simulator faults;
 - ``observer`` (the viewer by default): reads everything, may stop, may not reset or command;
 - ``simulator``: serves ``sim/fault`` of the simulated arms;
@@ -165,7 +165,9 @@ def _grants(inventory: Inventory, principal: str, role: Role) -> _Grants:
         g.read += [f"{f}/{k}/*/{c}" for k in kinds for c in ("state", "estop/ack")]
         g.liveliness = agents
     elif role in ("operator", "maintainer"):
-        g.put = [*stops, *resets, f"{f}/heartbeat/{principal}"]
+        # A player's choreography state (the viewer shows a dance that stopped, and why) is
+        # put under its own name, as its heartbeat.
+        g.put = [*stops, *resets, f"{f}/heartbeat/{principal}", f"{f}/choreo/{principal}"]
         g.query = [*commands, f"{f}/coordinator/cmd/{principal}"]
         if role == "maintainer":
             g.query.append(f"{f}/arm/*/sim/fault")

@@ -1,4 +1,4 @@
-"""Who may use the viewer's web server: a per-run token and an Origin allow-list.
+"""Who may use the viewer's web server: a token and an Origin allow-list.
 
 The threat: browsers let any page open a WebSocket to any address, ``ws://127.0.0.1:8080``
 included, and the same-origin policy does not apply to WebSockets. Without a check, a page in
@@ -6,13 +6,14 @@ another tab of the operator's browser could connect to the local viewer and pres
 (reset a latched fleet, jog an arm). So every HTTP request and every WebSocket upgrade passes
 ``AccessPolicy.decide`` before viser sees it:
 
-- **Token.** A random token per run (``secrets``), printed in the URL (``/?token=...``). A page
-  load that carries the right token is redirected to the same page without it (so it stays out
-  of the address bar and history) and gets a cookie holding the token (``HttpOnly``,
-  ``SameSite=Strict``, one name per port). viser's client opens its WebSocket on the page's own
-  host with no query string (``ws://127.0.0.1:8080/``), so the cookie is what carries the token
-  to the upgrade; scripts may put ``?token=...`` on the WebSocket URL instead. Without the
-  token: 403 (a page saying to open the printed URL).
+- **Token.** A random token (``secrets``), kept for the fleet across the viewer's restarts
+  (fleet/web/token_store.py: its open tabs keep working), printed in the URL
+  (``/?token=...``). A page load that carries the right token is redirected to the same page
+  without it (so it stays out of the address bar and history) and gets a cookie holding the
+  token (``HttpOnly``, ``SameSite=Strict``, one name per port). viser's client opens its
+  WebSocket on the page's own host with no query string (``ws://127.0.0.1:8080/``), so the
+  cookie is what carries the token to the upgrade; scripts may put ``?token=...`` on the
+  WebSocket URL instead. Without the token: 403 (a page saying to open the printed URL).
 - **Origin.** A browser always sends the ``Origin`` of the page that opens a WebSocket, and a
   page cannot forge it. An upgrade must come from the viewer's own origin
   (``http://127.0.0.1:<port>``, ``http://localhost:<port>``, the bound address) or an
@@ -57,8 +58,9 @@ FORBIDDEN_PAGE = b"""<!doctype html><html><head><meta charset="utf-8">
 <title>d1-fleet viewer</title></head><body style="font-family:sans-serif">
 <h1>d1-fleet viewer: access refused</h1>
 <p>Open the URL that <code>fleet viewer</code> printed when it started: it carries a token for
-this run (<code>http://127.0.0.1:&lt;port&gt;/?token=...</code>). If the viewer was restarted,
-its new URL has a new token.</p></body></html>
+this run (<code>http://127.0.0.1:&lt;port&gt;/?token=...</code>). A restarted viewer of the
+same fleet keeps its token; one started with a new token (<code>--new-token</code>,
+<code>--token</code>) printed a new URL.</p></body></html>
 """
 SECURITY_HEADERS = (
     # No other page may frame the viewer: a framed viewer would carry its own origin and the

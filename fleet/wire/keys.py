@@ -38,6 +38,7 @@ STOP_REPORT = "estop/report"
 COORDINATOR_CMD = "coordinator/cmd"
 COORDINATOR_DIAG = "coordinator/diag"
 INFO = "info"  # info/<role>/<instance>: every long-running process's queryable (fleet doctor)
+CHOREO = "choreo"  # choreo/<principal>: the state of that principal's choreography players
 
 ARM_CHANNELS = (
     JOINTS,
@@ -106,9 +107,9 @@ def reliable_key(key: str) -> str:
 
 FLEET_CHANNELS = (STATE, ESTOP, RESET, STOP_REPORT, COORDINATOR_DIAG)
 """Keys directly under ``fleet/<fleet>/`` with nothing after them."""
-_NAMED_CHANNELS = ((HEARTBEAT, 1), (COORDINATOR_CMD, 1), (INFO, 2))
+_NAMED_CHANNELS = ((HEARTBEAT, 1), (COORDINATOR_CMD, 1), (INFO, 2), (CHOREO, 1))
 """Fleet-level channels followed by names: ``heartbeat/<principal>``,
-``coordinator/cmd/<principal>``, ``info/<role>/<instance>``."""
+``coordinator/cmd/<principal>``, ``info/<role>/<instance>``, ``choreo/<principal>``."""
 
 DEVICE_CHANNELS = (
     STATE,
@@ -282,6 +283,16 @@ class KeySpace:
     def coordinator_diag(self) -> str:
         """The coordinator's counters."""
         return f"{self.prefix}/{COORDINATOR_DIAG}"
+
+    def choreo_of(self, principal: str) -> str:
+        """``choreo/<principal>``: the state of ``principal``'s choreography players (only
+        ``principal`` may put it, as its heartbeat)."""
+        return f"{self.prefix}/{CHOREO}/{check_name('principal', principal)}"
+
+    @property
+    def choreo(self) -> str:
+        """Every principal's choreography state (subscribe to this)."""
+        return f"{self.prefix}/{CHOREO}/*"
 
     @property
     def stop_report(self) -> str:

@@ -549,6 +549,22 @@ class StopReport(Struct, frozen=True):
     arms: Annotated[dict[Name, StopTiming], Meta(max_length=MAX_ARMS_REPORTED)]
 
 
+class ChoreoStatus(Struct, frozen=True):
+    """``choreo/<principal>``: a choreography player's state, latest wins: put when it starts
+    playing, at each step, every second while it plays, and when it ends (``completed``, or
+    ``aborted`` with the ``reason``: what the operator needs to see when a dance stops).
+    ``player``: the player's owner id (several may play under one principal); ``iteration``
+    and ``step``: where it is (or was when it ended)."""
+
+    stamp_ns: StampNs
+    player: Name
+    script: Text
+    state: Literal["playing", "completed", "aborted"]
+    reason: Text = ""
+    iteration: Count = 0
+    step: Text = ""
+
+
 class ProcessInfo(Struct, frozen=True):
     """``fleet/<fleet>/info/<role>/<instance>`` (reply): who a long-running process is. ``stamp_ns``
     is its wall clock when it replied (``fleet doctor`` measures clock offsets from it);

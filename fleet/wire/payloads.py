@@ -118,6 +118,7 @@ COORDINATOR_DIAG: PayloadKind[m.CoordinatorDiag] = payload_kind(
     "coordinator diag", m.CoordinatorDiag, 8 * KIB
 )
 PROCESS_INFO: PayloadKind[m.ProcessInfo] = payload_kind("process info", m.ProcessInfo, 1 * MIB)
+CHOREO: PayloadKind[m.ChoreoStatus] = payload_kind("choreography status", m.ChoreoStatus, 4 * KIB)
 
 RAW_COMMAND: PayloadKind[dict[str, Any]] = payload_kind("raw command", dict[str, Any], 4 * KIB)
 """The agent's mirror of what it wrote to DDS: a JSON object (the D1 codec caps it at 4 KiB).
@@ -239,6 +240,7 @@ CHANNELS: dict[str, Channel] = {
             ((_FLEET, keys.COORDINATOR_DIAG),),
         ),
         Channel(keys.STOP_REPORT, "estop/report", STOP_REPORT, ((_FLEET, keys.STOP_REPORT),)),
+        Channel(keys.CHOREO, "choreo/<principal>", CHOREO, ((_FLEET, keys.CHOREO),)),
         Channel(keys.CONTACT, "arm/<arm>/contact", CONTACT, ((_ARM, keys.CONTACT),)),
         Channel(
             keys.INFO, "info/<role>/<instance> (reply)", PROCESS_INFO, ((_FLEET, keys.INFO),), True

@@ -26,7 +26,7 @@ from fleet.inventory import Inventory, load_inventory
 from fleet.security.certs import make_certs
 from fleet.wire import keys
 from fleet.wire import messages as m
-from fleet.wire.messages import ErrorCode
+from fleet.wire.messages import ErrorCode, encode
 from fleet.wire.payloads import G1_LOWSTATE, G1_STATE
 from fleet.wire.session import Credentials, RouterUnreachable, open_client
 from testkit.collect import Collector
@@ -336,3 +336,22 @@ def test_the_secure_demo_runs_end_to_end_and_its_printed_cli_command_works(
         )
     finally:
         stop_demo(demo)
+
+
+def test_a_players_choreography_state_reaches_observers_and_cannot_be_forged(
+    secure: FleetHarness,
+) -> None:
+    operator, viewer = secure.client(), secure.client("viewer")
+    seen = _Seen(viewer, viewer.keys.choreo)
+    try:
+        marker = f"dance-{time.monotonic_ns()}"
+        status = m.ChoreoStatus(1, "p1", marker, "aborted", "a1 stopped", 0, "ready")
+
+        def delivered() -> bool:
+            operator.session.put(operator.keys.choreo_of(operator.principal), encode(status))
+            return seen.has(marker.encode())
+
+        wait_until(delivered, 10.0)
+    finally:
+        seen.close()
+    _forged_not_delivered(secure.client("maintainer"), viewer, viewer.keys.choreo_of("operator"))

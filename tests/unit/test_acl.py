@@ -219,3 +219,10 @@ def test_fleet_doctor_fails_when_a_unit_key_is_denied(tmp_path: Path, monkeypatc
     assert failed.level == "fail" and "fleet/lab/g1/h1/lowstate" in failed.detail, failed
     plain = parse_inventory(MIXED.replace('mode = "mtls"', 'mode = "none"'), str(tmp_path / "i"))
     assert doctor.check_access_rules(plain) == []
+
+
+def test_a_players_choreography_state_is_put_under_its_own_name(tmp_path: Path) -> None:
+    acl = access_control(_inventory(tmp_path))
+    puts = _allowed(acl, "ann", "put", "ingress")
+    assert "fleet/lab/choreo/ann" in puts and "fleet/lab/choreo/operator" not in puts
+    assert not any("/choreo/" in key for key in _allowed(acl, "kiosk", "put", "ingress"))

@@ -34,6 +34,7 @@ def _concrete(place: payloads.Place) -> str:
         keys.HEARTBEAT: KS.heartbeat_of("ann"),
         keys.COORDINATOR_CMD: KS.coordinator_command("ann"),
         keys.INFO: KS.info("agent", "host"),
+        keys.CHOREO: KS.choreo_of("ann"),
     }.get(channel, f"{KS.prefix}/{channel}")
 
 

@@ -7,7 +7,7 @@ import pytest
 
 from fleet.choreo.grip import GripDetector
 from fleet.choreo.script import Move, ScriptError, Wait, parse_script
-from fleet.choreo.timeline import ArmFacts, Timeline
+from fleet.choreo.timeline import ArmFacts, PlayClock, Timeline, next_tick
 from fleet.choreo.validate import check_motion
 from fleet.teleop.mapping import MappingError, parse_mappings
 from fleet.wire import messages as m
@@ -175,3 +175,14 @@ def test_a_leader_cannot_follow_itself() -> None:
 
     with pytest.raises(MappingError, match="cannot follow itself"):
         Mirror(None, "a1", parse_mappings(["a2", "a1"]))  # type: ignore[arg-type]
+
+
+def test_a_stalled_player_skips_the_ticks_it_missed_and_its_timeline_holds() -> None:
+    # 10 Hz ticks; the player wakes for tick 5 (due 0.5 s) at 0.83 s: a 0.33 s stall.
+    assert next_tick(5, 0.83, 0.1) == 9  # the next tick still ahead, never 6, 7, 8 at once
+    assert next_tick(5, 0.51, 0.1) == 6  # on time: the next one
+    clock = PlayClock(0.1)
+    assert clock.play_time(0.4, 0.43) == 0.43  # late by less than a period: as is
+    assert clock.play_time(0.5, 0.83) == 0.5  # resumes where the late tick was due
+    assert clock.play_time(0.9, 0.9) == pytest.approx(0.57)  # and goes on from there
+    assert clock.lost_s == pytest.approx(0.33)
