@@ -20,6 +20,7 @@ stop: ``jog``, ``device`` and ``reset`` refuse here, whatever the browser sends.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import queue
@@ -44,6 +45,10 @@ log = logging.getLogger("viewer.commands")
 
 STOP_CONFIRM_S = 3.0
 """How long the viewer waits for every arm to acknowledge a stop and be seen still."""
+RESET_ANSWER_S = 3.0
+"""How long the viewer waits for every unit's answer to a reset (``reset/ack``)."""
+RESETS_WAITING = 8
+"""Resets waiting for the ``viewer-reset`` thread; one more is refused (a stuck button)."""
 
 Notify = Callable[[str, str, bool], None]
 """``notify(title, body, is_error)``: show a notification in every connected browser."""
@@ -118,10 +123,13 @@ class Commander:
         self._stops: queue.SimpleQueue[tuple[m.StopRequest, str | None] | None] = (
             queue.SimpleQueue()
         )
+        self._resets: queue.Queue[str | None] = queue.Queue(RESETS_WAITING + 1)
+        """Units to reset ("": every one); None ends the thread."""
         guard = guard or ThreadGuard("viewer")
         self._threads = [
             guard.thread(self._jog_loop, "viewer-jog"),
             guard.thread(self._stop_loop, "viewer-stop"),
+            guard.thread(self._reset_loop, "viewer-reset"),
         ]
         for thread in self._threads:
             thread.start()
@@ -153,10 +161,40 @@ class Commander:
         sending nothing, when the viewer is read-only."""
         if self._refused("reset"):
             return False
-        self.client.reset(arm, source="viewer")
         where = "the whole fleet" if arm is None else arm
-        log.warning("reset sent to %s (principal %s)", where, self.principal)
+        if self._resets.qsize() >= RESETS_WAITING:
+            self._notify(f"reset {where}: not sent", "too many resets waiting: try again", True)
+            return False
+        self._resets.put(arm or "")
         return True
+
+    def _reset_loop(self) -> None:
+        """Put each reset and tell the operator what it did to each unit (its agents'
+        ``reset/ack``): released, still stopped and why, or no answer."""
+        while True:
+            item = self._resets.get()
+            if item is None or self._closing.is_set():
+                return
+            arm = item or None
+            where = "the whole fleet" if arm is None else arm
+            log.warning("reset of %s put (principal %s)", where, self.principal)
+            answers = self.client.reset_and_report(arm, source="viewer", timeout_s=RESET_ANSWER_S)
+            silent = [u for u, a in answers.items() if a is None]
+            kept = [
+                f"{u} ({a.detail})"
+                for u, a in answers.items()
+                if a and a.outcome in ("kept", "refused")
+            ]
+            released = [u for u, a in answers.items() if a is not None and a.outcome == "released"]
+            if kept or silent:
+                body = "; ".join(
+                    [f"still stopped: {', '.join(kept)}"] * bool(kept)
+                    + [f"no answer from {', '.join(silent)} (agent down?)"] * bool(silent)
+                )
+                self._notify(f"reset {where}: not every unit released", body, True)
+            else:
+                done = f"released {', '.join(released)}" if released else "nothing was stopped"
+                self._notify(f"reset {where}", done, False)
 
     def _refused(self, what: str) -> bool:
         if not self.read_only:
@@ -280,6 +318,8 @@ class Commander:
         self._closing.set()
         self._wake.set()
         self._stops.put(None)
+        with contextlib.suppress(queue.Full):  # full: it sees _closing after its current reset
+            self._resets.put_nowait(None)
         for thread in self._threads:
             thread.join(timeout=5.0)
 

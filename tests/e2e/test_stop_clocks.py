@@ -202,3 +202,22 @@ def test_a_command_stamped_far_ahead_is_refused_and_the_owners_next_one_runs(
     served = send(sane, kind, with_envelope(kind.moves(), owner=owner))
     assert served.ok, served
     send(sane, kind, release(kind, owner))
+
+
+def test_the_viewers_reset_tells_what_it_did_to_each_unit(
+    fleet: FleetHarness, client: FleetClient
+) -> None:
+    """Before: the viewer logged "reset sent" whatever the agents did."""
+    from viewer.commands import Commander
+
+    notes: list[tuple[str, str, bool]] = []
+    inventory = fleet.inventory.with_principal("operator")
+    with Commander(inventory, client.session, notify=lambda *n: notes.append(n)) as viewer:
+        _released(client, KINDS[2])
+        _stopped(client, KINDS[2])
+        assert viewer.reset("h1")
+        wait_until(lambda: len(notes) == 1, 10.0)
+        assert notes[0] == ("reset h1", "released g1/h1", False), notes
+        assert viewer.reset("h1")
+        wait_until(lambda: len(notes) == 2, 10.0)
+        assert notes[1] == ("reset h1", "nothing was stopped", False), notes
