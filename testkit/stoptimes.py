@@ -80,6 +80,13 @@ def stop_times(
     out: list[float] = []
     missed: list[str] = []
     try:
+        # An untimed stop first: the ack subscriptions reach the router a moment after they
+        # are declared (a first stop's ack went unseen).
+        warm_up = client.stop_request("stop timing: warm-up")
+        client.estop(kind.unit, request=warm_up, timeout_s=10.0, wait_still=False)
+        wait_until(lambda: acks.at(warm_up.stop_id) is not None, 10.0)
+        client.reset(kind.unit)
+        wait_until(lambda: watch.estopped() is False, 15.0)
         for i in range(count):
             request = client.stop_request("stop timing")
             started = time.monotonic()
@@ -97,3 +104,19 @@ def stop_times(
     finally:
         acks.close()
     return StopTimes(out), missed
+
+
+FLOOD_SLACK_MS = 50.0
+"""What stop -> ack under a flood may exceed twice its quiet figure by: a flood takes a core of
+the 2-core test host, and a quiet run's single stops already reach 25-100 ms at times there."""
+
+
+def flood_goals_missed(quiet: StopTimes, under: StopTimes) -> list[str]:
+    """The documented bound, stop -> ack under a flood within twice its quiet figure (its
+    median and its worst stop, each with ``FLOOD_SLACK_MS``), as the goals missed."""
+    missed = []
+    if under.median > 2 * quiet.median + FLOOD_SLACK_MS:
+        missed.append(f"median {under.median:.1f} ms against quiet {quiet.median:.1f} ms")
+    if under.worst > 2 * quiet.worst + FLOOD_SLACK_MS:
+        missed.append(f"max {under.worst:.1f} ms against quiet {quiet.worst:.1f} ms")
+    return missed
