@@ -1,5 +1,5 @@
-"""Sockets as a test sees them: a viser WebSocket from a plain client, and the non-loopback
-peers of a process's sockets (from /proc)."""
+"""Sockets as a test sees them: a viser WebSocket from a plain client, the non-loopback
+peers of a process's sockets, and the bytes queued on its TCP connections (from /proc)."""
 
 from __future__ import annotations
 
@@ -53,3 +53,27 @@ def loopback_only(pid: int) -> list[str]:
             if not (address.is_loopback or address.is_unspecified):
                 outside.append(f"{table} {address}")
     return outside
+
+
+def queued_bytes(pid: int) -> int:
+    """Bytes waiting on ``pid``'s TCP connections on this host: received and not read by it,
+    plus sent towards it and not yet taken by its side (a peer's send queue). A process that
+    stopped reading has a figure that grows to its buffers' size, then stays."""
+    inodes = set()
+    for fd in Path(f"/proc/{pid}/fd").iterdir():
+        try:
+            target = os.readlink(fd)
+        except OSError:
+            continue  # closed meanwhile
+        if target.startswith("socket:["):
+            inodes.add(target[8:-1])
+    rows = [line.split() for line in Path(f"/proc/{pid}/net/tcp").read_text().splitlines()[1:]]
+    own = {row[1]: row for row in rows if row[9] in inodes}  # by local address:port
+    total = 0
+    for row in rows:
+        tx_queue, rx_queue = (int(n, 16) for n in row[4].split(":"))
+        if row[1] in own:
+            total += rx_queue
+        elif row[2] in own:  # the peer's end of one of its connections
+            total += tx_queue
+    return total

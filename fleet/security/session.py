@@ -18,6 +18,7 @@ from fleet.inventory import Inventory, InventoryError
 from fleet.security.acl import access_control, payload_limits
 from fleet.wire.keys import KeySpace
 from fleet.wire.session import (
+    NEVER_WAIT_FOR_A_CONSUMER,
     Credentials,
     RouterUnreachable,
     datagram_twins,
@@ -134,7 +135,8 @@ def router_config(
     )
     # Payload limits in every mode: an open fleet's heartbeat flood must not reach the agents.
     config.insert_json5("low_pass_filter", json.dumps(payload_limits(inventory)))
-    config.insert_json5("qos/network", json.dumps(stop_qos_overwrite(KeySpace(inventory.fleet))))
+    overwrites = [*stop_qos_overwrite(KeySpace(inventory.fleet)), NEVER_WAIT_FOR_A_CONSUMER]
+    config.insert_json5("qos/network", json.dumps(overwrites))
     if inventory.security.enabled:
         config.insert_json5("access_control", json.dumps(access_control(inventory)))
         max_message = str(inventory.security.max_payload_bytes * 2)

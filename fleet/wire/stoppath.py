@@ -473,8 +473,9 @@ def stop_qos_overwrite(space: keys.KeySpace) -> list[dict[str, object]]:
     """The routers' QoS overwrite (Zenoh ``qos/network``) that pins the stops' QoS centrally:
     every stop, reset, stop ack and heartbeat put through a fleet router leaves it at real-time
     priority and express, whatever its publisher asked for (a third-party client's plain
-    ``put`` on a stop key included). Reliability and congestion control are not overwritable
-    (Zenoh 1.10); the two paths keep theirs."""
+    ``put`` on a stop key included). Reliability is not overwritable (Zenoh 1.10): the two paths
+    keep theirs; congestion control is DROP on the way out of a router for every key
+    (``fleet.wire.session.NEVER_WAIT_FOR_A_CONSUMER``)."""
     return [
         {
             "id": "d1_fleet_stops",

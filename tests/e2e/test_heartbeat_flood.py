@@ -1,12 +1,13 @@
 """Issue 28, finding 5: heartbeats are bounded before they are parsed (size, rate per principal),
-so a flood of 4 MB heartbeats (open mode) keeps stop -> ack within 2x its quiet figure."""
+so a flood of 4 MB heartbeats (open mode) keeps stop -> ack within 2x its quiet figure: its
+median and its worst stop (``testkit.stoptimes.flood_goals_missed``)."""
 
 from __future__ import annotations
 
-import statistics
 import threading
 import time
 
+import pytest
 import zenoh
 
 from edge_agent.inbox import InboxCounters, SafetyInbox
@@ -16,6 +17,8 @@ from fleet.security.session import open_session
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
 from testkit.harness import FleetHarness, wait_until
+from testkit.load import xfail_if_overloaded
+from testkit.stoptimes import StopTimes, flood_goals_missed
 
 STOPS = 15
 FLOODERS = 3
@@ -79,10 +82,11 @@ def _stop_latencies(h: FleetHarness, client: FleetClient) -> list[float]:
     return out
 
 
+@pytest.mark.timing
 def test_stop_to_ack_under_a_flood_of_huge_heartbeats(fleet_harness: FleetHarness) -> None:
     h = fleet_harness
     client = h.start_fleet()
-    quiet = statistics.median(_stop_latencies(h, client))
+    quiet = StopTimes(_stop_latencies(h, client))
     done = threading.Event()
     flooded = [0]
     huge = b'{"stamp_ns":1,"coordinator":"x","seq":0,"period_s":0.1,"stops":{},"x":"'
@@ -102,15 +106,17 @@ def test_stop_to_ack_under_a_flood_of_huge_heartbeats(fleet_harness: FleetHarnes
     for thread in threads:
         thread.start()
     try:
-        under = statistics.median(_stop_latencies(h, client))
+        under = StopTimes(_stop_latencies(h, client))
     finally:
         done.set()
         for thread in threads:
             thread.join(10.0)
-    print(f"stop->ack median: quiet {quiet:.1f} ms, flood {under:.1f} ms ({flooded[0]} beats)")
+    print(f"\nstop -> ack: quiet {quiet}; under the flood {under} ({flooded[0]} beats)")
     assert flooded[0] > 10
-    assert under <= 2 * quiet + 5.0, f"quiet {quiet:.1f} ms, under the flood {under:.1f} ms"
     assert h.processes["agent"].poll() is None
+    late = flood_goals_missed(quiet, under)  # the worst stop too, not only the median
+    xfail_if_overloaded(late)
+    assert not late, f"{late}: {under.ms}"
 
 
 def _released(client: FleetClient) -> bool:

@@ -29,6 +29,7 @@ from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, encode
 from fleet.wire.payloads import DIAG
 from fleet.wire.stoppath import RELIABLE_QOS
+from testkit.cmdflood import FLOODING
 from testkit.collect import Collector
 from testkit.harness import FleetHarness, free_port, wait_until
 from testkit.hostile import POISONS, ROUTER_DROPS
@@ -43,9 +44,11 @@ from testkit.kinds import (
     wait_kinds_online,
     with_envelope,
 )
-from tests.e2e.test_hostile_keyspace import FLOOD_BOUND_MS
+from testkit.load import xfail_if_overloaded
+from testkit.stoptimes import flood_goals_missed, stop_times
 
 pytestmark = pytest.mark.xdist_group("kinds")
+FLOOD_STOPS = 10
 AGENT = ["-m", "edge_agent", "--interface", "lo"]
 """One agent process for every robot on the card: the arm, its gripper and the G1."""
 
@@ -238,37 +241,24 @@ def test_undecodable_stop_stops_and_a_command_flood_does_not_delay_a_stop(
     assert "undecodable" in watch.reason(), watch.reason()
     client.reset(kind.unit)
     wait_until(lambda: watch.estopped() is False, 5.0)
-    # A flood of hostile queries on the command key, from another session, during a stop.
-    flooder = fleet.client()
-    stop_flood = threading.Event()
-    cmd_key = flooder.unit_key(kind.unit, keys.CMD) + "/operator"
-    sent = [0]
-
-    def flood() -> None:
-        deadline = time.monotonic() + 10.0
-        while not stop_flood.is_set() and time.monotonic() < deadline:
-            flooder.session.get(cmd_key, payload=b'{"op": "nope"' * 20, timeout=0.2)
-            sent[0] += 1
-
-    thread = threading.Thread(target=flood, name="flood", daemon=True)
-    thread.start()
+    # A flood of hostile queries on the command key, from a process of its own, during stops.
+    quiet, _missed = stop_times(client, kind, FLOOD_STOPS)
+    name = f"flood-{kind.unit}"
+    fleet.start(name, ["-m", "testkit.cmdflood", "--unit", kind.unit])
     try:
-        wait_until(lambda: sent[0] > 500, 10.0)  # the flood is on
+        wait_until(lambda: FLOODING in fleet.log(name), 15.0)  # the flood is on
+        under, missed = stop_times(client, kind, FLOOD_STOPS)
         request = client.stop_request("flood test")
         acks = client.estop(kind.unit, request=request, wait_still=False)
     finally:
-        stop_flood.set()
-        thread.join(timeout=15.0)
-        flooder.close()  # its queries still queued towards the router go with it
+        fleet.stop(name)  # its queries still queued towards the router go with it
     # The agent has drained the flood before the module's next test (a restart test met its
     # backlog: every command answered 4003 busy).
     wait_until(lambda: send(client, kind, release(kind, "flood-test")).code != ErrorCode.BUSY, 30.0)
+    print(f"\n{kind.name} stop -> ack: quiet {quiet}; under a command flood {under}")
+    assert not missed, f"{missed}: {under.ms}"
     ack = next(iter(a for a in acks.values() if a is not None), None)
     assert ack is not None, acks
-    delay_s = (ack.received_ns - request.stamp_ns) / 1e9
-    # 1-3 ms on a quiet host; the flood loads both cores of the test host (the 500 ms goal is
-    # the benchmark's, measured with the flood in a process of its own).
-    assert delay_s * 1000 < FLOOD_BOUND_MS, f"the stop took {delay_s:.3f} s under a flood"
     if ack.dds_written_ns is None:
         # A gripper holds at its newest position, and writes the hold once a fresh one comes:
         # on a loaded host the first ack can precede it (a fresh-clone run). The stop's repeats
@@ -277,6 +267,9 @@ def test_undecodable_stop_stops_and_a_command_flood_does_not_delay_a_stop(
         acks = client.estop(kind.unit, request=request, timeout_s=5.0)
         ack = next(iter(a for a in acks.values() if a is not None), None)
     assert ack is not None and ack.dds_written_ns is not None, acks
+    late = flood_goals_missed(quiet, under)
+    xfail_if_overloaded(late)
+    assert not late, f"{late}: {under.ms}"
 
 
 @pytest.mark.parametrize("kind", KINDS, ids=KIND_IDS)

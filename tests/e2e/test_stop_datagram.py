@@ -24,6 +24,7 @@ from fleet.wire.stoppath import DATAGRAM_QOS, JSON
 from testkit.harness import FleetHarness, free_port, wait_until
 from testkit.hostile import decode, latest
 from testkit.kinds import KIND_IDS, KINDS, Kind, LatchWatch, devices_fleet
+from testkit.stoptimes import FirstAcks
 
 FLOOD_S = 3.0
 
@@ -99,6 +100,64 @@ def test_duplicated_replayed_and_flooded_stop_datagrams(fleet_harness: FleetHarn
     finally:
         rogue.close()
         client.reset(source="test")
+
+
+DATAGRAM_ONLY_STOPS = 9
+
+
+@pytest.mark.timing
+def test_datagram_only_stops_get_through_a_flood_of_replays(fleet_harness: FleetHarness) -> None:
+    """Stops put on the datagram path only (a client whose TCP path is backed off), as the
+    client's burst puts them (every 10 ms for 250 ms), while a rogue replays an old stop on the
+    same key as fast as it can: each is acknowledged within 1 s."""
+    h = fleet_harness
+    h.start_router()
+    h.start_sim()
+    h.start_agent("a1")
+    client = h.client()
+    wait_until(lambda: h.all_links_ok(client), 30.0)
+    wait_until(lambda: client.datagram.session is not None, 10.0)
+    rogue = open_datagram(h.inventory.endpoints, h.inventory.datagram)
+    assert rogue is not None, "the router does not listen on the datagram twin"
+    acks = FirstAcks(client)
+    old = client.stop_request(reason="to be replayed", source="test")
+    client.estop(request=old, timeout_s=10.0)
+    client.reset(source="test")
+    wait_until(lambda: _estopped(client) is False, 10.0)
+    replay, key = m.encode(old), keys.datagram_key(client.keys.estop)
+    flooding = threading.Event()
+    replayed = [0]
+
+    def flood() -> None:
+        while not flooding.is_set():
+            rogue.put(key, replay, encoding=JSON, **DATAGRAM_QOS)  # type: ignore[arg-type]
+            replayed[0] += 1
+
+    flooder = threading.Thread(target=flood, name="flood", daemon=True)
+    flooder.start()
+    times_ms: list[float | None] = []
+    try:
+        wait_until(lambda: replayed[0] > 1000, 10.0)  # the flood is on
+        for _ in range(DATAGRAM_ONLY_STOPS):
+            request = client.stop_request(reason="datagram only", source="test")
+            started = time.monotonic()
+            while time.monotonic() - started < stoppath.BURST_S:  # the client's burst
+                client.put_stop(request, datagram_only=True)
+                time.sleep(stoppath.BURST_INTERVAL_S)
+            try:
+                wait_until(lambda r=request: acks.at(r.stop_id), 1.0 - stoppath.BURST_S)
+                times_ms.append(round(((acks.at(request.stop_id) or 0.0) - started) * 1000, 1))
+            except AssertionError:
+                times_ms.append(None)
+            client.reset(source="test")
+            wait_until(lambda: _estopped(client) is False, 10.0)
+    finally:
+        flooding.set()
+        flooder.join(timeout=5.0)
+        acks.close()
+        rogue.close()
+    print(f"\ndatagram-only stops under {replayed[0]} replays: acked after {times_ms} ms")
+    assert None not in times_ms, f"datagram-only stops not acknowledged within 1 s: {times_ms}"
 
 
 def test_an_agent_started_before_its_routers_datagram_path_opens_it_later(

@@ -63,6 +63,8 @@ def test_routers_pin_the_stop_qos() -> None:
     }
     config = router_config(parse_inventory(BASE, "x.toml"), ["tcp/127.0.0.1:7447"])
     assert "d1_fleet_stops" in config.get_json("qos/network")
+    # Nothing leaves a router as BLOCK: a frozen subscriber must never hold it up.
+    assert "d1_fleet_never_wait_for_a_consumer" in config.get_json("qos/network")
     assert json.loads(config.get_json("listen/endpoints")) == [
         "tcp/127.0.0.1:7447",
         "udp/127.0.0.1:7447",
