@@ -20,9 +20,10 @@ from fleet.g1.messages import G1LowState
 from fleet.inventory import load_inventory
 from fleet.wire import keys, payloads
 from fleet.wire import messages as m
-from fleet.wire.payloads import G1_LOWSTATE
+from fleet.wire.payloads import CHOREO, G1_LOWSTATE
 from testkit.collect import Collector
 from testkit.harness import free_port, wait_until
+from testkit.load import xfail_if_overloaded
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -132,10 +133,21 @@ def test_the_demos_dance_waves_the_g1_in_time_with_the_arms(
     joints: Collector[m.Joints] = Collector(
         client.session, space.arm("a1", keys.JOINTS), payloads.JOINTS.decode
     )
+    plays: Collector[m.ChoreoStatus] = Collector(client.session, space.choreo, CHOREO.decode)
     elbow = arms.FIRST + arms.RIGHT_ARM[3]
+
+    def waved_or_stopped() -> bool:
+        waved = any(math.degrees(low.q_rad[elbow]) < -24.0 for low in lows.items)
+        return waved or any(play.state == "aborted" for play in plays.items)
+
     try:
         # the ripple's keyframe of the G1's right elbow (-25 deg; the G1 starts at 0)
-        wait_until(lambda: any(math.degrees(low.q_rad[elbow]) < -24.0 for low in lows.items), 90.0)
+        wait_until(waved_or_stopped, 90.0, explain=lambda: f"the dance: {plays.latest()}")
+        stopped = [p.reason for p in plays.items if p.state == "aborted"]
+        if not any(math.degrees(low.q_rad[elbow]) < -24.0 for low in lows.items):
+            # A player starved of CPU past the agents' 0.5 s watchdog is stopped, by design.
+            xfail_if_overloaded([f"the dance stopped before the G1 waved ({stopped[0]})"])
+            raise AssertionError(f"the dance stopped before the G1 waved: {stopped}")
         at = next(t for t, low in lows.timed if math.degrees(low.q_rad[elbow]) < -24.0)
         _t, a1 = min(joints.timed, key=lambda item: abs(item[0] - at))
         print(f"G1 right elbow at -24 deg while a1's joint 0 was {a1.angles_deg[0]:.1f} deg")
@@ -143,6 +155,7 @@ def test_the_demos_dance_waves_the_g1_in_time_with_the_arms(
     finally:
         lows.close()
         joints.close()
+        plays.close()
 
 
 def test_the_demos_children_die_with_it_even_by_sigkill(
