@@ -27,7 +27,7 @@ from fleet.client import FleetClient
 from fleet.wire import keys
 from fleet.wire import messages as m
 from fleet.wire.messages import ErrorCode, encode
-from fleet.wire.payloads import DIAG
+from fleet.wire.payloads import DIAG, RESET_ACK
 from fleet.wire.stoppath import RELIABLE_QOS
 from testkit.cmdflood import FLOODING
 from testkit.collect import Collector
@@ -108,6 +108,12 @@ def test_a_reset_never_releases_a_stop_that_arrived_after_it(
     other = next(k for k in KINDS if k.name == ("arm" if kind.name == "g1" else "g1"))
     rng = random.Random(kind.name)
     acks = LatchAcks(client, other)
+    unit_acks = LatchAcks(client, kind)
+    resets = Collector(client.session, client.unit_key(kind.unit, keys.RESET_ACK), RESET_ACK.decode)
+
+    def reset_answers() -> set[str]:
+        return {answer.reset_id for answer in resets.items}
+
     unit_stop, unit_reset = (client.unit_key(kind.unit, c) for c in (keys.ESTOP, keys.RESET))
     try:
         for ends_stopped in (True, False):
@@ -119,10 +125,23 @@ def test_a_reset_never_releases_a_stop_that_arrived_after_it(
                 fleet_wide = rng.random() < 0.3
                 if is_stop:
                     key = client.keys.estop if fleet_wide else unit_stop
-                    client.session.put(key, _stop(kind.unit, uuid.uuid4().hex), **RELIABLE_QOS)
+                    last_id = uuid.uuid4().hex
+                    last_put = (key, _stop(kind.unit, last_id))
                 else:
                     key = client.keys.reset if fleet_wide else unit_reset
-                    client.session.put(key, _reset(), **RELIABLE_QOS)
+                    last_id = uuid.uuid4().hex
+                    last_put = (key, encode(m.ResetRequest(time.time_ns(), "test", last_id)))
+                client.session.put(*last_put, **RELIABLE_QOS)
+
+            # The last one is put again until its unit answers it, as every client repeats a
+            # stop until acknowledged: a router drops what a session's full queue cannot take
+            # for 50 ms (ROUTER_DROP_WAIT_US), and a lost last put is no ordering fault. Its
+            # repeat changes nothing once it was acted on (same stop id; the same reset).
+            def last_answered(put: tuple[str, bytes] = last_put, answer: str = last_id) -> bool:
+                client.session.put(*put, **RELIABLE_QOS)
+                return unit_acks.has(answer) or answer in reset_answers()
+
+            wait_until(last_answered, 10.0, interval_s=0.2)
             sentinel = uuid.uuid4().hex
             sentinel_stop = _stop(other.unit, sentinel)
 
@@ -153,6 +172,8 @@ def test_a_reset_never_releases_a_stop_that_arrived_after_it(
                 raise AssertionError(f"ends stopped {ends_stopped}: last {last}") from None
     finally:
         acks.close()
+        unit_acks.close()
+        resets.close()
 
 
 class LatchAcks:
