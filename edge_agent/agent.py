@@ -39,7 +39,7 @@ import msgspec
 
 from edge_agent.device_server import DeviceServer
 from edge_agent.inbox import CommandInbox, InboxCounters, SafetyInbox
-from edge_agent.latches import LatchStore, default_state_dir
+from edge_agent.latches import LatchStore
 from edge_agent.link import DdsLink
 from edge_agent.mount_leases import MountLeases
 from edge_agent.relay import ZenohRelay, principal_of
@@ -56,6 +56,7 @@ from fleet.devices.served import CoreServices, KindSide
 from fleet.devices.unit import Outbox, Unit, UnitServer
 from fleet.guard import ThreadGuard
 from fleet.inventory import Inventory
+from fleet.state_dir import default_state_dir
 from fleet.wire import keys
 from fleet.wire import messages as m
 from fleet.wire.messages import encode

@@ -45,7 +45,6 @@ from fleet.wire import payloads
 
 log = logging.getLogger("edge_agent.latches")
 
-STATE_ENV = "D1_FLEET_STATE_DIR"
 MAX_LATCH_BYTES = 64 * 1024
 """A latched stop is one small StopRequest: a bigger file is refused (and latches anyway)."""
 RETRY_S = 0.5
@@ -59,15 +58,6 @@ Outcome = Callable[[str, "str | None"], None]
 
 class LatchDirError(ValueError):
     """The latch directory cannot be used (a symbolic link, not a directory, not creatable)."""
-
-
-def default_state_dir() -> Path:
-    """Where agents keep their latched stops unless told otherwise."""
-    given = os.environ.get(STATE_ENV)
-    if given:
-        return Path(given)
-    base = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
-    return Path(base) / "d1-fleet"
 
 
 def latch_dir(state_dir: Path, fleet: str, domain: int) -> Path:

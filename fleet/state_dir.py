@@ -1,7 +1,7 @@
 """Where the fleet's processes keep state across restarts on this host: ``$D1_FLEET_STATE_DIR``,
 else ``$XDG_STATE_HOME/d1-fleet``, else ``~/.local/state/d1-fleet`` (the demo gives each run a
-directory of its own). The agents keep their latched stops there (edge_agent/latches.py, which
-still spells the same rule itself: it should import this), the viewer its token."""
+directory of its own). The agents keep their latched stops there (edge_agent/latches.py), the
+viewer its token (fleet/web/token_store.py)."""
 
 from __future__ import annotations
 
