@@ -315,9 +315,11 @@ def _common_argv(args: argparse.Namespace, inventory: Inventory) -> list[str]:
 DANCE = "dance"
 """The demo's child that plays the choreography: not supervised (a stop ends it, and the fleet
 is fine without it; the operator starts it again)."""
-PATIENCE_S = 5.0
+PATIENCE_S = 8.0
 """How long the demo's children have, in all, to shut down cleanly (an agent holds its robots
-first) after the demo's SIGTERM; then SIGKILL."""
+first) after the demo's SIGTERM; then SIGKILL. A G1's agent releases its arms before it exits,
+a weight ramp of ``arm_release_s`` (3-5 s): at 5 s a loaded host's agent was killed mid-ramp
+(the weight left between 1 and 0). The agent's own shutdown bound is 8 s too."""
 PATIENCE_STARTING_S = 1.5
 """The same when the demo is stopped while it starts them: a child may be mid start-up (a DDS
 participant, a session to a router) with its handler set, and nothing is commanded yet."""
